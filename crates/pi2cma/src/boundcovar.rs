@@ -1,0 +1,225 @@
+//! `boundcovar` (Algorithm 1, line 24): clip the eigenvalues of a covariance matrix to
+//! [λ_min, λ_max] and rebuild it. The eigenvalues are bounded, not the diagonal: clamping the
+//! diagonal leaves the largest eigenvalue unbounded and can make Σ indefinite.
+
+use nalgebra::DMatrix;
+
+use crate::error::ParameterError;
+
+/// Bounds on the eigenvalues of Σ. `max = f64::INFINITY` means no upper bound.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EigenvalueBounds {
+    pub min: f64,
+    pub max: f64,
+}
+
+impl EigenvalueBounds {
+    pub fn new(min: f64, max: f64) -> Result<Self, ParameterError> {
+        if !(min.is_finite() && min >= 0.0) {
+            return Err(ParameterError::OutOfRange {
+                field: "lambda_min",
+                value: min.to_string(),
+                reason: "must be finite and >= 0",
+            });
+        }
+        if max.is_nan() || max < min {
+            return Err(ParameterError::OutOfRange {
+                field: "lambda_max",
+                value: max.to_string(),
+                reason: "must be >= lambda_min",
+            });
+        }
+        Ok(Self { min, max })
+    }
+
+    pub fn unbounded() -> Self {
+        Self {
+            min: 0.0,
+            max: f64::INFINITY,
+        }
+    }
+
+    #[inline]
+    pub fn clip(&self, v: f64) -> f64 {
+        v.max(self.min).min(self.max)
+    }
+}
+
+/// Eigenvalues (ascending order not guaranteed) and eigenvectors (columns) of a symmetric matrix.
+pub fn symmetric_eigen(m: &DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
+    if m.nrows() == 2 {
+        let (l, v) = eigen2(m[(0, 0)], m[(0, 1)], m[(1, 1)]);
+        return (
+            l.to_vec(),
+            DMatrix::from_column_slice(2, 2, &[v[0][0], v[0][1], v[1][0], v[1][1]]),
+        );
+    }
+    let e = m.clone().symmetric_eigen();
+    (e.eigenvalues.iter().cloned().collect(), e.eigenvectors)
+}
+
+pub fn largest_eigenvalue(m: &DMatrix<f64>) -> f64 {
+    match m.nrows() {
+        0 => 0.0,
+        1 => m[(0, 0)],
+        2 => {
+            let (l, _) = eigen2(m[(0, 0)], m[(0, 1)], m[(1, 1)]);
+            l[0].max(l[1])
+        }
+        _ => symmetric_eigen(m)
+            .0
+            .into_iter()
+            .fold(f64::NEG_INFINITY, f64::max),
+    }
+}
+
+/// Closed-form eigen-decomposition of the symmetric 2×2 matrix [[a, b], [b, c]]:
+/// returns the eigenvalues and unit eigenvectors (as [x, y] pairs).
+#[inline]
+pub fn eigen2(a: f64, b: f64, c: f64) -> ([f64; 2], [[f64; 2]; 2]) {
+    let half_trace = 0.5 * (a + c);
+    let half_diff = 0.5 * (a - c);
+    let r = half_diff.hypot(b);
+    let l1 = half_trace + r;
+    let l2 = half_trace - r;
+    if b == 0.0 {
+        // Already diagonal: keep the axes so that clipping leaves a diagonal matrix diagonal.
+        return ([a, c], [[1.0, 0.0], [0.0, 1.0]]);
+    }
+    // Eigenvector of l1: (b, l1 − a), normalised; the other is orthogonal to it.
+    let (x, y) = if half_diff >= 0.0 {
+        (l1 - c, b)
+    } else {
+        (b, l1 - a)
+    };
+    let n = x.hypot(y);
+    let (x, y) = (x / n, y / n);
+    ([l1, l2], [[x, y], [-y, x]])
+}
+
+/// boundcovar for a symmetric 2×2 matrix given as (a, b, c); returns the bounded (a, b, c).
+#[inline]
+pub fn boundcovar2(a: f64, b: f64, c: f64, bounds: EigenvalueBounds) -> (f64, f64, f64) {
+    let (l, v) = eigen2(a, b, c);
+    let (l0, l1) = (bounds.clip(l[0]), bounds.clip(l[1]));
+    if l0 == l[0] && l1 == l[1] {
+        return (a, b, c);
+    }
+    let ([x0, y0], [x1, y1]) = (v[0], v[1]);
+    (
+        l0 * x0 * x0 + l1 * x1 * x1,
+        l0 * x0 * y0 + l1 * x1 * y1,
+        l0 * y0 * y0 + l1 * y1 * y1,
+    )
+}
+
+/// boundcovar for a symmetric matrix of any size: V·clip(Λ)·Vᵀ, symmetrised exactly.
+pub fn boundcovar(m: &DMatrix<f64>, bounds: EigenvalueBounds) -> DMatrix<f64> {
+    let n = m.nrows();
+    if n == 2 {
+        let (a, b, c) = boundcovar2(m[(0, 0)], m[(0, 1)], m[(1, 1)], bounds);
+        return DMatrix::from_row_slice(2, 2, &[a, b, b, c]);
+    }
+    let (values, vectors) = symmetric_eigen(m);
+    let mut scaled = vectors.clone();
+    for (j, v) in values.iter().enumerate() {
+        scaled.column_mut(j).scale_mut(bounds.clip(*v));
+    }
+    let out = scaled * vectors.transpose();
+    // Rounding leaves V·Λ·Vᵀ asymmetric in the last bits; Σ must be exactly symmetric.
+    (&out + out.transpose()) * 0.5
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    fn random_symmetric(rng: &mut impl Rng, n: usize) -> DMatrix<f64> {
+        let a = DMatrix::from_fn(n, n, |_, _| rng.random_range(-10.0..10.0));
+        // Mix of PSD (AᵀA) and indefinite inputs.
+        if rng.random_bool(0.5) {
+            a.transpose() * &a
+        } else {
+            (&a + a.transpose()) * 0.5
+        }
+    }
+
+    #[test]
+    fn property_symmetric_psd_and_within_bounds() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for trial in 0..500 {
+            let n = 1 + trial % 6;
+            let m = random_symmetric(&mut rng, n);
+            let min = rng.random_range(0.0..5.0);
+            let max = if rng.random_bool(0.3) {
+                f64::INFINITY
+            } else {
+                min + rng.random_range(0.0..50.0)
+            };
+            let bounds = EigenvalueBounds::new(min, max).unwrap();
+            let b = boundcovar(&m, bounds);
+            assert_eq!(b, b.transpose(), "not symmetric: {b}");
+            let e = b.clone().symmetric_eigen();
+            let tol = 1e-9 * (1.0 + m.amax());
+            for l in e.eigenvalues.iter() {
+                assert!(*l >= -tol, "not PSD: {l}");
+                assert!(
+                    *l >= min - tol && *l <= max + tol,
+                    "{l} outside [{min}, {max}]"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn matrix_within_bounds_is_unchanged() {
+        let m = DMatrix::from_row_slice(2, 2, &[3.0, 1.0, 1.0, 3.0]);
+        assert_eq!(boundcovar(&m, EigenvalueBounds::new(1.0, 5.0).unwrap()), m);
+    }
+
+    #[test]
+    fn bounds_eigenvalues_not_the_diagonal() {
+        // Diagonal 1, eigenvalues 1.9 and 0.1: a diagonal clamp to [0.5, 1.5] would change
+        // nothing, the eigenvalue bound must.
+        let m = DMatrix::from_row_slice(2, 2, &[1.0, 0.9, 0.9, 1.0]);
+        let b = boundcovar(&m, EigenvalueBounds::new(0.5, 1.5).unwrap());
+        let mut l = symmetric_eigen(&b).0;
+        l.sort_by(f64::total_cmp);
+        assert!(
+            (l[0] - 0.5).abs() < 1e-12 && (l[1] - 1.5).abs() < 1e-12,
+            "{l:?}"
+        );
+        let b3 = boundcovar(
+            &DMatrix::from_row_slice(3, 3, &[1.0, 0.9, 0.0, 0.9, 1.0, 0.0, 0.0, 0.0, 1.0]),
+            EigenvalueBounds::new(0.5, 1.5).unwrap(),
+        );
+        assert!((largest_eigenvalue(&b3) - 1.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn eigen2_matches_general_solver() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..200 {
+            let (a, b, c) = (
+                rng.random_range(-5.0..5.0),
+                rng.random_range(-5.0..5.0),
+                rng.random_range(-5.0..5.0),
+            );
+            let (l, v) = eigen2(a, b, c);
+            let m = nalgebra::Matrix2::new(a, b, b, c);
+            for i in 0..2 {
+                let x = nalgebra::Vector2::new(v[i][0], v[i][1]);
+                assert!((m * x - x * l[i]).amax() < 1e-9);
+                assert!((x.norm() - 1.0).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_inverted_bounds() {
+        assert!(EigenvalueBounds::new(2.0, 1.0).is_err());
+        assert!(EigenvalueBounds::new(-1.0, 1.0).is_err());
+        assert!(EigenvalueBounds::new(f64::NAN, 1.0).is_err());
+    }
+}

@@ -1,0 +1,233 @@
+//! Cost trajectories: what a rollout returns, and the batch of K of them an update consumes.
+
+use crate::error::CostError;
+
+/// The cost of one rollout: an immediate cost q_i per time step and a terminal cost φ_N.
+///
+/// Episodic tasks that only know a total cost report it as `terminal` with zero step costs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CostTrajectory {
+    pub per_step: Vec<f64>,
+    pub terminal: f64,
+}
+
+impl CostTrajectory {
+    pub fn zeros(steps: usize) -> Self {
+        Self {
+            per_step: vec![0.0; steps],
+            terminal: 0.0,
+        }
+    }
+
+    /// S_{0}: the total cost of the rollout.
+    pub fn total(&self) -> f64 {
+        self.terminal + self.per_step.iter().sum::<f64>()
+    }
+
+    /// Checks that every value is finite; a NaN or infinite cost would silently poison the weights.
+    pub fn validate(&self, rollout: usize) -> Result<(), CostError> {
+        if !self.terminal.is_finite() {
+            return Err(CostError::NonFinite {
+                rollout,
+                step: None,
+                value: self.terminal,
+            });
+        }
+        if let Some((step, &value)) = self
+            .per_step
+            .iter()
+            .enumerate()
+            .find(|(_, c)| !c.is_finite())
+        {
+            return Err(CostError::NonFinite {
+                rollout,
+                step: Some(step),
+                value,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The K cost trajectories of one update, indexed by rollout, so the order in which they arrive
+/// (from workers that finish in any order) cannot change the result.
+#[derive(Debug, Clone)]
+pub struct CostBatch {
+    steps: usize,
+    /// Row-major K × N immediate costs.
+    per_step: Vec<f64>,
+    terminal: Vec<f64>,
+    filled: Vec<bool>,
+}
+
+impl CostBatch {
+    pub fn new(rollouts: usize, steps: usize) -> Self {
+        Self {
+            steps,
+            per_step: vec![0.0; rollouts * steps],
+            terminal: vec![0.0; rollouts],
+            filled: vec![false; rollouts],
+        }
+    }
+
+    pub fn rollouts(&self) -> usize {
+        self.terminal.len()
+    }
+
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// Stores rollout `k`'s costs. Rejects non-finite values, a wrong length, an index out of range
+    /// and a rollout told twice.
+    pub fn insert(&mut self, k: usize, per_step: &[f64], terminal: f64) -> Result<(), CostError> {
+        let rollouts = self.rollouts();
+        if k >= rollouts {
+            return Err(CostError::RolloutOutOfRange {
+                rollout: k,
+                rollouts,
+            });
+        }
+        if per_step.len() != self.steps {
+            return Err(CostError::WrongLength {
+                rollout: k,
+                expected: self.steps,
+                got: per_step.len(),
+            });
+        }
+        if self.filled[k] {
+            return Err(CostError::Duplicate { rollout: k });
+        }
+        if !terminal.is_finite() {
+            return Err(CostError::NonFinite {
+                rollout: k,
+                step: None,
+                value: terminal,
+            });
+        }
+        if let Some((step, &value)) = per_step.iter().enumerate().find(|(_, c)| !c.is_finite()) {
+            return Err(CostError::NonFinite {
+                rollout: k,
+                step: Some(step),
+                value,
+            });
+        }
+        self.per_step[k * self.steps..(k + 1) * self.steps].copy_from_slice(per_step);
+        self.terminal[k] = terminal;
+        self.filled[k] = true;
+        Ok(())
+    }
+
+    pub fn insert_trajectory(&mut self, k: usize, cost: &CostTrajectory) -> Result<(), CostError> {
+        self.insert(k, &cost.per_step, cost.terminal)
+    }
+
+    /// Mutable access for callers that compute costs in place (the in-process runner); the
+    /// rollout is marked as filled and must then pass [`CostBatch::validate_filled`].
+    pub fn slot_mut(&mut self, k: usize) -> (&mut [f64], &mut f64) {
+        self.filled[k] = true;
+        (
+            &mut self.per_step[k * self.steps..(k + 1) * self.steps],
+            &mut self.terminal[k],
+        )
+    }
+
+    pub fn is_complete(&self) -> bool {
+        self.filled.iter().all(|f| *f)
+    }
+
+    pub fn missing(&self) -> impl Iterator<Item = usize> + '_ {
+        self.filled
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| !**f)
+            .map(|(k, _)| k)
+    }
+
+    pub fn per_step(&self, k: usize) -> &[f64] {
+        &self.per_step[k * self.steps..(k + 1) * self.steps]
+    }
+
+    pub fn terminal(&self, k: usize) -> f64 {
+        self.terminal[k]
+    }
+
+    pub fn total(&self, k: usize) -> f64 {
+        self.terminal[k] + self.per_step(k).iter().sum::<f64>()
+    }
+
+    pub fn trajectory(&self, k: usize) -> CostTrajectory {
+        CostTrajectory {
+            per_step: self.per_step(k).to_vec(),
+            terminal: self.terminal[k],
+        }
+    }
+
+    /// Re-checks every value; used after in-place writes through [`CostBatch::slot_mut`].
+    pub fn validate_filled(&self) -> Result<(), CostError> {
+        if let Some(k) = self.missing().next() {
+            return Err(CostError::Missing { rollout: k });
+        }
+        for k in 0..self.rollouts() {
+            let t = self.terminal[k];
+            if !t.is_finite() {
+                return Err(CostError::NonFinite {
+                    rollout: k,
+                    step: None,
+                    value: t,
+                });
+            }
+            if let Some((step, &value)) = self
+                .per_step(k)
+                .iter()
+                .enumerate()
+                .find(|(_, c)| !c.is_finite())
+            {
+                return Err(CostError::NonFinite {
+                    rollout: k,
+                    step: Some(step),
+                    value,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    pub fn clear(&mut self) {
+        self.filled.iter_mut().for_each(|f| *f = false);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejects_nan_and_inf_with_location() {
+        let mut b = CostBatch::new(2, 3);
+        let e = b.insert(1, &[0.0, f64::NAN, 1.0], 0.0).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "cost of rollout 1 at step 1 is NaN; costs must be finite"
+        );
+        let e = b.insert(0, &[0.0, 0.0, 1.0], f64::INFINITY).unwrap_err();
+        assert!(e.to_string().contains("terminal"), "{e}");
+        assert!(!b.is_complete());
+    }
+
+    #[test]
+    fn rejects_duplicates_and_wrong_lengths() {
+        let mut b = CostBatch::new(2, 2);
+        b.insert(0, &[1.0, 2.0], 3.0).unwrap();
+        assert!(matches!(
+            b.insert(0, &[1.0, 2.0], 3.0),
+            Err(CostError::Duplicate { rollout: 0 })
+        ));
+        assert!(matches!(
+            b.insert(1, &[1.0], 3.0),
+            Err(CostError::WrongLength { .. })
+        ));
+        assert_eq!(b.missing().collect::<Vec<_>>(), vec![1]);
+        assert_eq!(b.total(0), 6.0);
+    }
+}

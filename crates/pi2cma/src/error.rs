@@ -1,0 +1,58 @@
+//! One error enum per kind of operation, each naming the offending value.
+
+use thiserror::Error;
+
+/// A cost trajectory that cannot enter an update.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum CostError {
+    #[error("cost of rollout {rollout} {} is {value}; costs must be finite", match step { Some(s) => format!("at step {s}"), None => "(terminal)".to_string() })]
+    NonFinite {
+        rollout: usize,
+        step: Option<usize>,
+        value: f64,
+    },
+    #[error("rollout index {rollout} out of range: the update has {rollouts} rollouts")]
+    RolloutOutOfRange { rollout: usize, rollouts: usize },
+    #[error("cost trajectory of rollout {rollout} has {got} steps, expected {expected}")]
+    WrongLength {
+        rollout: usize,
+        expected: usize,
+        got: usize,
+    },
+    #[error("rollout {rollout} was told twice in the same update")]
+    Duplicate { rollout: usize },
+    #[error("rollout {rollout} has not been told yet")]
+    Missing { rollout: usize },
+    #[error("cost batch is for update {got}, the optimizer is at update {expected}")]
+    WrongUpdate { expected: u64, got: u64 },
+    #[error("cost batch has {got} rollouts of {got_steps} steps, expected {expected} of {expected_steps}")]
+    WrongShape {
+        expected: usize,
+        expected_steps: usize,
+        got: usize,
+        got_steps: usize,
+    },
+}
+
+/// Hyperparameters or an initial distribution that cannot run.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ParameterError {
+    #[error("{field} = {value}: {reason}")]
+    OutOfRange {
+        field: &'static str,
+        value: String,
+        reason: &'static str,
+    },
+    #[error("covariance is {rows}×{cols} but the mean has {dim} entries")]
+    ShapeMismatch {
+        dim: usize,
+        rows: usize,
+        cols: usize,
+    },
+    #[error(
+        "covariance is not symmetric positive semi-definite (smallest eigenvalue {min_eigenvalue})"
+    )]
+    NotPositiveSemiDefinite { min_eigenvalue: f64 },
+    #[error("distribution contains a non-finite value")]
+    NonFinite,
+}

@@ -1,0 +1,191 @@
+//! Ask/tell: the state machine every executor drives (the in-process runner, the multiprocess
+//! pipeline, a user's own loop). Call [`Optimizer::ask`] for the batch of update u, run its
+//! rollouts anywhere and in any order, then [`Optimizer::tell`] the costs to get update u + 1.
+
+use crate::cost::CostBatch;
+use crate::distribution::{Distribution, NoiseKey};
+use crate::error::{CostError, ParameterError};
+use crate::update::{Exploration, Hyperparameters, UpdateRule, Weighting};
+
+/// The K parameter vectors of one update, row-major K × P. Row 0 is the noise-free evaluation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParameterBatch {
+    pub seed: u64,
+    pub update: u64,
+    pub rollouts: usize,
+    pub dim: usize,
+    pub values: Vec<f64>,
+}
+
+impl ParameterBatch {
+    /// Draws the batch of `update` from `distribution`. A pure function of its arguments: any
+    /// process computing it gets the same bits.
+    pub fn sample(distribution: &Distribution, seed: u64, update: u64, rollouts: usize) -> Self {
+        let dim = distribution.dim();
+        let mut values = vec![0.0; rollouts * dim];
+        let mut sampler = distribution.sampler();
+        for (k, row) in values.chunks_exact_mut(dim.max(1)).enumerate() {
+            sampler.sample_into(
+                NoiseKey {
+                    seed,
+                    update,
+                    rollout: k as u64,
+                },
+                row,
+            );
+        }
+        Self {
+            seed,
+            update,
+            rollouts,
+            dim,
+            values,
+        }
+    }
+
+    pub fn row(&self, k: usize) -> &[f64] {
+        &self.values[k * self.dim..(k + 1) * self.dim]
+    }
+}
+
+/// What one update did, for learning curves and recordings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UpdateSummary {
+    /// Index u of the update whose rollouts were told (0-based).
+    pub update: u64,
+    /// Total cost of the evaluation rollout 0 (θ_0 = θ).
+    pub eval_cost: f64,
+    /// Mean and sample standard deviation of the total costs of rollouts 1..K.
+    pub exploration_cost_mean: f64,
+    pub exploration_cost_std: f64,
+    /// λ_u: largest eigenvalue of the Σ the batch was sampled from.
+    pub lambda: f64,
+    /// Largest eigenvalue of the new Σ.
+    pub lambda_next: f64,
+    /// Per-rollout probability used for the mean update (time-averaged in per-time-step mode).
+    pub weights: Vec<f64>,
+    pub weighting: Weighting,
+}
+
+/// The sans-IO optimizer: distribution, update counter and seed, nothing else.
+#[derive(Debug, Clone)]
+pub struct Optimizer {
+    rule: UpdateRule,
+    distribution: Distribution,
+    seed: u64,
+    update: u64,
+    lambda: f64,
+    batch: Option<ParameterBatch>,
+}
+
+impl Optimizer {
+    pub fn new(
+        hp: Hyperparameters,
+        initial: Distribution,
+        steps: usize,
+        seed: u64,
+        basis_activations: Option<&[f64]>,
+    ) -> Result<Self, ParameterError> {
+        let rule = UpdateRule::new(hp, initial.dim(), steps, basis_activations)?;
+        Ok(Self::resume(rule, initial, seed, 0))
+    }
+
+    /// Continues a run from a known state (e.g. a recording, or another process's copy).
+    pub fn resume(rule: UpdateRule, distribution: Distribution, seed: u64, update: u64) -> Self {
+        let lambda = distribution.largest_eigenvalue();
+        Self {
+            rule,
+            distribution,
+            seed,
+            update,
+            lambda,
+            batch: None,
+        }
+    }
+
+    pub fn distribution(&self) -> &Distribution {
+        &self.distribution
+    }
+
+    pub fn hyperparameters(&self) -> &Hyperparameters {
+        self.rule.hyperparameters()
+    }
+
+    pub fn update_index(&self) -> u64 {
+        self.update
+    }
+
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    pub fn steps(&self) -> usize {
+        self.rule.steps()
+    }
+
+    /// λ of the current distribution.
+    pub fn lambda(&self) -> f64 {
+        self.lambda
+    }
+
+    /// An empty cost batch of the right shape for the current update.
+    pub fn cost_batch(&self) -> CostBatch {
+        CostBatch::new(self.rule.hyperparameters().rollouts, self.rule.steps())
+    }
+
+    /// The batch for the current update; asking twice returns the same batch.
+    pub fn ask(&mut self) -> &ParameterBatch {
+        let stale = self.batch.as_ref().is_none_or(|b| b.update != self.update);
+        if stale {
+            self.batch = Some(ParameterBatch::sample(
+                &self.distribution,
+                self.seed,
+                self.update,
+                self.rule.hyperparameters().rollouts,
+            ));
+        }
+        self.batch.as_ref().expect("batch was just sampled")
+    }
+
+    /// Tells the costs of the current update's batch; advances to the next update.
+    pub fn tell(&mut self, costs: &CostBatch) -> Result<UpdateSummary, CostError> {
+        self.ask();
+        let batch = self.batch.as_ref().expect("ask() fills the batch");
+        let (new, weights) = self.rule.update(&self.distribution, &batch.values, costs)?;
+        let k = costs.rollouts();
+        let eval_cost = costs.total(0);
+        let (mut mean, mut sq) = (0.0, 0.0);
+        let explore = k - 1;
+        for r in 1..k {
+            mean += costs.total(r);
+        }
+        mean /= explore.max(1) as f64;
+        for r in 1..k {
+            let d = costs.total(r) - mean;
+            sq += d * d;
+        }
+        let std = if explore > 1 {
+            (sq / (explore - 1) as f64).sqrt()
+        } else {
+            0.0
+        };
+        let lambda_next = match self.rule.hyperparameters().exploration {
+            Exploration::Constant => self.lambda,
+            _ => new.largest_eigenvalue(),
+        };
+        let summary = UpdateSummary {
+            update: self.update,
+            eval_cost,
+            exploration_cost_mean: mean,
+            exploration_cost_std: std,
+            lambda: self.lambda,
+            lambda_next,
+            weights: weights.per_rollout,
+            weighting: self.rule.hyperparameters().weighting,
+        };
+        self.distribution = new;
+        self.lambda = lambda_next;
+        self.update += 1;
+        Ok(summary)
+    }
+}

@@ -1,0 +1,341 @@
+//! Whole-update tests: hand-computed updates, a literal Algorithm 1 as reference for every
+//! covariance kernel, determinism and order independence.
+
+use nalgebra::{DMatrix, DVector};
+use rand::{Rng, SeedableRng};
+
+use crate::*;
+
+fn hp(
+    k: usize,
+    mapping: CostMapping,
+    exploration: Exploration,
+    weighting: Weighting,
+) -> Hyperparameters {
+    Hyperparameters {
+        rollouts: k,
+        mapping,
+        exploration,
+        weighting,
+        evaluation_in_update: true,
+    }
+}
+
+const PER_STEP: Weighting = Weighting::PerTimeStep {
+    temporal: TemporalAveraging::RemainingSteps,
+};
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-14 * (1.0 + b.abs())
+}
+
+/// K = 3, N = 2, P = 2, h = 2·ln 2 so that every exponential is a power of 2. Worked by hand:
+/// step 1: S = (1, 1, 0) → p = (1/6, 1/6, 2/3); step 0: S = (2, 1, 2) → p = (1/6, 2/3, 1/6);
+/// temporal weights (2/3, 1/3); θ_new = (1/2, 2/3);
+/// Σ_0 = diag(2/3, 2/3), Σ_1 = diag(1/6, 8/3) → bounded to [0.5, 2]: diag(1/2, 2);
+/// Σ_new = diag(11/18, 10/9).
+#[test]
+fn small_update_matches_hand_computation() {
+    let bounds = EigenvalueBounds::new(0.5, 2.0).unwrap();
+    let h = 2.0 * std::f64::consts::LN_2;
+    let mut rule = UpdateRule::new(
+        hp(
+            3,
+            CostMapping::Exponential { eliteness: h },
+            Exploration::Adaptive { bounds },
+            PER_STEP,
+        ),
+        2,
+        2,
+        None,
+    )
+    .unwrap();
+    let old = Distribution::isotropic(DVector::zeros(2), 1.0).unwrap();
+    let samples = [0.0, 0.0, 1.0, 0.0, 0.0, 2.0];
+    let mut costs = CostBatch::new(3, 2);
+    costs.insert(0, &[1.0, 1.0], 0.0).unwrap();
+    costs.insert(1, &[0.0, 1.0], 0.0).unwrap();
+    costs.insert(2, &[2.0, 0.0], 0.0).unwrap();
+    let (new, w) = rule.update(&old, &samples, &costs).unwrap();
+    assert!(
+        close(new.mean[0], 0.5) && close(new.mean[1], 2.0 / 3.0),
+        "{}",
+        new.mean
+    );
+    let c = &new.covariance;
+    assert!(close(c[(0, 0)], 11.0 / 18.0), "{c}");
+    assert!(close(c[(1, 1)], 10.0 / 9.0), "{c}");
+    assert_eq!(c[(0, 1)], 0.0);
+    assert_eq!(c[(1, 0)], 0.0);
+    // Time-averaged weights: 2/3·(1/6, 2/3, 1/6) + 1/3·(1/6, 1/6, 2/3).
+    let expect = [1.0 / 6.0, 1.0 / 2.0, 1.0 / 3.0];
+    for (a, b) in w.per_rollout.iter().zip(expect) {
+        assert!(close(*a, b), "{:?}", w.per_rollout);
+    }
+
+    // Episodic: totals (2, 1, 2) → p = (1/6, 2/3, 1/6), θ = (2/3, 1/3), Σ = diag(2/3, 2/3).
+    let mut rule = UpdateRule::new(
+        hp(
+            3,
+            CostMapping::Exponential { eliteness: h },
+            Exploration::Adaptive { bounds },
+            Weighting::Episodic,
+        ),
+        2,
+        2,
+        None,
+    )
+    .unwrap();
+    let (new, _) = rule.update(&old, &samples, &costs).unwrap();
+    assert!(close(new.mean[0], 2.0 / 3.0) && close(new.mean[1], 1.0 / 3.0));
+    assert!(close(new.covariance[(0, 0)], 2.0 / 3.0));
+    assert!(close(new.covariance[(1, 1)], 2.0 / 3.0));
+
+    // CEM with one elite (rollout 1): θ = θ_1, Σ = ε_1 ε_1ᵀ = diag(1, 0), bounded to [0.5, 2].
+    let mut rule = UpdateRule::new(
+        hp(
+            3,
+            CostMapping::Elites { count: 1 },
+            Exploration::Adaptive { bounds },
+            Weighting::Episodic,
+        ),
+        2,
+        2,
+        None,
+    )
+    .unwrap();
+    let (new, _) = rule.update(&old, &samples, &costs).unwrap();
+    assert_eq!(new.mean.as_slice(), &[1.0, 0.0]);
+    assert_eq!(new.covariance.as_slice(), &[1.0, 0.0, 0.0, 0.5]);
+}
+
+#[test]
+fn constant_and_decay_exploration() {
+    let old = Distribution::isotropic(DVector::zeros(2), 8.0).unwrap();
+    let samples = [0.0, 0.0, 1.0, 0.0, 0.0, 2.0];
+    let mut costs = CostBatch::new(3, 1);
+    for k in 0..3 {
+        costs.insert(k, &[k as f64], 0.0).unwrap();
+    }
+    for (exploration, expect) in [
+        (Exploration::Constant, 8.0),
+        (Exploration::Decay { factor: 0.8 }, 6.4),
+    ] {
+        let mut rule = UpdateRule::new(
+            hp(
+                3,
+                CostMapping::Exponential { eliteness: 10.0 },
+                exploration,
+                PER_STEP,
+            ),
+            2,
+            1,
+            None,
+        )
+        .unwrap();
+        let (new, _) = rule.update(&old, &samples, &costs).unwrap();
+        assert_eq!(new.covariance[(0, 0)], expect);
+        assert_eq!(new.covariance[(0, 1)], 0.0);
+        assert!(new.mean[0] > 0.0);
+    }
+}
+
+/// Algorithm 1 exactly as printed, with dense matrices, as a reference for the fast kernels.
+fn literal_algorithm_1(
+    theta: &DVector<f64>,
+    samples: &[DVector<f64>],
+    q: &[Vec<f64>],
+    phi: &[f64],
+    h: f64,
+    bounds: EigenvalueBounds,
+) -> (DVector<f64>, DMatrix<f64>) {
+    let (k, n, p) = (samples.len(), q[0].len(), theta.len());
+    let mut num_theta = DVector::zeros(p);
+    let mut num_sigma = DMatrix::zeros(p, p);
+    let mut den = 0.0;
+    for i in 0..n {
+        let s: Vec<f64> = (0..k)
+            .map(|kk| phi[kk] + q[kk][i..].iter().sum::<f64>())
+            .collect();
+        let lo = s.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = s.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        let e: Vec<f64> = s
+            .iter()
+            .map(|v| (-h * (v - lo) / (hi - lo)).exp())
+            .collect();
+        let sum: f64 = e.iter().sum();
+        let mut th = DVector::zeros(p);
+        let mut sg = DMatrix::zeros(p, p);
+        for kk in 0..k {
+            let d = &samples[kk] - theta;
+            th += &d * (e[kk] / sum);
+            sg += &d * d.transpose() * (e[kk] / sum);
+        }
+        let sg = boundcovar(&sg, bounds);
+        let w = (n - i) as f64;
+        num_theta += th * w;
+        num_sigma += sg * w;
+        den += w;
+    }
+    (theta + num_theta / den, num_sigma / den)
+}
+
+#[test]
+fn every_covariance_kernel_matches_literal_algorithm_1() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    // P = 2 (closed form), 3 ≤ K (dense), 6 and 12 > K (low rank).
+    for &p in &[2usize, 3, 6, 12] {
+        for trial in 0..20 {
+            let (k, n) = (5, 7);
+            let theta = DVector::from_fn(p, |_, _| rng.random_range(-1.0..1.0));
+            let samples: Vec<DVector<f64>> = (0..k)
+                .map(|kk| {
+                    if kk == 0 {
+                        theta.clone()
+                    } else {
+                        DVector::from_fn(p, |_, _| rng.random_range(-3.0..3.0))
+                    }
+                })
+                .collect();
+            let q: Vec<Vec<f64>> = (0..k)
+                .map(|_| (0..n).map(|_| rng.random_range(0.0..1.0)).collect())
+                .collect();
+            let phi: Vec<f64> = (0..k).map(|_| rng.random_range(0.0..2.0)).collect();
+            let bounds = if trial % 3 == 0 {
+                EigenvalueBounds::unbounded()
+            } else {
+                EigenvalueBounds::new(rng.random_range(0.0..0.5), rng.random_range(1.0..4.0))
+                    .unwrap()
+            };
+            let h = 10.0;
+            let (mean, cov) = literal_algorithm_1(&theta, &samples, &q, &phi, h, bounds);
+            let mut rule = UpdateRule::new(
+                hp(
+                    k,
+                    CostMapping::Exponential { eliteness: h },
+                    Exploration::Adaptive { bounds },
+                    PER_STEP,
+                ),
+                p,
+                n,
+                None,
+            )
+            .unwrap();
+            let flat: Vec<f64> = samples.iter().flat_map(|s| s.iter().cloned()).collect();
+            let mut costs = CostBatch::new(k, n);
+            for kk in 0..k {
+                costs.insert(kk, &q[kk], phi[kk]).unwrap();
+            }
+            let old = Distribution::isotropic(theta.clone(), 1.0).unwrap();
+            let (new, _) = rule.update(&old, &flat, &costs).unwrap();
+            assert!((&new.mean - &mean).amax() < 1e-12, "P={p}: mean");
+            assert!(
+                (&new.covariance - &cov).amax() < 1e-10 * (1.0 + cov.amax()),
+                "P={p} trial {trial}: {} vs {}",
+                new.covariance,
+                cov
+            );
+            assert_eq!(new.covariance, new.covariance.transpose());
+        }
+    }
+}
+
+fn optimizer(seed: u64, weighting: Weighting) -> Optimizer {
+    Optimizer::new(
+        hp(
+            6,
+            CostMapping::Exponential { eliteness: 10.0 },
+            Exploration::Adaptive {
+                bounds: EigenvalueBounds::new(0.01, 100.0).unwrap(),
+            },
+            weighting,
+        ),
+        Distribution::isotropic(DVector::from_vec(vec![1.0, -1.0, 0.5]), 2.0).unwrap(),
+        4,
+        seed,
+        None,
+    )
+    .unwrap()
+}
+
+fn toy_costs(theta: &[f64]) -> (Vec<f64>, f64) {
+    let q: Vec<f64> = (0..4)
+        .map(|i| (theta[i % 3] - 0.1 * i as f64).powi(2))
+        .collect();
+    (q, theta.iter().map(|v| v.abs()).sum())
+}
+
+#[test]
+fn same_seed_bit_identical_and_told_order_irrelevant() {
+    let run = |seed: u64, shuffle: bool| {
+        let mut opt = optimizer(seed, PER_STEP);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(99);
+        let mut out = vec![];
+        for _ in 0..10 {
+            let batch = opt.ask().clone();
+            let mut order: Vec<usize> = (0..batch.rollouts).collect();
+            if shuffle {
+                use rand::seq::SliceRandom;
+                order.shuffle(&mut rng);
+            }
+            let mut costs = opt.cost_batch();
+            for k in order {
+                let (q, phi) = toy_costs(batch.row(k));
+                costs.insert(k, &q, phi).unwrap();
+            }
+            let s = opt.tell(&costs).unwrap();
+            out.push(s.eval_cost.to_bits());
+        }
+        (out, opt.distribution().clone())
+    };
+    let a = run(5, false);
+    let b = run(5, true);
+    assert_eq!(a.0, b.0);
+    assert_eq!(a.1, b.1, "distribution must be bit-identical");
+    let c = run(6, false);
+    assert_ne!(a.1, c.1, "another seed must give another run");
+}
+
+#[test]
+fn nan_cost_is_rejected_by_tell() {
+    let mut opt = optimizer(1, Weighting::Episodic);
+    opt.ask();
+    let mut costs = opt.cost_batch();
+    for k in 0..6 {
+        let (slot, term) = costs.slot_mut(k);
+        slot.fill(1.0);
+        *term = if k == 3 { f64::NAN } else { 0.0 };
+    }
+    let e = opt.tell(&costs).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "cost of rollout 3 (terminal) is NaN; costs must be finite"
+    );
+    assert_eq!(opt.update_index(), 0, "a rejected tell must not advance");
+    let mut incomplete = opt.cost_batch();
+    incomplete.insert(0, &[0.0; 4], 0.0).unwrap();
+    assert!(matches!(
+        opt.tell(&incomplete),
+        Err(CostError::Missing { rollout: 1 })
+    ));
+}
+
+#[test]
+fn summary_reports_eval_and_exploration_statistics() {
+    let mut opt = optimizer(3, Weighting::Episodic);
+    let lambda0 = opt.lambda();
+    assert_eq!(lambda0, 2.0);
+    let n = opt.ask().rollouts;
+    let mut costs = opt.cost_batch();
+    for k in 0..n {
+        costs.insert(k, &[0.0; 4], k as f64).unwrap();
+    }
+    let s = opt.tell(&costs).unwrap();
+    assert_eq!(s.update, 0);
+    assert_eq!(s.eval_cost, 0.0);
+    assert_eq!(s.exploration_cost_mean, 3.0); // costs 1..5
+    assert!((s.exploration_cost_std - 2.5f64.sqrt()).abs() < 1e-15);
+    assert_eq!(s.lambda, 2.0);
+    assert!((s.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    assert_eq!(opt.update_index(), 1);
+}

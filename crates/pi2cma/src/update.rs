@@ -1,0 +1,503 @@
+//! The update rules: one probability-weighted-averaging kernel serving CEM, PI² with constant or
+//! decaying exploration, and PI²-CMA, in per-time-step (Algorithm 1) or episodic mode.
+//!
+//! The kernel allocates nothing per update after construction; everything that does not depend
+//! on the samples (temporal weights, basis-activation weights) is computed once.
+
+use nalgebra::DMatrix;
+
+use crate::boundcovar::{boundcovar, boundcovar2, EigenvalueBounds};
+use crate::cost::CostBatch;
+use crate::distribution::Distribution;
+use crate::error::{CostError, ParameterError};
+use crate::weighting::CostMapping;
+
+/// How Σ changes from one update to the next.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Exploration {
+    /// PI²: Σ stays λ·I.
+    Constant,
+    /// PI² with decay: Σ ← D·Σ per update, so λ_u = λ_init·D^u.
+    Decay { factor: f64 },
+    /// PI²-CMA / CEM: Σ ← probability-weighted covariance of the samples around the OLD mean,
+    /// with its eigenvalues bounded to [λ_min, λ_max] (`boundcovar`).
+    Adaptive { bounds: EigenvalueBounds },
+}
+
+/// Which costs the probabilities are computed from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Weighting {
+    /// Only the total cost S_0 of each rollout (PI^BB, "black-box").
+    Episodic,
+    /// Algorithm 1: probabilities per time step from the cost-to-go, then temporal averaging.
+    PerTimeStep { temporal: TemporalAveraging },
+}
+
+/// Temporal averaging of the per-time-step updates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TemporalAveraging {
+    /// Algorithm 1 as printed: weight N − i for θ and Σ.
+    RemainingSteps,
+    /// The original PI² (Theodorou et al. 2010): parameter j at step i weighted by
+    /// (N − i)·ψ_j(t_i), with ψ_j the policy's basis activation. Σ keeps the (N − i) weights, as
+    /// a per-element weighting would not keep it positive semi-definite.
+    BasisActivation,
+}
+
+/// Validated-on-use hyperparameters of one update rule.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Hyperparameters {
+    /// K: rollouts per update, including the noise-free evaluation rollout 0.
+    pub rollouts: usize,
+    pub mapping: CostMapping,
+    pub exploration: Exploration,
+    pub weighting: Weighting,
+    /// Whether rollout 0 (θ_0 = θ) enters the update (the authors' 2012 code) or only serves as
+    /// the evaluation (their later code).
+    pub evaluation_in_update: bool,
+}
+
+impl Hyperparameters {
+    pub fn first_updating_rollout(&self) -> usize {
+        usize::from(!self.evaluation_in_update)
+    }
+
+    pub fn check(&self) -> Result<(), ParameterError> {
+        let min = if self.evaluation_in_update { 1 } else { 2 };
+        if self.rollouts < min {
+            return Err(ParameterError::OutOfRange {
+                field: "rollouts",
+                value: self.rollouts.to_string(),
+                reason: "too few rollouts: at least one must enter the update besides the evaluation rollout",
+            });
+        }
+        self.mapping
+            .check(self.rollouts - self.first_updating_rollout())?;
+        if let Exploration::Decay { factor } = self.exploration {
+            if !(factor > 0.0 && factor <= 1.0) {
+                return Err(ParameterError::OutOfRange {
+                    field: "decay",
+                    value: factor.to_string(),
+                    reason: "must be in (0, 1]",
+                });
+            }
+        }
+        if let Exploration::Adaptive { bounds } = self.exploration {
+            EigenvalueBounds::new(bounds.min, bounds.max)?;
+        }
+        Ok(())
+    }
+}
+
+/// Which algebra computes the per-step covariance: chosen once from P and the number of rollouts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CovarianceKernel {
+    /// P = 2: closed-form 2×2 eigen-decomposition.
+    Closed2,
+    /// P ≤ rollouts: dense P×P eigen-decomposition per step.
+    Dense,
+    /// P > rollouts: Σ_i = Eᵀ·diag(p_i)·E has rank ≤ K, so boundcovar works on a K×K problem
+    /// and Σ_new = λ_min·I + Eᵀ·M·E.
+    LowRank,
+}
+
+/// The update kernel with its precomputed weights and scratch buffers.
+#[derive(Debug, Clone)]
+pub struct UpdateRule {
+    hp: Hyperparameters,
+    dim: usize,
+    steps: usize,
+    /// w_i = (N − i)/Σ(N − i).
+    temporal: Vec<f64>,
+    /// Row-major N × P, each column normalised: (N − i)·ψ_j(t_i)/Σ_i(…). Only for BasisActivation.
+    basis_temporal: Option<Vec<f64>>,
+    kernel: CovarianceKernel,
+    // Scratch, sized once.
+    eps: Vec<f64>,
+    cost_to_go: Vec<f64>,
+    probs: Vec<f64>,
+    order: Vec<usize>,
+    mean_weights: Vec<f64>,
+    basis_weights: Vec<f64>,
+    cov_acc: DMatrix<f64>,
+    gram: DMatrix<f64>,
+    lowrank_acc: DMatrix<f64>,
+    small: DMatrix<f64>,
+}
+
+/// What one call of [`UpdateRule::update`] returns besides the new distribution.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UpdateWeights {
+    /// Per rollout (K entries): the probability with which it entered the mean update, averaged
+    /// over time steps in per-time-step mode; 0 for an evaluation rollout left out of the update.
+    pub per_rollout: Vec<f64>,
+}
+
+impl UpdateRule {
+    /// `basis_activations` (row-major N × P, non-negative) is required for
+    /// [`TemporalAveraging::BasisActivation`] and ignored otherwise.
+    pub fn new(
+        hp: Hyperparameters,
+        dim: usize,
+        steps: usize,
+        basis_activations: Option<&[f64]>,
+    ) -> Result<Self, ParameterError> {
+        hp.check()?;
+        if dim == 0 {
+            return Err(ParameterError::OutOfRange {
+                field: "parameters",
+                value: "0".into(),
+                reason: "the policy must have at least one parameter",
+            });
+        }
+        if steps == 0 {
+            return Err(ParameterError::OutOfRange {
+                field: "steps",
+                value: "0".into(),
+                reason: "cost trajectories must have at least one step",
+            });
+        }
+        let total: f64 = (1..=steps).map(|v| v as f64).sum();
+        let temporal = (0..steps).map(|i| (steps - i) as f64 / total).collect();
+        let basis_temporal = match hp.weighting {
+            Weighting::PerTimeStep {
+                temporal: TemporalAveraging::BasisActivation,
+            } => {
+                let psi = basis_activations.ok_or(ParameterError::OutOfRange {
+                    field: "temporal_averaging",
+                    value: "basis-activation".into(),
+                    reason:
+                        "needs the policy's basis activations, which this policy does not provide",
+                })?;
+                if psi.len() != steps * dim || psi.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                    return Err(ParameterError::OutOfRange {
+                        field: "basis_activations",
+                        value: format!("{} values", psi.len()),
+                        reason: "must be N × P finite non-negative values",
+                    });
+                }
+                let mut w = vec![0.0; steps * dim];
+                for j in 0..dim {
+                    let norm: f64 = (0..steps)
+                        .map(|i| (steps - i) as f64 * psi[i * dim + j])
+                        .sum();
+                    if !(norm > 0.0) {
+                        return Err(ParameterError::OutOfRange {
+                            field: "basis_activations",
+                            value: format!("column {j}"),
+                            reason: "a basis function is never active",
+                        });
+                    }
+                    for i in 0..steps {
+                        w[i * dim + j] = (steps - i) as f64 * psi[i * dim + j] / norm;
+                    }
+                }
+                Some(w)
+            }
+            _ => None,
+        };
+        let k = hp.rollouts;
+        let m = k - hp.first_updating_rollout();
+        let kernel = if dim == 2 {
+            CovarianceKernel::Closed2
+        } else if dim <= m {
+            CovarianceKernel::Dense
+        } else {
+            CovarianceKernel::LowRank
+        };
+        Ok(Self {
+            hp,
+            dim,
+            steps,
+            temporal,
+            basis_temporal,
+            kernel,
+            eps: vec![0.0; m * dim],
+            cost_to_go: vec![0.0; m],
+            probs: vec![0.0; m],
+            order: vec![0; m],
+            mean_weights: vec![0.0; m],
+            basis_weights: vec![0.0; m * dim],
+            cov_acc: DMatrix::zeros(dim, dim),
+            gram: DMatrix::zeros(m, m),
+            lowrank_acc: DMatrix::zeros(m, m),
+            small: DMatrix::zeros(m, m),
+        })
+    }
+
+    pub fn hyperparameters(&self) -> &Hyperparameters {
+        &self.hp
+    }
+
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// One update: the new distribution from the old one, the K samples (row-major K × P, as
+    /// drawn from `old`) and their costs.
+    pub fn update(
+        &mut self,
+        old: &Distribution,
+        samples: &[f64],
+        costs: &CostBatch,
+    ) -> Result<(Distribution, UpdateWeights), CostError> {
+        let (k_all, p, n) = (self.hp.rollouts, self.dim, self.steps);
+        if costs.rollouts() != k_all || costs.steps() != n {
+            return Err(CostError::WrongShape {
+                expected: k_all,
+                expected_steps: n,
+                got: costs.rollouts(),
+                got_steps: costs.steps(),
+            });
+        }
+        costs.validate_filled()?;
+        assert_eq!(samples.len(), k_all * p, "sample batch has the wrong shape");
+        assert_eq!(old.dim(), p, "distribution has the wrong dimension");
+        let first = self.hp.first_updating_rollout();
+        let m = k_all - first;
+        let theta = old.mean.as_slice();
+        for (r, k) in (first..k_all).enumerate() {
+            for j in 0..p {
+                self.eps[r * p + j] = samples[k * p + j] - theta[j];
+            }
+        }
+        let adaptive = match self.hp.exploration {
+            Exploration::Adaptive { bounds } => Some(bounds),
+            _ => None,
+        };
+        let unbounded = adaptive.is_some_and(|b| b.min == 0.0 && b.max == f64::INFINITY);
+        self.mean_weights.fill(0.0);
+        self.basis_weights.fill(0.0);
+        self.cov_acc.fill(0.0);
+        self.lowrank_acc.fill(0.0);
+        if self.kernel == CovarianceKernel::LowRank && adaptive.is_some() {
+            self.compute_gram(m);
+        }
+
+        match self.hp.weighting {
+            Weighting::Episodic => {
+                for (r, k) in (first..k_all).enumerate() {
+                    self.cost_to_go[r] = costs.total(k);
+                }
+                self.hp
+                    .mapping
+                    .probabilities(&self.cost_to_go, &mut self.probs, &mut self.order);
+                self.mean_weights.copy_from_slice(&self.probs);
+                if let Some(bounds) = adaptive {
+                    self.accumulate_covariance(1.0, bounds, unbounded);
+                }
+            }
+            Weighting::PerTimeStep { .. } => {
+                for (r, k) in (first..k_all).enumerate() {
+                    self.cost_to_go[r] = costs.terminal(k);
+                }
+                // Backwards in time so the cost-to-go is a running suffix sum.
+                for i in (0..n).rev() {
+                    for (r, k) in (first..k_all).enumerate() {
+                        self.cost_to_go[r] += costs.per_step(k)[i];
+                    }
+                    self.hp.mapping.probabilities(
+                        &self.cost_to_go,
+                        &mut self.probs,
+                        &mut self.order,
+                    );
+                    let w = self.temporal[i];
+                    for r in 0..m {
+                        self.mean_weights[r] += w * self.probs[r];
+                    }
+                    if let Some(bt) = &self.basis_temporal {
+                        let row = &bt[i * p..(i + 1) * p];
+                        for r in 0..m {
+                            let pr = self.probs[r];
+                            for j in 0..p {
+                                self.basis_weights[r * p + j] += row[j] * pr;
+                            }
+                        }
+                    }
+                    if let Some(bounds) = adaptive {
+                        if !unbounded {
+                            self.accumulate_covariance(w, bounds, false);
+                        }
+                    }
+                }
+                if unbounded {
+                    // boundcovar is the identity: the temporal average of Σ_k p_ik ε_k ε_kᵀ
+                    // is Σ_k (Σ_i w_i p_ik) ε_k ε_kᵀ.
+                    self.probs.copy_from_slice(&self.mean_weights);
+                    self.accumulate_covariance(1.0, EigenvalueBounds::unbounded(), true);
+                }
+            }
+        }
+
+        // Mean: θ_new = θ + Σ_k a_k ε_k (per parameter for basis-activation averaging).
+        let mut mean = old.mean.clone();
+        if self.basis_temporal.is_some() {
+            for r in 0..m {
+                for j in 0..p {
+                    mean[j] += self.basis_weights[r * p + j] * self.eps[r * p + j];
+                }
+            }
+        } else {
+            for r in 0..m {
+                let a = self.mean_weights[r];
+                for j in 0..p {
+                    mean[j] += a * self.eps[r * p + j];
+                }
+            }
+        }
+
+        let covariance = match self.hp.exploration {
+            Exploration::Constant => old.covariance.clone(),
+            Exploration::Decay { factor } => &old.covariance * factor,
+            Exploration::Adaptive { bounds } => self.finish_covariance(bounds, unbounded),
+        };
+        let mut per_rollout = vec![0.0; k_all];
+        per_rollout[first..].copy_from_slice(&self.mean_weights);
+        Ok((
+            Distribution { mean, covariance },
+            UpdateWeights { per_rollout },
+        ))
+    }
+
+    fn compute_gram(&mut self, m: usize) {
+        let p = self.dim;
+        for a in 0..m {
+            for b in 0..=a {
+                let mut s = 0.0;
+                for j in 0..p {
+                    s += self.eps[a * p + j] * self.eps[b * p + j];
+                }
+                self.gram[(a, b)] = s;
+                self.gram[(b, a)] = s;
+            }
+        }
+    }
+
+    /// Adds w·boundcovar(Σ_k probs_k ε_k ε_kᵀ) to the accumulator of the chosen kernel.
+    fn accumulate_covariance(&mut self, w: f64, bounds: EigenvalueBounds, unbounded: bool) {
+        let p = self.dim;
+        let m = self.probs.len();
+        match self.kernel {
+            CovarianceKernel::Closed2 => {
+                let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
+                for r in 0..m {
+                    let (e0, e1) = (self.eps[2 * r], self.eps[2 * r + 1]);
+                    let pr = self.probs[r];
+                    a += pr * e0 * e0;
+                    b += pr * e0 * e1;
+                    c += pr * e1 * e1;
+                }
+                let (a, b, c) = if unbounded {
+                    (a, b, c)
+                } else {
+                    boundcovar2(a, b, c, bounds)
+                };
+                self.cov_acc[(0, 0)] += w * a;
+                self.cov_acc[(0, 1)] += w * b;
+                self.cov_acc[(1, 1)] += w * c;
+            }
+            CovarianceKernel::Dense => {
+                let mut s = DMatrix::<f64>::zeros(p, p);
+                for r in 0..m {
+                    let pr = self.probs[r];
+                    let e = &self.eps[r * p..(r + 1) * p];
+                    for a in 0..p {
+                        for b in 0..=a {
+                            s[(a, b)] += pr * e[a] * e[b];
+                        }
+                    }
+                }
+                for a in 0..p {
+                    for b in 0..a {
+                        s[(b, a)] = s[(a, b)];
+                    }
+                }
+                if !unbounded {
+                    s = boundcovar(&s, bounds);
+                }
+                self.cov_acc += s * w;
+            }
+            CovarianceKernel::LowRank => {
+                // G = D^½·(E Eᵀ)·D^½ with D = diag(p); its eigenpairs (μ_j, v_j) give those of
+                // Σ_i, and boundcovar(Σ_i) = λ_min·I + Eᵀ·D^½·V·diag(c)·Vᵀ·D^½·E with
+                // c_j = (clip(μ_j) − λ_min)/μ_j.
+                if unbounded {
+                    for r in 0..m {
+                        self.lowrank_acc[(r, r)] += w * self.probs[r];
+                    }
+                    return;
+                }
+                for a in 0..m {
+                    let da = self.probs[a].sqrt();
+                    for b in 0..=a {
+                        let v = da * self.probs[b].sqrt() * self.gram[(a, b)];
+                        self.small[(a, b)] = v;
+                        self.small[(b, a)] = v;
+                    }
+                }
+                let eig = self.small.clone().symmetric_eigen();
+                for (j, &mu) in eig.eigenvalues.iter().enumerate() {
+                    if !(mu > 0.0) {
+                        continue;
+                    }
+                    let c = (bounds.clip(mu) - bounds.min) / mu;
+                    if c == 0.0 {
+                        continue;
+                    }
+                    let v = eig.eigenvectors.column(j);
+                    let wc = w * c;
+                    for a in 0..m {
+                        let ua = self.probs[a].sqrt() * v[a] * wc;
+                        if ua == 0.0 {
+                            continue;
+                        }
+                        for b in 0..=a {
+                            self.lowrank_acc[(a, b)] += ua * self.probs[b].sqrt() * v[b];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn finish_covariance(&mut self, bounds: EigenvalueBounds, unbounded: bool) -> DMatrix<f64> {
+        let p = self.dim;
+        match self.kernel {
+            CovarianceKernel::Closed2 => {
+                let mut s = self.cov_acc.clone();
+                s[(1, 0)] = s[(0, 1)];
+                s
+            }
+            CovarianceKernel::Dense => {
+                let s = &self.cov_acc;
+                (s + s.transpose()) * 0.5
+            }
+            CovarianceKernel::LowRank => {
+                let m = self.probs.len();
+                // lowrank_acc holds the lower triangle of M; Σ = λ_min·I + Eᵀ·M·E.
+                for a in 0..m {
+                    for b in 0..a {
+                        self.lowrank_acc[(b, a)] = self.lowrank_acc[(a, b)];
+                    }
+                }
+                let e = DMatrix::from_row_slice(m, p, &self.eps);
+                let me = &self.lowrank_acc * &e;
+                let mut s = e.transpose() * me;
+                let lower = if unbounded { 0.0 } else { bounds.min };
+                for a in 0..p {
+                    for b in 0..a {
+                        let v = 0.5 * (s[(a, b)] + s[(b, a)]);
+                        s[(a, b)] = v;
+                        s[(b, a)] = v;
+                    }
+                    s[(a, a)] += lower;
+                }
+                s
+            }
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! Cost-to-probability mappings (Algorithm 1, lines 18–19, and CEM's elites).
+
+use crate::error::ParameterError;
+
+/// How the costs of one time step (or of whole rollouts, in episodic mode) become probabilities.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CostMapping {
+    /// PI²: P_k ∝ exp(−h·(S_k − min S)/(max S − min S)), with eliteness h.
+    Exponential { eliteness: f64 },
+    /// CEM: the `count` lowest-cost rollouts get 1/count each, the rest 0.
+    Elites { count: usize },
+}
+
+impl CostMapping {
+    pub fn check(&self, rollouts_in_update: usize) -> Result<(), ParameterError> {
+        match *self {
+            CostMapping::Exponential { eliteness } => {
+                if !(eliteness.is_finite() && eliteness > 0.0) {
+                    return Err(ParameterError::OutOfRange {
+                        field: "eliteness",
+                        value: eliteness.to_string(),
+                        reason: "must be finite and > 0",
+                    });
+                }
+            }
+            CostMapping::Elites { count } => {
+                if count == 0 || count > rollouts_in_update {
+                    return Err(ParameterError::OutOfRange {
+                        field: "elites",
+                        value: count.to_string(),
+                        reason:
+                            "must be between 1 and the number of rollouts that enter the update",
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the probabilities for `costs` into `out` (same length). `order` is scratch space of
+    /// the same length for the elites mapping. Equal costs give uniform probabilities, never NaN.
+    pub fn probabilities(&self, costs: &[f64], out: &mut [f64], order: &mut [usize]) {
+        debug_assert_eq!(costs.len(), out.len());
+        let n = costs.len();
+        match *self {
+            CostMapping::Exponential { eliteness } => {
+                let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+                for &c in costs {
+                    lo = lo.min(c);
+                    hi = hi.max(c);
+                }
+                let range = hi - lo;
+                if !(range > 0.0) {
+                    out.fill(1.0 / n as f64);
+                    return;
+                }
+                let scale = -eliteness / range;
+                let mut sum = 0.0;
+                for (o, &c) in out.iter_mut().zip(costs) {
+                    *o = ((c - lo) * scale).exp();
+                    sum += *o;
+                }
+                let inv = 1.0 / sum;
+                out.iter_mut().for_each(|o| *o *= inv);
+            }
+            CostMapping::Elites { count } => {
+                for (i, o) in order.iter_mut().enumerate() {
+                    *o = i;
+                }
+                // Ties are broken by rollout index, so the result never depends on arrival order.
+                order.sort_unstable_by(|&a, &b| costs[a].total_cmp(&costs[b]).then(a.cmp(&b)));
+                out.fill(0.0);
+                let w = 1.0 / count as f64;
+                for &k in &order[..count] {
+                    out[k] = w;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn probs(m: CostMapping, c: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; c.len()];
+        let mut order = vec![0; c.len()];
+        m.probabilities(c, &mut out, &mut order);
+        out
+    }
+
+    #[test]
+    fn exponential_hand_checked() {
+        // Costs 0, 1, 2 with h = ln 2·2: exponents 0, −ln2, −2ln2 → 1, 1/2, 1/4, sum 7/4.
+        let h = 2.0 * std::f64::consts::LN_2;
+        let p = probs(
+            CostMapping::Exponential { eliteness: h },
+            &[10.0, 11.0, 12.0],
+        );
+        let expect = [4.0 / 7.0, 2.0 / 7.0, 1.0 / 7.0];
+        for (a, b) in p.iter().zip(expect) {
+            assert!((a - b).abs() < 1e-15, "{p:?}");
+        }
+    }
+
+    #[test]
+    fn equal_costs_give_uniform_weights() {
+        for m in [
+            CostMapping::Exponential { eliteness: 10.0 },
+            CostMapping::Elites { count: 4 },
+        ] {
+            let p = probs(m, &[3.0; 4]);
+            assert_eq!(p, vec![0.25; 4], "{m:?}");
+        }
+    }
+
+    #[test]
+    fn elites_hand_checked_with_ties_by_index() {
+        let p = probs(CostMapping::Elites { count: 2 }, &[5.0, 1.0, 3.0, 1.0]);
+        assert_eq!(p, vec![0.0, 0.5, 0.0, 0.5]);
+        let p = probs(CostMapping::Elites { count: 1 }, &[2.0, 1.0, 1.0]);
+        assert_eq!(p, vec![0.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn check_rejects_bad_values() {
+        assert!(CostMapping::Exponential { eliteness: 0.0 }
+            .check(3)
+            .is_err());
+        assert!(CostMapping::Exponential {
+            eliteness: f64::NAN
+        }
+        .check(3)
+        .is_err());
+        assert!(CostMapping::Elites { count: 4 }.check(3).is_err());
+        assert!(CostMapping::Elites { count: 0 }.check(3).is_err());
+    }
+}
