@@ -1,0 +1,442 @@
+//! The TOML run configuration. Every key is known (unknown ones are rejected), every value is
+//! range-checked, and every error names the file, the field and the value.
+
+use std::path::{Path, PathBuf};
+
+use pi2cma::{
+    CostMapping, EigenvalueBounds, Exploration, Hyperparameters, TemporalAveraging, Weighting,
+};
+use serde::Deserialize;
+use tasks::{TaskChange, TaskSchedule, ViaPointSpec};
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: cannot read: {reason}")]
+    Read { file: PathBuf, reason: String },
+    #[error("{file}: {message}")]
+    Parse { file: PathBuf, message: String },
+    #[error("{file}: {field} = {value}: {reason}")]
+    Invalid {
+        file: PathBuf,
+        field: String,
+        value: String,
+        reason: String,
+    },
+}
+
+/// A whole run: what to learn, with which update rule, for how long.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    pub run: RunSection,
+    pub optimizer: OptimizerSection,
+    pub task: TaskSection,
+    /// Task changes at given updates (e.g. the via-point moving from 0.3 to 0.1 after update 20).
+    #[serde(default)]
+    pub schedule: Vec<ScheduleEntry>,
+    /// Where the file came from, for error messages; not a TOML key.
+    #[serde(skip)]
+    pub origin: PathBuf,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSection {
+    /// A label for results and figures (e.g. "A1").
+    pub name: String,
+    /// Seed of session 0; session s of an experiment uses seed + s.
+    pub seed: u64,
+    /// Number of updates; absent means unbounded (continual learning, stopped from outside).
+    pub updates: Option<u64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Cross-Entropy Method: elites, covariance around the old mean.
+    Cem,
+    /// PI² with constant exploration Σ = λ·I.
+    Pi2,
+    /// PI² with decaying exploration Σ ← D·Σ.
+    Pi2Decay,
+    /// PI²-CMA: PI² weights, covariance adaptation, boundcovar.
+    Pi2Cma,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WeightingName {
+    Episodic,
+    PerTimeStep,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TemporalName {
+    RemainingSteps,
+    BasisActivation,
+}
+
+/// The update rule. Method-specific keys are rejected for the other methods, so a setting that
+/// would be silently ignored is an error instead.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimizerSection {
+    pub method: Method,
+    /// K, including the noise-free evaluation rollout 0.
+    pub rollouts: usize,
+    /// Whether rollout 0 enters the update (the authors' 2012 code) or only evaluates.
+    pub evaluation_in_update: bool,
+    pub weighting: WeightingName,
+    /// Only with `weighting = "per-time-step"`; default "remaining-steps" (Algorithm 1).
+    pub temporal_averaging: Option<TemporalName>,
+    /// Σ_init = λ_init·I.
+    pub lambda_init: f64,
+    /// h, for the PI² methods.
+    pub eliteness: Option<f64>,
+    /// K_e, for CEM.
+    pub elites: Option<usize>,
+    /// D, for pi2-decay.
+    pub decay: Option<f64>,
+    /// Eigenvalue bounds, for pi2-cma (required) and cem (optional, default unbounded).
+    pub lambda_min: Option<f64>,
+    pub lambda_max: Option<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, rename_all = "kebab-case")]
+pub enum TaskSection {
+    ViaPoint(ViaPointConfig),
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViaPointConfig {
+    pub basis_functions: usize,
+    pub duration: f64,
+    pub dt: f64,
+    pub start: f64,
+    pub goal: f64,
+    pub viapoint: f64,
+    pub viapoint_time: f64,
+    pub viapoint_weight: f64,
+    /// Each rollout blocks at least this long (a stand-in for a robot or external simulator).
+    #[serde(default)]
+    pub rollout_delay_ms: f64,
+}
+
+impl ViaPointConfig {
+    pub fn spec(&self) -> ViaPointSpec {
+        ViaPointSpec {
+            basis_functions: self.basis_functions,
+            duration: self.duration,
+            dt: self.dt,
+            start: self.start,
+            goal: self.goal,
+            viapoint: self.viapoint,
+            viapoint_time: self.viapoint_time,
+            viapoint_weight: self.viapoint_weight,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScheduleEntry {
+    /// The first update (0-based) that sees the new value.
+    pub from_update: u64,
+    pub set: String,
+    pub value: f64,
+}
+
+/// The built-in default: PI²-CMA on the paper's via-point task (the A1 run), episodic weighting.
+pub const DEFAULT_CONFIG: &str = include_str!("default.toml");
+
+impl RunConfig {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            file: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        Self::parse(&text, path)
+    }
+
+    pub fn default_config() -> Self {
+        Self::parse(DEFAULT_CONFIG, Path::new("<built-in default>"))
+            .expect("the built-in default config is valid")
+    }
+
+    pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
+        let mut cfg: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            file: origin.to_path_buf(),
+            message: e.to_string().trim_end().replace('\n', "\n  "),
+        })?;
+        cfg.origin = origin.to_path_buf();
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    fn invalid(&self, field: &str, value: impl ToString, reason: &str) -> ConfigError {
+        ConfigError::Invalid {
+            file: self.origin.clone(),
+            field: field.to_string(),
+            value: value.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+
+    fn validate(&self) -> Result<(), ConfigError> {
+        let o = &self.optimizer;
+        let only = |field: &str, present: bool, methods: &str| -> Result<(), ConfigError> {
+            if present {
+                Err(self.invalid(
+                    &format!("optimizer.{field}"),
+                    "(set)",
+                    &format!("only applies to method {methods}"),
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        let is_pi2 = o.method != Method::Cem;
+        only(
+            "eliteness",
+            o.eliteness.is_some() && !is_pi2,
+            "pi2, pi2-decay, pi2-cma",
+        )?;
+        only("elites", o.elites.is_some() && is_pi2, "cem")?;
+        only(
+            "decay",
+            o.decay.is_some() && o.method != Method::Pi2Decay,
+            "pi2-decay",
+        )?;
+        let bounded = matches!(o.method, Method::Pi2Cma | Method::Cem);
+        only(
+            "lambda_min",
+            o.lambda_min.is_some() && !bounded,
+            "pi2-cma, cem",
+        )?;
+        only(
+            "lambda_max",
+            o.lambda_max.is_some() && !bounded,
+            "pi2-cma, cem",
+        )?;
+        only(
+            "temporal_averaging",
+            o.temporal_averaging.is_some() && o.weighting == WeightingName::Episodic,
+            "any, with weighting = \"per-time-step\"",
+        )?;
+        if is_pi2 && o.eliteness.is_none() {
+            return Err(self.invalid(
+                "optimizer.eliteness",
+                "(missing)",
+                "required for PI² methods",
+            ));
+        }
+        if o.method == Method::Cem && o.elites.is_none() {
+            return Err(self.invalid("optimizer.elites", "(missing)", "required for cem"));
+        }
+        if o.method == Method::Pi2Decay && o.decay.is_none() {
+            return Err(self.invalid("optimizer.decay", "(missing)", "required for pi2-decay"));
+        }
+        if o.method == Method::Pi2Cma && (o.lambda_min.is_none() || o.lambda_max.is_none()) {
+            return Err(self.invalid(
+                "optimizer.lambda_min/lambda_max",
+                "(missing)",
+                "pi2-cma needs both bounds explicitly (lambda_max = inf for no upper bound)",
+            ));
+        }
+        if !(o.lambda_init.is_finite() && o.lambda_init > 0.0) {
+            return Err(self.invalid(
+                "optimizer.lambda_init",
+                o.lambda_init,
+                "must be finite and > 0",
+            ));
+        }
+        if let (Some(lo), Some(hi)) = (o.lambda_min, o.lambda_max) {
+            if !(lo <= o.lambda_init && o.lambda_init <= hi) {
+                return Err(self.invalid(
+                    "optimizer.lambda_init",
+                    o.lambda_init,
+                    "must lie within [lambda_min, lambda_max]",
+                ));
+            }
+        }
+        if o.rollouts > 100_000 {
+            return Err(self.invalid("optimizer.rollouts", o.rollouts, "must be at most 100000"));
+        }
+        self.hyperparameters()
+            .check()
+            .map_err(|e| self.invalid_param(e))?;
+        if self.run.name.trim().is_empty() {
+            return Err(self.invalid("run.name", "\"\"", "must not be empty"));
+        }
+        if self.run.updates == Some(0) {
+            return Err(self.invalid("run.updates", 0, "must be at least 1 (omit for unbounded)"));
+        }
+        match &self.task {
+            TaskSection::ViaPoint(v) => {
+                if !(v.rollout_delay_ms.is_finite() && (0.0..=3.6e6).contains(&v.rollout_delay_ms))
+                {
+                    return Err(self.invalid(
+                        "task.via-point.rollout_delay_ms",
+                        v.rollout_delay_ms,
+                        "must be between 0 and 3600000",
+                    ));
+                }
+            }
+        }
+        let mut task = self
+            .build_task()
+            .map_err(|e| self.invalid("task", "", &e.to_string()))?;
+        self.schedule()
+            .validate(&mut task)
+            .map_err(|e| self.invalid("schedule", "", &e.to_string()))?;
+        Ok(())
+    }
+
+    fn invalid_param(&self, e: pi2cma::ParameterError) -> ConfigError {
+        match e {
+            pi2cma::ParameterError::OutOfRange {
+                field,
+                value,
+                reason,
+            } => self.invalid(&format!("optimizer.{field}"), value, reason),
+            other => self.invalid("optimizer", "", &other.to_string()),
+        }
+    }
+
+    pub fn weighting(&self) -> Weighting {
+        match self.optimizer.weighting {
+            WeightingName::Episodic => Weighting::Episodic,
+            WeightingName::PerTimeStep => Weighting::PerTimeStep {
+                temporal: match self.optimizer.temporal_averaging {
+                    None | Some(TemporalName::RemainingSteps) => TemporalAveraging::RemainingSteps,
+                    Some(TemporalName::BasisActivation) => TemporalAveraging::BasisActivation,
+                },
+            },
+        }
+    }
+
+    /// The core's hyperparameters. Bounds that fail the core's own check are reported by
+    /// `validate` before this is used for a run.
+    pub fn hyperparameters(&self) -> Hyperparameters {
+        let o = &self.optimizer;
+        let bounds = EigenvalueBounds {
+            min: o.lambda_min.unwrap_or(0.0),
+            max: o.lambda_max.unwrap_or(f64::INFINITY),
+        };
+        Hyperparameters {
+            rollouts: o.rollouts,
+            mapping: match o.method {
+                Method::Cem => CostMapping::Elites {
+                    count: o.elites.unwrap_or(0),
+                },
+                _ => CostMapping::Exponential {
+                    eliteness: o.eliteness.unwrap_or(f64::NAN),
+                },
+            },
+            exploration: match o.method {
+                Method::Pi2 => Exploration::Constant,
+                Method::Pi2Decay => Exploration::Decay {
+                    factor: o.decay.unwrap_or(f64::NAN),
+                },
+                Method::Pi2Cma | Method::Cem => Exploration::Adaptive { bounds },
+            },
+            weighting: self.weighting(),
+            evaluation_in_update: o.evaluation_in_update,
+        }
+    }
+
+    pub fn schedule(&self) -> TaskSchedule {
+        TaskSchedule::new(
+            self.schedule
+                .iter()
+                .map(|s| TaskChange {
+                    from_update: s.from_update,
+                    name: s.set.clone(),
+                    value: s.value,
+                })
+                .collect(),
+        )
+    }
+
+    /// The rollout delay of the task, if any.
+    pub fn rollout_delay(&self) -> std::time::Duration {
+        match &self.task {
+            TaskSection::ViaPoint(v) => {
+                std::time::Duration::from_secs_f64(v.rollout_delay_ms / 1e3)
+            }
+        }
+    }
+
+    /// Builds the task without its rollout delay (see [`crate::build_task`] for the full one).
+    pub fn build_task(&self) -> Result<Box<dyn tasks::Task>, tasks::TaskError> {
+        match &self.task {
+            TaskSection::ViaPoint(v) => Ok(Box::new(tasks::ViaPoint::new(&v.spec())?)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<RunConfig, ConfigError> {
+        RunConfig::parse(text, Path::new("test.toml"))
+    }
+
+    #[test]
+    fn default_config_is_valid() {
+        let c = RunConfig::default_config();
+        assert_eq!(c.optimizer.method, Method::Pi2Cma);
+        assert_eq!(c.schedule().changes().len(), 1);
+    }
+
+    #[test]
+    fn unknown_key_is_rejected_with_file_and_key() {
+        let text = DEFAULT_CONFIG.replace("[optimizer]", "[optimizer]\nlamda_min = 3.0");
+        let e = parse(&text).unwrap_err().to_string();
+        assert!(e.starts_with("test.toml:"), "{e}");
+        assert!(e.contains("unknown field `lamda_min`"), "{e}");
+    }
+
+    #[test]
+    fn out_of_range_values_name_field_and_value() {
+        let text = DEFAULT_CONFIG.replace("eliteness = 15.0", "eliteness = -1.0");
+        let e = parse(&text).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "test.toml: optimizer.eliteness = -1: must be finite and > 0"
+        );
+        let text = DEFAULT_CONFIG.replace("lambda_min = 2.0", "lambda_min = 5000.0");
+        let e = parse(&text).unwrap_err().to_string();
+        assert!(e.contains("optimizer.lambda_init = 2000"), "{e}");
+    }
+
+    #[test]
+    fn settings_of_other_methods_are_rejected() {
+        let text = DEFAULT_CONFIG.replace("[optimizer]", "[optimizer]\ndecay = 0.8");
+        let e = parse(&text).unwrap_err().to_string();
+        assert!(
+            e.contains("optimizer.decay") && e.contains("pi2-decay"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn bad_schedule_setting_is_rejected() {
+        let text = DEFAULT_CONFIG.replace("set = \"viapoint\"", "set = \"goal\"");
+        let e = parse(&text).unwrap_err().to_string();
+        assert!(
+            e.contains("schedule") && e.contains("no setting `goal`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn malformed_toml_names_file() {
+        let e = parse("[run\nname=").unwrap_err().to_string();
+        assert!(e.starts_with("test.toml: "), "{e}");
+    }
+}

@@ -1,0 +1,249 @@
+//! A configured learning session: the TOML schema ([`RunConfig`]), building the optimizer and the
+//! task from it, and the in-process executor that drives the sans-IO core.
+//!
+//! The executor owns the loop (ask, run rollouts, tell, apply task changes, stop); recording and
+//! printing are [`Observer`]s, not part of the loop. It is not the multiprocess pipeline, which
+//! drives the same core with the same builders, so both give the same result for the same seed.
+
+mod config;
+
+pub use config::{
+    ConfigError, Method, OptimizerSection, RunConfig, RunSection, ScheduleEntry, TaskSection,
+    ViaPointConfig, WeightingName, DEFAULT_CONFIG,
+};
+
+use pi2cma::{
+    CostBatch, CostError, Distribution, Optimizer, ParameterBatch, ParameterError, UpdateSummary,
+};
+use tasks::{Delayed, Task, TaskChange, TaskError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("update {update}: {source}")]
+    Cost {
+        update: u64,
+        #[source]
+        source: CostError,
+    },
+    #[error(transparent)]
+    Task(#[from] TaskError),
+    #[error(transparent)]
+    Parameter(#[from] ParameterError),
+}
+
+/// The task of a config, with its rollout delay if one is set.
+pub fn build_task(config: &RunConfig) -> Result<Box<dyn Task>, TaskError> {
+    let task = config.build_task()?;
+    let delay = config.rollout_delay();
+    Ok(if delay.is_zero() {
+        task
+    } else {
+        Box::new(Delayed { inner: task, delay })
+    })
+}
+
+/// The optimizer of a config for session seed `seed`: Σ_init = λ_init·I around the task's
+/// initial mean.
+pub fn build_optimizer(
+    config: &RunConfig,
+    task: &dyn Task,
+    seed: u64,
+) -> Result<Optimizer, ParameterError> {
+    let mean = nalgebra::DVector::from_vec(task.initial_mean());
+    let initial = Distribution::isotropic(mean, config.optimizer.lambda_init)?;
+    let activations = task.basis_activations();
+    Optimizer::new(
+        config.hyperparameters(),
+        initial,
+        task.steps(),
+        seed,
+        activations.as_deref(),
+    )
+}
+
+/// Everything about one finished update, for observers.
+pub struct UpdateRecord<'a> {
+    pub before: &'a Distribution,
+    pub after: &'a Distribution,
+    pub samples: &'a ParameterBatch,
+    pub costs: &'a CostBatch,
+    pub summary: &'a UpdateSummary,
+    /// The task's settings during this update.
+    pub task_settings: &'a [(&'static str, f64)],
+}
+
+/// Hooks called by an executor; the default implementations do nothing.
+pub trait Observer {
+    fn on_start(&mut self, _config: &RunConfig, _optimizer: &Optimizer) {}
+    fn on_task_change(&mut self, _update: u64, _change: &TaskChange) {}
+    fn on_update(&mut self, _record: &UpdateRecord<'_>) {}
+    fn on_finish(&mut self, _optimizer: &Optimizer) {}
+}
+
+/// An observer that observes nothing.
+pub struct NoObserver;
+impl Observer for NoObserver {}
+
+/// Fans every hook out to several observers.
+pub struct Observers<'a>(pub Vec<&'a mut dyn Observer>);
+
+impl Observer for Observers<'_> {
+    fn on_start(&mut self, config: &RunConfig, optimizer: &Optimizer) {
+        self.0
+            .iter_mut()
+            .for_each(|o| o.on_start(config, optimizer));
+    }
+    fn on_task_change(&mut self, update: u64, change: &TaskChange) {
+        self.0
+            .iter_mut()
+            .for_each(|o| o.on_task_change(update, change));
+    }
+    fn on_update(&mut self, record: &UpdateRecord<'_>) {
+        self.0.iter_mut().for_each(|o| o.on_update(record));
+    }
+    fn on_finish(&mut self, optimizer: &Optimizer) {
+        self.0.iter_mut().for_each(|o| o.on_finish(optimizer));
+    }
+}
+
+/// The in-process executor: runs every rollout of an update in this thread, in rollout order.
+pub struct InProcess {
+    config: RunConfig,
+    task: Box<dyn Task>,
+    optimizer: Optimizer,
+    initial_settings: Vec<(&'static str, f64)>,
+    costs: CostBatch,
+}
+
+impl InProcess {
+    pub fn new(config: &RunConfig, seed: u64) -> Result<Self, SessionError> {
+        let task = build_task(config)?;
+        let optimizer = build_optimizer(config, task.as_ref(), seed)?;
+        let initial_settings = task.settings();
+        let costs = optimizer.cost_batch();
+        Ok(Self {
+            config: config.clone(),
+            task,
+            optimizer,
+            initial_settings,
+            costs,
+        })
+    }
+
+    pub fn optimizer(&self) -> &Optimizer {
+        &self.optimizer
+    }
+
+    /// Runs until the configured number of updates, or until `stop()` returns true (checked
+    /// before every update; needed for unbounded runs).
+    pub fn run(
+        &mut self,
+        observer: &mut dyn Observer,
+        stop: &dyn Fn() -> bool,
+    ) -> Result<(), SessionError> {
+        observer.on_start(&self.config, &self.optimizer);
+        let schedule = self.config.schedule();
+        schedule.configure(
+            self.task.as_mut(),
+            &self.initial_settings,
+            self.optimizer.update_index(),
+        )?;
+        while self
+            .config
+            .run
+            .updates
+            .is_none_or(|n| self.optimizer.update_index() < n)
+            && !stop()
+        {
+            let u = self.optimizer.update_index();
+            for change in schedule.at(u) {
+                self.task.set(&change.name, change.value)?;
+                observer.on_task_change(u, change);
+            }
+            self.step(observer)?;
+        }
+        observer.on_finish(&self.optimizer);
+        Ok(())
+    }
+
+    /// One update: ask, run the K rollouts, tell.
+    pub fn step(&mut self, observer: &mut dyn Observer) -> Result<UpdateSummary, SessionError> {
+        let before = self.optimizer.distribution().clone();
+        let samples = self.optimizer.ask().clone();
+        self.costs.clear();
+        for k in 0..samples.rollouts {
+            let (per_step, terminal) = self.costs.slot_mut(k);
+            *terminal = self.task.rollout(samples.row(k), per_step);
+        }
+        let update = self.optimizer.update_index();
+        let summary = self
+            .optimizer
+            .tell(&self.costs)
+            .map_err(|source| SessionError::Cost { update, source })?;
+        let settings = self.task.settings();
+        observer.on_update(&UpdateRecord {
+            before: &before,
+            after: self.optimizer.distribution(),
+            samples: &samples,
+            costs: &self.costs,
+            summary: &summary,
+            task_settings: &settings,
+        });
+        Ok(summary)
+    }
+}
+
+/// Runs one bounded session in-process and returns the per-update summaries.
+pub fn run_session(
+    config: &RunConfig,
+    seed: u64,
+    observer: &mut dyn Observer,
+) -> Result<(Vec<UpdateSummary>, Distribution), SessionError> {
+    struct Collect<'a> {
+        inner: &'a mut dyn Observer,
+        out: Vec<UpdateSummary>,
+    }
+    impl Observer for Collect<'_> {
+        fn on_start(&mut self, c: &RunConfig, o: &Optimizer) {
+            self.inner.on_start(c, o)
+        }
+        fn on_task_change(&mut self, u: u64, c: &TaskChange) {
+            self.inner.on_task_change(u, c)
+        }
+        fn on_update(&mut self, r: &UpdateRecord<'_>) {
+            self.out.push(r.summary.clone());
+            self.inner.on_update(r)
+        }
+        fn on_finish(&mut self, o: &Optimizer) {
+            self.inner.on_finish(o)
+        }
+    }
+    let mut exec = InProcess::new(config, seed)?;
+    let mut collect = Collect {
+        inner: observer,
+        out: Vec::new(),
+    };
+    exec.run(&mut collect, &|| false)?;
+    Ok((collect.out, exec.optimizer().distribution().clone()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_session_learns_and_is_reproducible() {
+        let cfg = RunConfig::default_config();
+        let (a, da) = run_session(&cfg, 1, &mut NoObserver).unwrap();
+        let (b, db) = run_session(&cfg, 1, &mut NoObserver).unwrap();
+        assert_eq!(a.len(), 40);
+        assert_eq!(da, db);
+        assert_eq!(a, b);
+        assert!(
+            a[19].eval_cost < 0.2 * a[0].eval_cost,
+            "{} → {}",
+            a[0].eval_cost,
+            a[19].eval_cost
+        );
+    }
+}
