@@ -8,8 +8,8 @@
 mod config;
 
 pub use config::{
-    ConfigError, Method, OptimizerSection, RunConfig, RunSection, ScheduleEntry, TaskSection,
-    ViaPointConfig, WeightingName, DEFAULT_CONFIG,
+    ConfigError, Method, OptimizerSection, PipelineSection, RunConfig, RunSection, ScheduleEntry,
+    TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
 };
 
 use pi2cma::{

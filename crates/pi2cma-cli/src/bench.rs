@@ -1,0 +1,121 @@
+//! Micro-benchmarks of the update kernel. They print figures; nothing here asserts speed.
+
+use std::time::{Duration, Instant};
+
+use nalgebra::DVector;
+use pi2cma::{
+    CostBatch, CostMapping, Distribution, EigenvalueBounds, Exploration, Hyperparameters,
+    ParameterBatch, TemporalAveraging, UpdateRule, Weighting,
+};
+use session::{build_optimizer, build_task, RunConfig, WeightingName};
+
+pub struct Measurement {
+    pub label: String,
+    pub median: Duration,
+    pub samples: usize,
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+/// Median time of `f`, timed in groups of `inner` calls so the clock's resolution does not
+/// dominate sub-microsecond work.
+fn measure(label: &str, groups: usize, inner: usize, mut f: impl FnMut()) -> Measurement {
+    for _ in 0..inner.min(100) {
+        f();
+    }
+    let times = (0..groups)
+        .map(|_| {
+            let t = Instant::now();
+            for _ in 0..inner {
+                f();
+            }
+            t.elapsed() / inner as u32
+        })
+        .collect();
+    Measurement {
+        label: label.to_string(),
+        median: median(times),
+        samples: groups * inner,
+    }
+}
+
+/// One full via-point update: ask (sampling), 16 rollouts (the evaluation rollout and 15
+/// exploration rollouts, N = 101, P = 2) and tell, with the A1 settings.
+pub fn viapoint_update(weighting: WeightingName) -> Measurement {
+    let mut cfg = RunConfig::default_config();
+    cfg.optimizer.rollouts = 16;
+    cfg.optimizer.weighting = weighting;
+    cfg.run.updates = None;
+    let mut task = build_task(&cfg).expect("default task builds");
+    let mut opt = build_optimizer(&cfg, task.as_ref(), 1).expect("default optimizer builds");
+    let mut costs = opt.cost_batch();
+    let label =
+        format!("via-point full update (16 rollouts + update, N = 101, P = 2), {weighting:?}");
+    measure(&label, 200, 500, || {
+        let batch = opt.ask();
+        costs.clear();
+        for k in 0..batch.rollouts {
+            let (q, phi) = costs.slot_mut(k);
+            *phi = task.rollout(batch.row(k), q);
+        }
+        opt.tell(&costs).expect("finite costs");
+    })
+}
+
+/// Update only, for a large policy: P = 350 (7 × 50), K = 50, N = 1000, PI²-CMA bounds.
+pub fn large_update(weighting: Weighting, groups: usize) -> Measurement {
+    let (p, k, n) = (350usize, 50usize, 1000usize);
+    let hp = Hyperparameters {
+        rollouts: k,
+        mapping: CostMapping::Exponential { eliteness: 10.0 },
+        exploration: Exploration::Adaptive {
+            bounds: EigenvalueBounds {
+                min: 0.02,
+                max: f64::INFINITY,
+            },
+        },
+        weighting,
+        evaluation_in_update: true,
+    };
+    let mut rule = UpdateRule::new(hp, p, n, None).expect("valid hyperparameters");
+    let old = Distribution::isotropic(DVector::zeros(p), 1.0).expect("valid distribution");
+    let batch = ParameterBatch::sample(&old, 7, 0, k);
+    let mut costs = CostBatch::new(k, n);
+    for kk in 0..k {
+        // Smooth, sample-dependent costs so that every step's weights differ.
+        let row = batch.row(kk);
+        let q: Vec<f64> = (0..n)
+            .map(|i| {
+                let j = (i * p) / n;
+                row[j] * row[j] * (1.0 + (i as f64 * 0.01).sin())
+            })
+            .collect();
+        costs
+            .insert(kk, &q, row.iter().sum::<f64>().abs())
+            .expect("finite");
+    }
+    let label = format!("large update only (P = 350, K = 50, N = 1000), {weighting:?}");
+    measure(&label, groups, 1, || {
+        rule.update(&old, &batch.values, &costs)
+            .expect("valid costs");
+    })
+}
+
+pub fn run_all(quick: bool) -> Vec<Measurement> {
+    let per_step = Weighting::PerTimeStep {
+        temporal: TemporalAveraging::RemainingSteps,
+    };
+    let mut out = vec![
+        viapoint_update(WeightingName::PerTimeStep),
+        viapoint_update(WeightingName::Episodic),
+    ];
+    out.push(large_update(per_step, if quick { 3 } else { 11 }));
+    out.push(large_update(
+        Weighting::Episodic,
+        if quick { 11 } else { 101 },
+    ));
+    out
+}

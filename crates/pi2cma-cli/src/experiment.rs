@@ -1,0 +1,313 @@
+//! Experiments: S learning sessions (seeds) per config, run in-process, aggregated into mean
+//! curves, CSV files and the re-convergence table.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use nalgebra::{DMatrix, DVector};
+use pi2cma::{Optimizer, UpdateSummary, Weighting};
+use session::{InProcess, Observer, RunConfig, SessionError, UpdateRecord};
+use tasks::Task;
+
+/// One session's trajectory through the updates.
+#[derive(Debug, Clone)]
+pub struct SessionResult {
+    pub seed: u64,
+    pub summaries: Vec<UpdateSummary>,
+    /// The distribution each update sampled from (index u), plus the final one at the end.
+    pub distributions: Vec<(DVector<f64>, DMatrix<f64>)>,
+}
+
+/// All sessions of one config.
+#[derive(Debug, Clone)]
+pub struct ConfigResult {
+    pub name: String,
+    pub weighting: Weighting,
+    pub change_at: Option<u64>,
+    pub sessions: Vec<SessionResult>,
+    /// Lowest total cost reachable on the task as it is after the last change (found by a
+    /// deterministic compass search from the final means); the reference for re-convergence.
+    pub optimum_after_change: Option<f64>,
+}
+
+struct Collector {
+    summaries: Vec<UpdateSummary>,
+    distributions: Vec<(DVector<f64>, DMatrix<f64>)>,
+}
+
+impl Observer for Collector {
+    fn on_update(&mut self, r: &UpdateRecord<'_>) {
+        self.summaries.push(r.summary.clone());
+        self.distributions
+            .push((r.before.mean.clone(), r.before.covariance.clone()));
+    }
+    fn on_finish(&mut self, o: &Optimizer) {
+        let d = o.distribution();
+        self.distributions
+            .push((d.mean.clone(), d.covariance.clone()));
+    }
+}
+
+/// Runs one session in-process and collects its curve.
+pub fn run_one(config: &RunConfig, seed: u64) -> Result<SessionResult, SessionError> {
+    let mut exec = InProcess::new(config, seed)?;
+    let mut c = Collector {
+        summaries: Vec::new(),
+        distributions: Vec::new(),
+    };
+    exec.run(&mut c, &|| false)?;
+    Ok(SessionResult {
+        seed,
+        summaries: c.summaries,
+        distributions: c.distributions,
+    })
+}
+
+/// Runs `sessions` sessions with seeds run.seed, run.seed + 1, ….
+pub fn run_config(config: &RunConfig, sessions: usize) -> Result<ConfigResult, SessionError> {
+    let sessions = (0..sessions as u64)
+        .map(|s| run_one(config, config.run.seed + s))
+        .collect::<Result<Vec<_>, _>>()?;
+    let change_at = config.schedule().changes().last().map(|c| c.from_update);
+    let mut result = ConfigResult {
+        name: config.run.name.clone(),
+        weighting: config.weighting(),
+        change_at,
+        sessions,
+        optimum_after_change: None,
+    };
+    if change_at.is_some() {
+        let mut task = session::build_task(config)?;
+        let initial = task.settings();
+        config
+            .schedule()
+            .configure(task.as_mut(), &initial, u64::MAX)?;
+        let starts: Vec<Vec<f64>> = result
+            .sessions
+            .iter()
+            .filter_map(|s| s.distributions.last().map(|d| d.0.as_slice().to_vec()))
+            .chain(std::iter::once(task.initial_mean()))
+            .collect();
+        result.optimum_after_change = Some(
+            starts
+                .iter()
+                .map(|s| minimize_total_cost(task.as_mut(), s))
+                .fold(f64::INFINITY, f64::min),
+        );
+    }
+    Ok(result)
+}
+
+/// Total cost of θ on `task`.
+pub fn total_cost(task: &mut dyn Task, theta: &[f64]) -> f64 {
+    let mut q = vec![0.0; task.steps()];
+    let phi = task.rollout(theta, &mut q);
+    phi + q.iter().sum::<f64>()
+}
+
+/// Deterministic compass search: enough to locate the optimum of a low-dimensional task (the
+/// via-point has P = 2), used only as a reference level, never inside learning.
+pub fn minimize_total_cost(task: &mut dyn Task, start: &[f64]) -> f64 {
+    let mut x = start.to_vec();
+    let mut best = total_cost(task, &x);
+    let mut step = x.iter().map(|v| v.abs()).fold(1.0, f64::max);
+    while step > 1e-9 {
+        let mut improved = false;
+        for j in 0..x.len() {
+            for dir in [1.0, -1.0] {
+                let old = x[j];
+                x[j] = old + dir * step;
+                let c = total_cost(task, &x);
+                if c < best {
+                    best = c;
+                    improved = true;
+                } else {
+                    x[j] = old;
+                }
+            }
+        }
+        if !improved {
+            step *= 0.5;
+        }
+    }
+    best
+}
+
+fn mean_over_sessions(r: &ConfigResult, f: impl Fn(&UpdateSummary) -> f64) -> Vec<f64> {
+    let n = r
+        .sessions
+        .iter()
+        .map(|s| s.summaries.len())
+        .min()
+        .unwrap_or(0);
+    (0..n)
+        .map(|u| {
+            r.sessions.iter().map(|s| f(&s.summaries[u])).sum::<f64>() / r.sessions.len() as f64
+        })
+        .collect()
+}
+
+impl ConfigResult {
+    pub fn mean_eval_cost(&self) -> Vec<f64> {
+        mean_over_sessions(self, |s| s.eval_cost)
+    }
+
+    /// Mean over sessions of the standard deviation of the exploration-rollout costs.
+    pub fn mean_exploration_std(&self) -> Vec<f64> {
+        mean_over_sessions(self, |s| s.exploration_cost_std)
+    }
+
+    /// Mean over sessions of λ_u.
+    pub fn mean_lambda(&self) -> Vec<f64> {
+        mean_over_sessions(self, |s| s.lambda)
+    }
+
+    /// The first update u ≥ the change from which the mean eval cost stays within 10% of the
+    /// jump above the optimum: c(v) ≤ c* + 0.1·(c(change) − c*) for every v ≥ u. `None` if the
+    /// run never gets there (or has no change).
+    pub fn reconvergence_update(&self) -> Option<u64> {
+        let (change, opt) = (self.change_at?, self.optimum_after_change?);
+        let c = self.mean_eval_cost();
+        let start = change as usize;
+        if start >= c.len() {
+            return None;
+        }
+        let threshold = opt + 0.1 * (c[start] - opt);
+        let mut first = None;
+        for (u, &v) in c.iter().enumerate().skip(start) {
+            if v <= threshold {
+                first.get_or_insert(u as u64);
+            } else {
+                first = None;
+            }
+        }
+        first
+    }
+}
+
+pub fn weighting_label(w: Weighting) -> &'static str {
+    match w {
+        Weighting::Episodic => "episodic",
+        Weighting::PerTimeStep {
+            temporal: pi2cma::TemporalAveraging::RemainingSteps,
+        } => "per-time-step",
+        Weighting::PerTimeStep {
+            temporal: pi2cma::TemporalAveraging::BasisActivation,
+        } => "per-time-step-basis-activation",
+    }
+}
+
+/// Per-update rows of every session: `updates.csv`.
+pub fn write_updates_csv(path: &Path, results: &[ConfigResult]) -> std::io::Result<()> {
+    let mut s = String::from(
+        "config,weighting,session,seed,update,eval_cost,exploration_cost_mean,exploration_cost_std,lambda,mean,covariance\n",
+    );
+    for r in results {
+        for (i, sess) in r.sessions.iter().enumerate() {
+            for (u, sum) in sess.summaries.iter().enumerate() {
+                let (m, c) = &sess.distributions[u];
+                let join = |v: &[f64]| {
+                    v.iter()
+                        .map(|x| format!("{x:e}"))
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                };
+                let _ = writeln!(
+                    s,
+                    "{},{},{},{},{},{:e},{:e},{:e},{:e},{},{}",
+                    r.name,
+                    weighting_label(r.weighting),
+                    i,
+                    sess.seed,
+                    u,
+                    sum.eval_cost,
+                    sum.exploration_cost_mean,
+                    sum.exploration_cost_std,
+                    sum.lambda,
+                    join(m.as_slice()),
+                    join(c.as_slice())
+                );
+            }
+        }
+    }
+    std::fs::write(path, s)
+}
+
+/// Mean curves per config: `mean_curves.csv`.
+pub fn write_mean_csv(path: &Path, results: &[ConfigResult]) -> std::io::Result<()> {
+    let mut s = String::from("config,weighting,update,eval_cost,exploration_cost_std,lambda\n");
+    for r in results {
+        let (e, sd, l) = (
+            r.mean_eval_cost(),
+            r.mean_exploration_std(),
+            r.mean_lambda(),
+        );
+        for u in 0..e.len() {
+            let _ = writeln!(
+                s,
+                "{},{},{},{:e},{:e},{:e}",
+                r.name,
+                weighting_label(r.weighting),
+                u,
+                e[u],
+                sd[u],
+                l[u]
+            );
+        }
+    }
+    std::fs::write(path, s)
+}
+
+/// The summary table printed after an experiment and saved as `summary.md`.
+pub fn summary_table(results: &[ConfigResult]) -> String {
+    let mut s = String::from(
+        "| config | weighting | sessions | eval cost u=0 | u=19 | u=20 | last | expl. std u=19 | λ u=0 | λ u=19 | λ max after change | λ last | re-converged at |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in results {
+        let (e, sd, l) = (
+            r.mean_eval_cost(),
+            r.mean_exploration_std(),
+            r.mean_lambda(),
+        );
+        if e.is_empty() {
+            continue;
+        }
+        let at = |v: &[f64], u: usize| v.get(u).map_or("–".into(), |x| fmt(*x));
+        let after = r.change_at.unwrap_or(0) as usize;
+        let lmax = l
+            .iter()
+            .skip(after)
+            .cloned()
+            .fold(f64::NEG_INFINITY, f64::max);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.name,
+            weighting_label(r.weighting),
+            r.sessions.len(),
+            at(&e, 0),
+            at(&e, 19),
+            at(&e, 20),
+            fmt(e[e.len() - 1]),
+            at(&sd, 19),
+            at(&l, 0),
+            at(&l, 19),
+            fmt(lmax),
+            fmt(l[l.len() - 1]),
+            match (r.change_at, r.reconvergence_update()) {
+                (None, _) => "no change".to_string(),
+                (Some(_), Some(u)) => u.to_string(),
+                (Some(_), None) => "not re-converged".to_string(),
+            }
+        );
+    }
+    s
+}
+
+fn fmt(x: f64) -> String {
+    if x.abs() >= 1e4 || (x != 0.0 && x.abs() < 1e-2) {
+        format!("{x:.2e}")
+    } else {
+        format!("{x:.3}")
+    }
+}

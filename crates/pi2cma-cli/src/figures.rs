@@ -1,0 +1,218 @@
+//! Figures in the style of the paper's Fig. 2, as SVG: per config, left the search distribution
+//! (mean and 1-σ covariance ellipse per update) in parameter space, right the mean eval-cost
+//! learning curve with a ±std band of the exploration rollouts and λ on a log axis.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use crate::experiment::{weighting_label, ConfigResult};
+
+#[derive(Debug, thiserror::Error)]
+#[error("cannot draw {path}: {reason}")]
+pub struct FigureError {
+    pub path: String,
+    pub reason: String,
+}
+
+/// Points of the 1-σ ellipse of a 2×2 covariance around `mean`.
+pub fn ellipse(mean: [f64; 2], cov: [[f64; 2]; 2], points: usize) -> Vec<(f64, f64)> {
+    let (l, v) = pi2cma::boundcovar::eigen2(cov[0][0], cov[0][1], cov[1][1]);
+    let (s0, s1) = (l[0].max(0.0).sqrt(), l[1].max(0.0).sqrt());
+    (0..=points)
+        .map(|i| {
+            let t = i as f64 / points as f64 * std::f64::consts::TAU;
+            let (a, b) = (s0 * t.cos(), s1 * t.sin());
+            (
+                mean[0] + a * v[0][0] + b * v[1][0],
+                mean[1] + a * v[0][1] + b * v[1][1],
+            )
+        })
+        .collect()
+}
+
+fn palette(u: usize, n: usize) -> RGBColor {
+    // From dark to light blue over the updates, as in the paper's distribution plots.
+    let f = if n > 1 {
+        u as f64 / (n - 1) as f64
+    } else {
+        0.0
+    };
+    RGBColor(
+        (20.0 + 180.0 * f) as u8,
+        (40.0 + 160.0 * f) as u8,
+        (140.0 + 100.0 * f) as u8,
+    )
+}
+
+/// Draws the Fig. 2-style grid: one row per config.
+pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
+    let err = |e: &dyn std::fmt::Display| FigureError {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    };
+    let rows = results.len().max(1);
+    let root = SVGBackend::new(path, (1100, 260 * rows as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let cells = root.split_evenly((rows, 2));
+
+    // Shared parameter-space limits across configs, as in the paper.
+    let mut lim = [
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for r in results {
+        for s in &r.sessions {
+            for (m, c) in &s.distributions {
+                if m.len() != 2 {
+                    continue;
+                }
+                let sx = c[(0, 0)].max(0.0).sqrt();
+                let sy = c[(1, 1)].max(0.0).sqrt();
+                lim[0] = lim[0].min(m[0] - sx);
+                lim[1] = lim[1].max(m[0] + sx);
+                lim[2] = lim[2].min(m[1] - sy);
+                lim[3] = lim[3].max(m[1] + sy);
+            }
+        }
+    }
+    for (i, r) in results.iter().enumerate() {
+        let title = format!("{} ({})", r.name, weighting_label(r.weighting));
+        // Left: distribution of session 0 (the paper shows one session).
+        if let Some(s) = r.sessions.first().filter(|s| {
+            s.distributions.first().is_some_and(|d| d.0.len() == 2) && lim[0].is_finite()
+        }) {
+            let mut chart = ChartBuilder::on(&cells[2 * i])
+                .caption(format!("{title}: θ and Σ (session 0)"), ("sans-serif", 14))
+                .margin(6)
+                .x_label_area_size(28)
+                .y_label_area_size(52)
+                .build_cartesian_2d(lim[0]..lim[1], lim[2]..lim[3])
+                .map_err(|e| err(&e))?;
+            chart
+                .configure_mesh()
+                .x_desc("θ₁")
+                .y_desc("θ₂")
+                .light_line_style(WHITE)
+                .draw()
+                .map_err(|e| err(&e))?;
+            let n = s.distributions.len();
+            for (u, (m, c)) in s.distributions.iter().enumerate() {
+                let pts = ellipse(
+                    [m[0], m[1]],
+                    [[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]],
+                    60,
+                );
+                let color = palette(u, n);
+                chart
+                    .draw_series(LineSeries::new(pts, color.stroke_width(1)))
+                    .map_err(|e| err(&e))?;
+            }
+            chart
+                .draw_series(LineSeries::new(
+                    s.distributions.iter().map(|(m, _)| (m[0], m[1])),
+                    BLACK.stroke_width(1),
+                ))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(
+                    s.distributions
+                        .iter()
+                        .map(|(m, _)| Circle::new((m[0], m[1]), 2, BLACK.filled())),
+                )
+                .map_err(|e| err(&e))?;
+        }
+
+        // Right: learning curve, band and λ.
+        let (e, sd, l) = (
+            r.mean_eval_cost(),
+            r.mean_exploration_std(),
+            r.mean_lambda(),
+        );
+        if e.is_empty() {
+            continue;
+        }
+        let n = e.len() as f64;
+        let ymax = e
+            .iter()
+            .zip(&sd)
+            .map(|(a, b)| a + b)
+            .fold(0.0, f64::max)
+            .min(3.0 * e.iter().cloned().fold(0.0, f64::max))
+            .max(1e-9);
+        let (lmin, lmax) = l
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                (a.min(v), b.max(v))
+            });
+        let (lmin, lmax) = (lmin.max(1e-6) / 2.0, lmax.max(1e-6) * 2.0);
+        let mut chart = ChartBuilder::on(&cells[2 * i + 1])
+            .caption(
+                format!("{title}: cost (blue) and λ (green)"),
+                ("sans-serif", 14),
+            )
+            .margin(6)
+            .x_label_area_size(28)
+            .y_label_area_size(52)
+            .right_y_label_area_size(52)
+            .build_cartesian_2d(0.0..n, 0.0..ymax)
+            .map_err(|e| err(&e))?
+            .set_secondary_coord(0.0..n, (lmin..lmax).log_scale());
+        chart
+            .configure_mesh()
+            .x_desc("update")
+            .y_desc("cost")
+            .light_line_style(WHITE)
+            .draw()
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_secondary_axes()
+            .y_desc("λ")
+            .draw()
+            .map_err(|e| err(&e))?;
+        let upper: Vec<(f64, f64)> = e
+            .iter()
+            .zip(&sd)
+            .enumerate()
+            .map(|(u, (a, b))| (u as f64, (a + b).min(ymax)))
+            .collect();
+        let lower: Vec<(f64, f64)> = e
+            .iter()
+            .zip(&sd)
+            .enumerate()
+            .rev()
+            .map(|(u, (a, b))| (u as f64, (a - b).max(0.0)))
+            .collect();
+        let band: Vec<(f64, f64)> = upper.into_iter().chain(lower).collect();
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                band,
+                RGBColor(120, 170, 230).mix(0.35).filled(),
+            )))
+            .map_err(|e| err(&e))?;
+        chart
+            .draw_series(LineSeries::new(
+                e.iter().enumerate().map(|(u, v)| (u as f64, *v)),
+                RGBColor(20, 60, 180).stroke_width(2),
+            ))
+            .map_err(|e| err(&e))?;
+        chart
+            .draw_secondary_series(LineSeries::new(
+                l.iter().enumerate().map(|(u, v)| (u as f64, *v)),
+                RGBColor(20, 150, 40).stroke_width(2),
+            ))
+            .map_err(|e| err(&e))?;
+        if let Some(c) = r.change_at {
+            chart
+                .draw_series(LineSeries::new(
+                    [(c as f64, 0.0), (c as f64, ymax)],
+                    BLACK.mix(0.4).stroke_width(1),
+                ))
+                .map_err(|e| err(&e))?;
+        }
+    }
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}

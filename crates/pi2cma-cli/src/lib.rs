@@ -1,0 +1,7 @@
+//! Library side of the `pi2cma` command: experiments over configs and seeds, their CSV output
+//! and figures, and the update benchmarks. It drives the core through the `session` crate's
+//! in-process executor; it is not the multiprocess pipeline.
+
+pub mod bench;
+pub mod experiment;
+pub mod figures;

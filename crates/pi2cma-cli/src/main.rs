@@ -1,0 +1,228 @@
+//! `pi2cma`: run a learning session in-process, run the paper's experiments over several
+//! configs and seeds, and benchmark the update. The multiprocess pipeline has its own
+//! `supervisor` binary; this command never starts processes.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use pi2cma_cli::{bench, experiment, figures};
+use session::{Observer, RunConfig, UpdateRecord, WeightingName};
+
+#[derive(Parser)]
+#[command(name = "pi2cma", version, about = "PI²-CMA policy search on DMPs")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum WeightingArg {
+    Episodic,
+    PerTimeStep,
+    PerTimeStepBasisActivation,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run one learning session in-process (built-in default: PI²-CMA on the via-point, A1).
+    Run {
+        /// Run config (TOML); the built-in default if omitted.
+        config: Option<PathBuf>,
+        /// Override run.seed.
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Directory for updates.csv, mean_curves.csv and fig2.svg.
+        #[arg(long, default_value = "runs/latest")]
+        out: PathBuf,
+        /// Print nothing per update.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Run S sessions (seeds seed, seed+1, …) of each config; write CSVs, figures and the
+    /// re-convergence table.
+    Experiment {
+        /// Run configs (TOML).
+        #[arg(required = true)]
+        configs: Vec<PathBuf>,
+        #[arg(long, default_value_t = 10)]
+        sessions: usize,
+        /// Override the weighting mode of every config.
+        #[arg(long, value_enum)]
+        weighting: Option<WeightingArg>,
+        #[arg(long, default_value = "runs/experiment")]
+        out: PathBuf,
+    },
+    /// Check configs without running them.
+    Check {
+        #[arg(required = true)]
+        configs: Vec<PathBuf>,
+    },
+    /// Print the median time of one update (via-point and a large policy, both modes).
+    Bench {
+        /// Fewer repetitions of the slow large-policy case.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Print the built-in default config.
+    DefaultConfig,
+}
+
+struct Progress {
+    total: Option<u64>,
+}
+
+impl Observer for Progress {
+    fn on_task_change(&mut self, update: u64, change: &tasks::TaskChange) {
+        println!(
+            "update {update:>3}: task change {} = {}",
+            change.name, change.value
+        );
+    }
+    fn on_update(&mut self, r: &UpdateRecord<'_>) {
+        let s = r.summary;
+        let total = self.total.map_or("∞".to_string(), |t| t.to_string());
+        println!(
+            "update {:>3}/{total}: eval cost {:>10.4}  exploration {:>10.4} ± {:<10.4} λ {:>10.4}",
+            s.update + 1,
+            s.eval_cost,
+            s.exploration_cost_mean,
+            s.exploration_cost_std,
+            s.lambda
+        );
+    }
+}
+
+fn load(path: &Path) -> Result<RunConfig> {
+    Ok(RunConfig::load(path)?)
+}
+
+fn apply_weighting(cfg: &mut RunConfig, w: Option<WeightingArg>) -> Result<()> {
+    let Some(w) = w else { return Ok(()) };
+    use session::WeightingName as W;
+    let (weighting, temporal) = match w {
+        WeightingArg::Episodic => (W::Episodic, None),
+        WeightingArg::PerTimeStep => (W::PerTimeStep, None),
+        WeightingArg::PerTimeStepBasisActivation => {
+            (W::PerTimeStep, Some(session::TemporalName::BasisActivation))
+        }
+    };
+    cfg.optimizer.weighting = weighting;
+    cfg.optimizer.temporal_averaging = temporal;
+    cfg.validate()?;
+    Ok(())
+}
+
+fn write_outputs(out: &Path, results: &[experiment::ConfigResult]) -> Result<String> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    experiment::write_updates_csv(&out.join("updates.csv"), results)
+        .with_context(|| format!("writing {}", out.join("updates.csv").display()))?;
+    experiment::write_mean_csv(&out.join("mean_curves.csv"), results)
+        .with_context(|| format!("writing {}", out.join("mean_curves.csv").display()))?;
+    figures::fig2(&out.join("fig2.svg"), results)?;
+    let table = experiment::summary_table(results);
+    std::fs::write(out.join("summary.md"), &table)
+        .with_context(|| format!("writing {}", out.join("summary.md").display()))?;
+    Ok(table)
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Run {
+            config,
+            seed,
+            out,
+            quiet,
+        } => {
+            let mut cfg = match &config {
+                Some(p) => load(p)?,
+                None => RunConfig::default_config(),
+            };
+            if let Some(s) = seed {
+                cfg.run.seed = s;
+            }
+            if cfg.run.updates.is_none() {
+                bail!(
+                    "{}: run.updates is not set (an unbounded run): run it with the supervisor, which can be stopped",
+                    cfg.origin.display()
+                );
+            }
+            println!(
+                "pi2cma: run {} ({}), seed {}, {} updates, in-process",
+                cfg.run.name,
+                cfg.origin.display(),
+                cfg.run.seed,
+                cfg.run.updates.unwrap_or(0)
+            );
+            let mut progress = Progress {
+                total: cfg.run.updates,
+            };
+            let mut exec = session::InProcess::new(&cfg, cfg.run.seed)?;
+            let mut noop = session::NoObserver;
+            let obs: &mut dyn Observer = if quiet { &mut noop } else { &mut progress };
+            exec.run(obs, &|| false)?;
+            let result = experiment::run_config(&cfg, 1)?;
+            let table = write_outputs(&out, &[result])?;
+            let d = exec.optimizer().distribution();
+            println!("\n{table}");
+            println!(
+                "final mean θ = {:?}\nfinal λ = {:.4}\nresults in {}/ (updates.csv, mean_curves.csv, fig2.svg, summary.md)",
+                d.mean.as_slice(),
+                exec.optimizer().lambda(),
+                out.display()
+            );
+        }
+        Command::Experiment {
+            configs,
+            sessions,
+            weighting,
+            out,
+        } => {
+            if sessions == 0 {
+                bail!("--sessions must be at least 1");
+            }
+            let mut results = Vec::new();
+            for path in &configs {
+                let mut cfg = load(path)?;
+                apply_weighting(&mut cfg, weighting)?;
+                if cfg.run.updates.is_none() {
+                    bail!(
+                        "{}: run.updates must be set for an experiment",
+                        path.display()
+                    );
+                }
+                eprintln!("running {} × {sessions} sessions", cfg.run.name);
+                results.push(
+                    experiment::run_config(&cfg, sessions)
+                        .with_context(|| format!("running {}", path.display()))?,
+                );
+            }
+            let table = write_outputs(&out, &results)?;
+            println!("{table}");
+            println!(
+                "re-converged at: first update from which the mean eval cost stays within 10% of its jump above the optimum of the changed task\nresults in {}/",
+                out.display()
+            );
+        }
+        Command::Check { configs } => {
+            for path in &configs {
+                load(path)?;
+                println!("{}: ok", path.display());
+            }
+        }
+        Command::Bench { quick } => {
+            for m in bench::run_all(quick) {
+                println!(
+                    "{:<90} median {:>12.3?}  ({} samples)",
+                    m.label, m.median, m.samples
+                );
+            }
+        }
+        Command::DefaultConfig => print!("{}", session::DEFAULT_CONFIG),
+    }
+    Ok(())
+}
+
+// Keep the weighting names in one place: the CLI's enum maps onto the config's.
+const _: fn(WeightingName) = |_| {};
