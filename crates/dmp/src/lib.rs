@@ -404,6 +404,16 @@ impl AffineDmp {
         self.eval(&self.base.acc, &self.phi_acc, i, d, weights)
     }
 
+    /// For a 1-D DMP: the base accelerations (N) and the row-major N × B basis responses, so
+    /// that ÿ_i = base_i + Φ_i·θ can be evaluated in a tight loop.
+    pub fn acceleration_terms(&self, d: usize) -> (impl Iterator<Item = f64> + '_, &[f64]) {
+        let dims = self.dims;
+        (
+            self.base.acc.iter().skip(d).step_by(dims).copied(),
+            &self.phi_acc[..],
+        )
+    }
+
     /// The whole trajectory for θ into `out` (no allocation).
     pub fn rollout_into(&self, weights: &[f64], out: &mut Trajectory) {
         for i in 0..self.steps {

@@ -104,18 +104,22 @@ pub fn large_update(weighting: Weighting, groups: usize) -> Measurement {
     })
 }
 
-pub fn run_all(quick: bool) -> Vec<Measurement> {
+/// Runs the benchmarks whose name contains `filter` ("" for all).
+pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
     let per_step = Weighting::PerTimeStep {
         temporal: TemporalAveraging::RemainingSteps,
     };
-    let mut out = vec![
-        viapoint_update(WeightingName::PerTimeStep),
-        viapoint_update(WeightingName::Episodic),
-    ];
-    out.push(large_update(per_step, if quick { 3 } else { 11 }));
-    out.push(large_update(
-        Weighting::Episodic,
-        if quick { 11 } else { 101 },
-    ));
+    let mut out = Vec::new();
+    if "via-point".contains(filter) {
+        out.push(viapoint_update(WeightingName::PerTimeStep));
+        out.push(viapoint_update(WeightingName::Episodic));
+    }
+    if "large".contains(filter) {
+        out.push(large_update(per_step, if quick { 3 } else { 11 }));
+        out.push(large_update(
+            Weighting::Episodic,
+            if quick { 11 } else { 101 },
+        ));
+    }
     out
 }

@@ -63,6 +63,9 @@ enum Command {
         /// Fewer repetitions of the slow large-policy case.
         #[arg(long)]
         quick: bool,
+        /// Only the cases named "via-point" or "large".
+        #[arg(long, default_value = "")]
+        only: String,
     },
     /// Print the built-in default config.
     DefaultConfig,
@@ -211,8 +214,8 @@ fn main() -> Result<()> {
                 println!("{}: ok", path.display());
             }
         }
-        Command::Bench { quick } => {
-            for m in bench::run_all(quick) {
+        Command::Bench { quick, only } => {
+            for m in bench::run_all(quick, &only) {
                 println!(
                     "{:<90} median {:>12.3?}  ({} samples)",
                     m.label, m.median, m.samples

@@ -79,7 +79,9 @@ pub fn largest_eigenvalue(m: &DMatrix<f64>) -> f64 {
 pub fn eigen2(a: f64, b: f64, c: f64) -> ([f64; 2], [[f64; 2]; 2]) {
     let half_trace = 0.5 * (a + c);
     let half_diff = 0.5 * (a - c);
-    let r = half_diff.hypot(b);
+    // sqrt(x² + y²) rather than hypot: covariance entries are far from overflow, and hypot's
+    // extra care costs more than the rest of the 2×2 update.
+    let r = (half_diff * half_diff + b * b).sqrt();
     let l1 = half_trace + r;
     let l2 = half_trace - r;
     if b == 0.0 {
@@ -92,7 +94,7 @@ pub fn eigen2(a: f64, b: f64, c: f64) -> ([f64; 2], [[f64; 2]; 2]) {
     } else {
         (b, l1 - a)
     };
-    let n = x.hypot(y);
+    let n = (x * x + y * y).sqrt();
     let (x, y) = (x / n, y / n);
     ([l1, l2], [[x, y], [-y, x]])
 }

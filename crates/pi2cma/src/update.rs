@@ -115,6 +115,11 @@ pub struct UpdateRule {
     // Scratch, sized once.
     eps: Vec<f64>,
     cost_to_go: Vec<f64>,
+    /// Row-major N × K cost-to-go, for the per-time-step mode.
+    step_costs: Vec<f64>,
+    sqrt_probs: Vec<f64>,
+    /// Rows: the scaled eigenvectors √(w·c_j)·D^½·v_j of one step (low-rank kernel).
+    factor: DMatrix<f64>,
     probs: Vec<f64>,
     order: Vec<usize>,
     mean_weights: Vec<f64>,
@@ -198,6 +203,7 @@ impl UpdateRule {
         };
         let k = hp.rollouts;
         let m = k - hp.first_updating_rollout();
+        let hp_weighting = hp.weighting;
         let kernel = if dim == 2 {
             CovarianceKernel::Closed2
         } else if dim <= m {
@@ -214,6 +220,12 @@ impl UpdateRule {
             kernel,
             eps: vec![0.0; m * dim],
             cost_to_go: vec![0.0; m],
+            step_costs: match hp_weighting {
+                Weighting::PerTimeStep { .. } => vec![0.0; steps * m],
+                Weighting::Episodic => Vec::new(),
+            },
+            sqrt_probs: vec![0.0; m],
+            factor: DMatrix::zeros(m, m),
             probs: vec![0.0; m],
             order: vec![0; m],
             mean_weights: vec![0.0; m],
@@ -292,22 +304,25 @@ impl UpdateRule {
                 }
             }
             Weighting::PerTimeStep { .. } => {
+                // S_{i,k} = φ_k + Σ_{j≥i} q_{j,k}, laid out by step so each step's K values
+                // are contiguous.
                 for (r, k) in (first..k_all).enumerate() {
-                    self.cost_to_go[r] = costs.terminal(k);
-                }
-                // Backwards in time so the cost-to-go is a running suffix sum.
-                for i in (0..n).rev() {
-                    for (r, k) in (first..k_all).enumerate() {
-                        self.cost_to_go[r] += costs.per_step(k)[i];
+                    let q = costs.per_step(k);
+                    let mut acc = costs.terminal(k);
+                    for i in (0..n).rev() {
+                        acc += q[i];
+                        self.step_costs[i * m + r] = acc;
                     }
+                }
+                for i in 0..n {
                     self.hp.mapping.probabilities(
-                        &self.cost_to_go,
+                        &self.step_costs[i * m..(i + 1) * m],
                         &mut self.probs,
                         &mut self.order,
                     );
                     let w = self.temporal[i];
-                    for r in 0..m {
-                        self.mean_weights[r] += w * self.probs[r];
+                    for (a, pr) in self.mean_weights.iter_mut().zip(&self.probs) {
+                        *a += w * pr;
                     }
                     if let Some(bt) = &self.basis_temporal {
                         let row = &bt[i * p..(i + 1) * p];
@@ -364,15 +379,12 @@ impl UpdateRule {
     }
 
     fn compute_gram(&mut self, m: usize) {
-        let p = self.dim;
+        let x = DMatrix::from_column_slice(self.dim, m, &self.eps);
+        self.gram.gemm_tr(1.0, &x, &x, 0.0);
+        // Gram entries feed an eigen-solver that expects exact symmetry.
         for a in 0..m {
-            for b in 0..=a {
-                let mut s = 0.0;
-                for j in 0..p {
-                    s += self.eps[a * p + j] * self.eps[b * p + j];
-                }
-                self.gram[(a, b)] = s;
-                self.gram[(b, a)] = s;
+            for b in 0..a {
+                self.gram[(b, a)] = self.gram[(a, b)];
             }
         }
     }
@@ -431,15 +443,19 @@ impl UpdateRule {
                     }
                     return;
                 }
+                for (s, pr) in self.sqrt_probs.iter_mut().zip(&self.probs) {
+                    *s = pr.sqrt();
+                }
                 for a in 0..m {
-                    let da = self.probs[a].sqrt();
+                    let da = self.sqrt_probs[a];
                     for b in 0..=a {
-                        let v = da * self.probs[b].sqrt() * self.gram[(a, b)];
+                        let v = da * self.sqrt_probs[b] * self.gram[(a, b)];
                         self.small[(a, b)] = v;
                         self.small[(b, a)] = v;
                     }
                 }
                 let eig = self.small.clone().symmetric_eigen();
+                let mut rank = 0;
                 for (j, &mu) in eig.eigenvalues.iter().enumerate() {
                     if !(mu > 0.0) {
                         continue;
@@ -448,17 +464,16 @@ impl UpdateRule {
                     if c == 0.0 {
                         continue;
                     }
+                    let scale = (w * c).sqrt();
                     let v = eig.eigenvectors.column(j);
-                    let wc = w * c;
                     for a in 0..m {
-                        let ua = self.probs[a].sqrt() * v[a] * wc;
-                        if ua == 0.0 {
-                            continue;
-                        }
-                        for b in 0..=a {
-                            self.lowrank_acc[(a, b)] += ua * self.probs[b].sqrt() * v[b];
-                        }
+                        self.factor[(rank, a)] = self.sqrt_probs[a] * v[a] * scale;
                     }
+                    rank += 1;
+                }
+                if rank > 0 {
+                    let f = self.factor.rows(0, rank);
+                    self.lowrank_acc.gemm_tr(1.0, &f, &f, 1.0);
                 }
             }
         }
@@ -478,15 +493,18 @@ impl UpdateRule {
             }
             CovarianceKernel::LowRank => {
                 let m = self.probs.len();
-                // lowrank_acc holds the lower triangle of M; Σ = λ_min·I + Eᵀ·M·E.
+                // M is symmetric up to rounding in the accumulation; make it exactly so.
                 for a in 0..m {
                     for b in 0..a {
-                        self.lowrank_acc[(b, a)] = self.lowrank_acc[(a, b)];
+                        let v = 0.5 * (self.lowrank_acc[(a, b)] + self.lowrank_acc[(b, a)]);
+                        self.lowrank_acc[(a, b)] = v;
+                        self.lowrank_acc[(b, a)] = v;
                     }
                 }
-                let e = DMatrix::from_row_slice(m, p, &self.eps);
-                let me = &self.lowrank_acc * &e;
-                let mut s = e.transpose() * me;
+                // X (P × K, columns ε_k) shares the memory layout of the row-major K × P eps.
+                let x = DMatrix::from_column_slice(p, m, &self.eps);
+                let xm = &x * &self.lowrank_acc;
+                let mut s = xm * x.transpose();
                 let lower = if unbounded { 0.0 } else { bounds.min };
                 for a in 0..p {
                     for b in 0..a {

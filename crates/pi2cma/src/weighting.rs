@@ -55,11 +55,10 @@ impl CostMapping {
                     return;
                 }
                 let scale = -eliteness / range;
-                let mut sum = 0.0;
                 for (o, &c) in out.iter_mut().zip(costs) {
-                    *o = ((c - lo) * scale).exp();
-                    sum += *o;
+                    *o = exp_nonpositive((c - lo) * scale);
                 }
+                let sum: f64 = out.iter().sum();
                 let inv = 1.0 / sum;
                 out.iter_mut().for_each(|o| *o *= inv);
             }
@@ -77,6 +76,41 @@ impl CostMapping {
             }
         }
     }
+}
+
+/// e^x for x ≤ 0, branch-free so that the loop over a batch vectorises (the exponentials are
+/// the largest part of a per-time-step update). Range reduction x = n·ln2 + r, |r| ≤ ln2/2, and a
+/// degree-13 Taylor polynomial: within a few ulp of `f64::exp` over [−708, 0]. Below −708 it
+/// returns e^−708 ≈ 3·10⁻³⁰⁸ instead of a subnormal or 0; the probabilities it feeds are
+/// normalised by a sum ≥ 1, so that difference cannot show.
+#[inline(always)]
+pub fn exp_nonpositive(x: f64) -> f64 {
+    const LOG2E: f64 = std::f64::consts::LOG2_E;
+    const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-1;
+    const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
+    // Adding 1.5·2^52 rounds to the nearest integer and leaves n in the low mantissa bits.
+    const SHIFTER: f64 = 6_755_399_441_055_744.0;
+    let x = x.clamp(-708.0, 0.0);
+    let t = x * LOG2E + SHIFTER;
+    let n = t - SHIFTER;
+    let r = (x - n * LN2_HI) - n * LN2_LO;
+    let mut p = 1.0 / 6_227_020_800.0;
+    p = p * r + 1.0 / 479_001_600.0;
+    p = p * r + 1.0 / 39_916_800.0;
+    p = p * r + 1.0 / 3_628_800.0;
+    p = p * r + 1.0 / 362_880.0;
+    p = p * r + 1.0 / 40_320.0;
+    p = p * r + 1.0 / 5_040.0;
+    p = p * r + 1.0 / 720.0;
+    p = p * r + 1.0 / 120.0;
+    p = p * r + 1.0 / 24.0;
+    p = p * r + 1.0 / 6.0;
+    p = p * r + 0.5;
+    p = p * r + 1.0;
+    p = p * r + 1.0;
+    // 2^n from n's low bits: n ∈ [−1022, 0], so n + 1023 fits the exponent field.
+    let scale = f64::from_bits((t.to_bits().wrapping_add(1023)) << 52);
+    p * scale
 }
 
 #[cfg(test)]
@@ -102,6 +136,20 @@ mod tests {
         for (a, b) in p.iter().zip(expect) {
             assert!((a - b).abs() < 1e-15, "{p:?}");
         }
+    }
+
+    #[test]
+    fn exp_nonpositive_matches_std_exp() {
+        let mut worst: f64 = 0.0;
+        for i in 0..=200_000 {
+            let x = -708.0 * i as f64 / 200_000.0;
+            let (a, b) = (exp_nonpositive(x), x.exp());
+            worst = worst.max(((a - b) / b).abs());
+        }
+        assert!(worst < 1e-15, "relative error {worst}");
+        assert_eq!(exp_nonpositive(0.0), 1.0);
+        assert_eq!(exp_nonpositive(-800.0), exp_nonpositive(-708.0));
+        assert!(exp_nonpositive(-1e-300) == 1.0);
     }
 
     #[test]

@@ -305,10 +305,11 @@ impl Task for ViaPoint {
     }
 
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
-        let n = self.affine.steps();
-        let inv_n = 1.0 / n as f64;
-        for (i, q) in per_step.iter_mut().enumerate() {
-            let a = self.affine.acceleration(i, 0, theta);
+        let inv_n = 1.0 / self.affine.steps() as f64;
+        let (base, phi) = self.affine.acceleration_terms(0);
+        let b = self.affine.basis();
+        for ((q, base), phi) in per_step.iter_mut().zip(base).zip(phi.chunks_exact(b)) {
+            let a = base + phi.iter().zip(theta).map(|(p, t)| p * t).sum::<f64>();
             *q = a * a * inv_n;
         }
         let x = self.affine.position(self.viapoint_step, 0, theta);
