@@ -1,0 +1,1229 @@
+//! Post-hoc analysis of one or many recordings: an info summary, CSV per topic, SVG figures
+//! (learning curve with ±std band and λ on a log axis, distribution ellipses for 2-D policies,
+//! per-worker rollout time), and over the sessions of an experiment: mean curves and a
+//! re-convergence table.
+//!
+//! Entry point for command lines: [`AnalyzeArgs`] + [`run`].
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::recompute::verify;
+use crate::{distribution_from_proto, proto, read_recording, RecordError, Recording};
+
+/// `analyze FILES… [--out DIR]`: prints the info summary of every file; with `--out`, writes CSV
+/// and figures per file into `DIR/<file stem>/`, and with several files the experiment's mean
+/// curves and re-convergence table into `DIR/`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct AnalyzeArgs {
+    /// MCAP recordings: one run, or the sessions of an experiment (grouped by run name).
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// Directory for CSV files and SVG figures; without it only the summary is printed.
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+    /// Do not write CSV files.
+    #[arg(long)]
+    pub no_csv: bool,
+    /// Do not draw figures.
+    #[arg(long)]
+    pub no_plots: bool,
+    /// Recompute every update from its recorded inputs and report mismatches.
+    #[arg(long)]
+    pub verify: bool,
+    /// Re-convergence tolerance: a segment has converged once every later eval cost is within
+    /// `tolerance` × (peak − final level) of its final level.
+    #[arg(long, default_value_t = 0.05)]
+    pub tolerance: f64,
+}
+
+/// Runs `analyze`; returns the text to print (summaries and the files written).
+pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
+    let mut out = String::new();
+    let mut recs = Vec::with_capacity(args.files.len());
+    for f in &args.files {
+        let rec = read_recording(f)?;
+        out.push_str(&info(&rec));
+        if args.verify {
+            let r = verify(&rec)?;
+            let _ = writeln!(
+                out,
+                "  recompute: {} updates, {} mismatches{}",
+                r.updates,
+                r.mismatches.len(),
+                if r.mismatches.is_empty() {
+                    " (bit-identical)".to_string()
+                } else {
+                    format!(" at updates {:?}", r.mismatches)
+                }
+            );
+        }
+        if let Some(dir) = &args.out {
+            let sub = dir.join(stem(f));
+            if !args.no_csv {
+                for p in export_csv(&rec, &sub)? {
+                    let _ = writeln!(out, "  wrote {}", p.display());
+                }
+            }
+            if !args.no_plots {
+                for p in plot(&rec, &sub)? {
+                    let _ = writeln!(out, "  wrote {}", p.display());
+                }
+            }
+        }
+        out.push('\n');
+        recs.push(rec);
+    }
+    if recs.len() > 1 {
+        let exp = experiment(&recs, args.out.as_deref(), args.tolerance, !args.no_plots)?;
+        out.push_str(&exp.table);
+        for p in &exp.files {
+            let _ = writeln!(out, "wrote {}", p.display());
+        }
+    }
+    Ok(out)
+}
+
+fn stem(p: &Path) -> String {
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "run".into())
+}
+
+fn io(file: &Path) -> impl FnOnce(std::io::Error) -> RecordError + '_ {
+    move |e| RecordError::io(file, e)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Info
+
+/// A human-readable summary of one recording.
+pub fn info(rec: &Recording) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{} ({} bytes)", rec.path.display(), rec.file_bytes);
+    match (&rec.truncated, rec.indexed) {
+        (None, true) => {
+            let _ = writeln!(s, "  complete, indexed");
+        }
+        (t, _) => {
+            let _ = writeln!(
+                s,
+                "  NOT indexed (writer did not finish){}; `mcap-tool recover` rewrites it",
+                t.as_ref().map(|t| format!(": {t}")).unwrap_or_default()
+            );
+        }
+    }
+    if let Some(r) = rec.run_info() {
+        let hp = r.hyperparameters.unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "  run {}: seed {}, executor {}, P = {}, N = {}, K = {}, {}",
+            r.name,
+            r.seed,
+            r.executor,
+            r.dim,
+            r.steps,
+            hp.rollouts,
+            describe_hp(&hp)
+        );
+    }
+    let n = rec.updates.len();
+    if let (Some(first), Some(last)) = (rec.updates.first(), rec.updates.last()) {
+        let best = rec
+            .updates
+            .iter()
+            .min_by(|a, b| a.eval_cost.total_cmp(&b.eval_cost))
+            .map(|u| (u.eval_cost, u.update))
+            .unwrap_or((f64::NAN, 0));
+        let _ = writeln!(
+            s,
+            "  updates: {n} ({}..={}), {} bytes per update",
+            first.update,
+            last.update,
+            rec.file_bytes / n as u64
+        );
+        let _ = writeln!(
+            s,
+            "  eval cost: {:.6} → {:.6} (best {:.6} at update {}); λ: {:.6} → {:.6}",
+            first.eval_cost, last.eval_cost, best.0, best.1, first.lambda, last.lambda_next
+        );
+    } else {
+        let _ = writeln!(s, "  updates: 0");
+    }
+    if let Some((a, b)) = rec.time_range {
+        let _ = writeln!(s, "  time span: {:.3} s", (b - a) as f64 / 1e9);
+    }
+    for c in &rec.task_changes {
+        let _ = writeln!(
+            s,
+            "  task change before update {}: {} = {}",
+            c.update, c.name, c.value
+        );
+    }
+    let mut events: BTreeMap<&str, u64> = BTreeMap::new();
+    for l in &rec.logs {
+        *events.entry(l.event.as_str()).or_insert(0) += 1;
+    }
+    if !events.is_empty() {
+        let list: Vec<String> = events.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let _ = writeln!(s, "  health events: {}", list.join(", "));
+    }
+    let topics: Vec<String> = rec
+        .topic_counts
+        .iter()
+        .map(|(k, v)| format!("{k} {v}"))
+        .collect();
+    let _ = writeln!(s, "  messages: {}", topics.join(", "));
+    for (name, m) in &rec.metadata {
+        let keys: Vec<String> = m
+            .iter()
+            .map(|(k, v)| {
+                if v.contains('\n') || v.len() > 40 {
+                    format!("{k} ({} lines)", v.lines().count())
+                } else {
+                    format!("{k}={v}")
+                }
+            })
+            .collect();
+        let _ = writeln!(s, "  metadata {name}: {}", keys.join(", "));
+    }
+    s
+}
+
+fn describe_hp(hp: &proto::Hyperparameters) -> String {
+    let mapping = match proto::CostMapping::try_from(hp.mapping) {
+        Ok(proto::CostMapping::Exponential) => format!("h = {}", hp.eliteness),
+        Ok(proto::CostMapping::Elites) => format!("elites = {}", hp.elites),
+        _ => "mapping ?".into(),
+    };
+    let exploration = match proto::Exploration::try_from(hp.exploration) {
+        Ok(proto::Exploration::Constant) => "constant Σ".to_string(),
+        Ok(proto::Exploration::Decay) => format!("Σ decay {}", hp.decay),
+        Ok(proto::Exploration::Adaptive) => {
+            format!("adaptive Σ, λ ∈ [{}, {}]", hp.lambda_min, hp.lambda_max)
+        }
+        _ => "exploration ?".into(),
+    };
+    let weighting = match proto::Weighting::try_from(hp.weighting) {
+        Ok(w) => w
+            .as_str_name()
+            .trim_start_matches("WEIGHTING_")
+            .to_lowercase(),
+        Err(_) => "?".into(),
+    };
+    format!("{mapping}, {exploration}, {weighting}")
+}
+
+// ---------------------------------------------------------------------------------------------
+// CSV
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn f(v: f64) -> String {
+    // Shortest representation that round-trips exactly.
+    format!("{v:?}")
+}
+
+fn ts(t: &Option<prost_types::Timestamp>) -> String {
+    t.map(|t| (t.seconds as i128 * 1_000_000_000 + t.nanos as i128).to_string())
+        .unwrap_or_default()
+}
+
+struct Csv {
+    path: PathBuf,
+    text: String,
+}
+
+impl Csv {
+    fn new(dir: &Path, name: &str, header: &[String]) -> Self {
+        let mut text = header.join(",");
+        text.push('\n');
+        Self {
+            path: dir.join(name),
+            text,
+        }
+    }
+    fn row(&mut self, cells: Vec<String>) {
+        self.text.push_str(&cells.join(","));
+        self.text.push('\n');
+    }
+    fn write(self) -> Result<PathBuf, RecordError> {
+        std::fs::write(&self.path, self.text).map_err(io(&self.path))?;
+        Ok(self.path)
+    }
+}
+
+fn names(prefix: &str, n: usize) -> Vec<String> {
+    (0..n).map(|i| format!("{prefix}{i}")).collect()
+}
+
+/// Writes one CSV per topic into `dir` (created if needed): `run.csv`, `update.csv` (scalars,
+/// means and covariances before/after), `update_rollouts.csv` (one row per update and rollout:
+/// weight, costs, θ), `summary.csv`, `rollout.csv`, `task_change.csv`, `log.csv`. Floats are
+/// written in their shortest exact form.
+pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let mut files = Vec::new();
+    let p = rec
+        .run_info()
+        .map(|r| r.dim as usize)
+        .unwrap_or_else(|| rec.updates.first().map(|u| u.dim as usize).unwrap_or(0));
+    let steps = rec.updates.first().map(|u| u.steps as usize).unwrap_or(0);
+
+    let mut run = Csv::new(
+        dir,
+        "run.csv",
+        &[
+            "timestamp_ns",
+            "update",
+            "name",
+            "seed",
+            "dim",
+            "steps",
+            "rollouts",
+            "executor",
+            "hyperparameters",
+        ]
+        .map(String::from),
+    );
+    for r in &rec.run {
+        let hp = r.hyperparameters.unwrap_or_default();
+        run.row(vec![
+            ts(&r.timestamp),
+            r.update.to_string(),
+            csv_field(&r.name),
+            r.seed.to_string(),
+            r.dim.to_string(),
+            r.steps.to_string(),
+            hp.rollouts.to_string(),
+            csv_field(&r.executor),
+            csv_field(&describe_hp(&hp)),
+        ]);
+    }
+    files.push(run.write()?);
+
+    let mut header: Vec<String> = [
+        "timestamp_ns",
+        "update",
+        "eval_cost",
+        "exploration_cost_mean",
+        "exploration_cost_std",
+        "lambda",
+        "lambda_next",
+        "batch_start_ns",
+        "batch_end_ns",
+    ]
+    .map(String::from)
+    .to_vec();
+    header.extend(names("before_mean_", p));
+    header.extend(names("after_mean_", p));
+    header.extend(names("before_cov_", p * p));
+    header.extend(names("after_cov_", p * p));
+    let mut upd = Csv::new(dir, "update.csv", &header);
+    let mut header: Vec<String> = ["update", "rollout", "weight", "total_cost", "terminal_cost"]
+        .map(String::from)
+        .to_vec();
+    header.extend(names("theta_", p));
+    header.extend(names("cost_step_", steps));
+    let mut rol = Csv::new(dir, "update_rollouts.csv", &header);
+    for u in &rec.updates {
+        let mut row = vec![
+            ts(&u.timestamp),
+            u.update.to_string(),
+            f(u.eval_cost),
+            f(u.exploration_cost_mean),
+            f(u.exploration_cost_std),
+            f(u.lambda),
+            f(u.lambda_next),
+            u.batch_start_ns.to_string(),
+            u.batch_end_ns.to_string(),
+        ];
+        let (b, a) = (
+            u.before.clone().unwrap_or_default(),
+            u.after.clone().unwrap_or_default(),
+        );
+        for v in [&b.mean, &a.mean, &b.covariance, &a.covariance] {
+            row.extend(v.iter().map(|x| f(*x)));
+        }
+        upd.row(row);
+        let (k, pd, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
+        for r in 0..k {
+            let step = u.cost_per_step.get(r * n..(r + 1) * n).unwrap_or(&[]);
+            let terminal = u.cost_terminal.get(r).copied().unwrap_or(f64::NAN);
+            let mut row = vec![
+                u.update.to_string(),
+                r.to_string(),
+                f(u.weights.get(r).copied().unwrap_or(f64::NAN)),
+                f(terminal + step.iter().sum::<f64>()),
+                f(terminal),
+            ];
+            row.extend(
+                u.samples
+                    .get(r * pd..(r + 1) * pd)
+                    .unwrap_or(&[])
+                    .iter()
+                    .map(|x| f(*x)),
+            );
+            row.extend(step.iter().map(|x| f(*x)));
+            rol.row(row);
+        }
+    }
+    files.push(upd.write()?);
+    files.push(rol.write()?);
+
+    let mut header: Vec<String> = [
+        "timestamp_ns",
+        "update",
+        "eval_cost",
+        "exploration_cost_mean",
+        "exploration_cost_std",
+        "lambda",
+        "lambda_next",
+    ]
+    .map(String::from)
+    .to_vec();
+    header.extend(names("mean_", p));
+    let mut sum = Csv::new(dir, "summary.csv", &header);
+    for s in &rec.summaries {
+        let mut row = vec![
+            ts(&s.timestamp),
+            s.update.to_string(),
+            f(s.eval_cost),
+            f(s.exploration_cost_mean),
+            f(s.exploration_cost_std),
+            f(s.lambda),
+            f(s.lambda_next),
+        ];
+        row.extend(s.mean.iter().map(|x| f(*x)));
+        sum.row(row);
+    }
+    files.push(sum.write()?);
+
+    let mut ro = Csv::new(
+        dir,
+        "rollout.csv",
+        &[
+            "timestamp_ns",
+            "update",
+            "rollout",
+            "worker",
+            "start_ns",
+            "end_ns",
+            "total_cost",
+        ]
+        .map(String::from),
+    );
+    for r in &rec.rollouts {
+        ro.row(vec![
+            ts(&r.timestamp),
+            r.update.to_string(),
+            r.rollout.to_string(),
+            csv_field(&r.worker),
+            r.start_ns.to_string(),
+            r.end_ns.to_string(),
+            f(r.total_cost),
+        ]);
+    }
+    files.push(ro.write()?);
+
+    let mut tc = Csv::new(
+        dir,
+        "task_change.csv",
+        &["timestamp_ns", "update", "name", "value"].map(String::from),
+    );
+    for c in &rec.task_changes {
+        tc.row(vec![
+            ts(&c.timestamp),
+            c.update.to_string(),
+            csv_field(&c.name),
+            f(c.value),
+        ]);
+    }
+    files.push(tc.write()?);
+
+    let mut lg = Csv::new(
+        dir,
+        "log.csv",
+        &[
+            "timestamp_ns",
+            "update",
+            "level",
+            "event",
+            "name",
+            "pid",
+            "message",
+        ]
+        .map(String::from),
+    );
+    for l in &rec.logs {
+        let level = proto::foxglove::log::Level::try_from(l.level)
+            .map(|v| v.as_str_name().to_string())
+            .unwrap_or_else(|_| l.level.to_string());
+        lg.row(vec![
+            ts(&l.timestamp),
+            l.update.to_string(),
+            level,
+            csv_field(&l.event),
+            csv_field(&l.name),
+            l.pid.to_string(),
+            csv_field(&l.message),
+        ]);
+    }
+    files.push(lg.write()?);
+    Ok(files)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Figures
+
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+];
+
+fn perr<E: std::fmt::Debug>(file: &Path, figure: &str) -> impl FnOnce(E) -> RecordError {
+    let file = file.to_path_buf();
+    let figure = figure.to_string();
+    move |e| RecordError::Plot {
+        file,
+        figure,
+        what: format!("{e:?}"),
+    }
+}
+
+/// Range with a margin; never empty.
+fn padded(lo: f64, hi: f64) -> (f64, f64) {
+    if !(lo.is_finite() && hi.is_finite()) {
+        return (0.0, 1.0);
+    }
+    let span = (hi - lo).abs().max(1e-12 * hi.abs().max(1.0));
+    (lo - 0.05 * span, hi + 0.05 * span)
+}
+
+fn log_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for v in vals.filter(|v| *v > 0.0 && v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !(lo.is_finite() && hi > 0.0) {
+        return (0.1, 10.0);
+    }
+    (lo / 1.5, hi * 1.5)
+}
+
+/// One line of a learning-curve figure: per update x, a centre value and a ±band.
+struct Curve {
+    label: String,
+    x: Vec<f64>,
+    y: Vec<f64>,
+    band: Option<Vec<f64>>,
+    lambda: Vec<f64>,
+}
+
+/// Cost panel (lines + bands) above a λ panel on a log axis; dashed lines at task changes.
+fn draw_curves(
+    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    title: &str,
+    curves: &[Curve],
+    changes: &[u64],
+    cost_label: &str,
+) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
+    area.fill(&WHITE).map_err(|x| e(&x))?;
+    let (top, bottom) = area.split_vertically((area.dim_in_pixel().1 as f64 * 0.62) as u32);
+    let xmax = curves
+        .iter()
+        .flat_map(|c| c.x.iter().copied())
+        .fold(1.0f64, f64::max);
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for c in curves {
+        for (i, y) in c.y.iter().enumerate() {
+            let b = c.band.as_ref().map(|b| b[i]).unwrap_or(0.0);
+            lo = lo.min(y - b);
+            hi = hi.max(y + b);
+        }
+    }
+    let (lo, hi) = padded(lo.min(0.0), hi);
+    let mut chart = ChartBuilder::on(&top)
+        .caption(title, ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0f64..xmax, lo..hi)
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("update")
+        .y_desc(cost_label)
+        .draw()
+        .map_err(|x| e(&x))?;
+    for (i, c) in curves.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        if let Some(b) = &c.band {
+            let mut pts: Vec<(f64, f64)> =
+                c.x.iter()
+                    .zip(&c.y)
+                    .zip(b)
+                    .map(|((x, y), b)| (*x, y + b))
+                    .collect();
+            pts.extend(
+                c.x.iter()
+                    .zip(&c.y)
+                    .zip(b)
+                    .rev()
+                    .map(|((x, y), b)| (*x, y - b)),
+            );
+            chart
+                .draw_series(std::iter::once(Polygon::new(pts, color.mix(0.2).filled())))
+                .map_err(|x| e(&x))?;
+        }
+        chart
+            .draw_series(LineSeries::new(
+                c.x.iter().copied().zip(c.y.iter().copied()),
+                color.stroke_width(2),
+            ))
+            .map_err(|x| e(&x))?
+            .label(c.label.clone())
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+            });
+    }
+    for &u in changes {
+        let x = u as f64;
+        chart
+            .draw_series(DashedLineSeries::new(
+                vec![(x, lo), (x, hi)],
+                5,
+                5,
+                BLACK.mix(0.6).stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| e(&x))?;
+
+    let (llo, lhi) = log_range(curves.iter().flat_map(|c| c.lambda.iter().copied()));
+    let mut chart = ChartBuilder::on(&bottom)
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0f64..xmax, (llo..lhi).log_scale())
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("update")
+        .y_desc("λ (log)")
+        .draw()
+        .map_err(|x| e(&x))?;
+    for (i, c) in curves.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        chart
+            .draw_series(LineSeries::new(
+                c.x.iter()
+                    .copied()
+                    .zip(c.lambda.iter().copied())
+                    .filter(|(_, l)| *l > 0.0),
+                color.stroke_width(2),
+            ))
+            .map_err(|x| e(&x))?;
+    }
+    area.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
+/// Draws the figures of one recording into `dir`: `learning_curve.svg`, `worker_time.svg`, and
+/// for 2-D policies `distribution.svg`.
+pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let mut files = Vec::new();
+    let curve = rec.curve();
+    let changes: Vec<u64> = rec.task_changes.iter().map(|c| c.update).collect();
+
+    let path = dir.join("learning_curve.svg");
+    {
+        let root = SVGBackend::new(&path, (900, 650)).into_drawing_area();
+        let x: Vec<f64> = curve.iter().map(|s| s.update as f64).collect();
+        let curves = [
+            Curve {
+                label: "exploration mean ± std".into(),
+                x: x.clone(),
+                y: curve.iter().map(|s| s.exploration_cost_mean).collect(),
+                band: Some(curve.iter().map(|s| s.exploration_cost_std).collect()),
+                lambda: Vec::new(),
+            },
+            Curve {
+                label: "evaluation (rollout 0)".into(),
+                x,
+                y: curve.iter().map(|s| s.eval_cost).collect(),
+                band: None,
+                lambda: curve.iter().map(|s| s.lambda).collect(),
+            },
+        ];
+        draw_curves(
+            &root,
+            &format!("{}: learning curve", rec.name()),
+            &curves,
+            &changes,
+            "cost",
+        )
+        .map_err(perr(&path, "learning_curve"))?;
+    }
+    files.push(path);
+
+    let dim = rec.run_info().map(|r| r.dim).unwrap_or(0);
+    if dim == 2 && !rec.updates.is_empty() {
+        let path = dir.join("distribution.svg");
+        plot_ellipses(rec, &path).map_err(perr(&path, "distribution"))?;
+        files.push(path);
+    }
+
+    let path = dir.join("worker_time.svg");
+    plot_worker_time(rec, &path).map_err(perr(&path, "worker_time"))?;
+    files.push(path);
+    Ok(files)
+}
+
+/// Points of the 2σ ellipse of a 2×2 covariance around `m`.
+fn ellipse(m: [f64; 2], c: [[f64; 2]; 2]) -> Vec<(f64, f64)> {
+    let (a, b, d) = (c[0][0], c[0][1], c[1][1]);
+    let tr = 0.5 * (a + d);
+    let disc = (0.25 * (a - d) * (a - d) + b * b).sqrt();
+    let (l1, l2) = ((tr + disc).max(0.0), (tr - disc).max(0.0));
+    let angle = if b == 0.0 && a >= d {
+        0.0
+    } else if b == 0.0 {
+        std::f64::consts::FRAC_PI_2
+    } else {
+        (l1 - a).atan2(b)
+    };
+    let (ca, sa) = (angle.cos(), angle.sin());
+    (0..=64)
+        .map(|i| {
+            let t = i as f64 / 64.0 * std::f64::consts::TAU;
+            let (x, y) = (2.0 * l1.sqrt() * t.cos(), 2.0 * l2.sqrt() * t.sin());
+            (m[0] + ca * x - sa * y, m[1] + sa * x + ca * y)
+        })
+        .collect()
+}
+
+fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
+    let mut dists = Vec::new();
+    for u in &rec.updates {
+        if let Some(b) = &u.before {
+            dists.push((u.update, distribution_from_proto(b)?));
+        }
+    }
+    if let Some(last) = rec.updates.last().and_then(|u| u.after.as_ref()) {
+        dists.push((
+            rec.updates.last().map(|u| u.update + 1).unwrap_or(0),
+            distribution_from_proto(last)?,
+        ));
+    }
+    let n = dists.len().max(1);
+    let ellipses: Vec<(u64, Vec<(f64, f64)>)> = dists
+        .iter()
+        .map(|(u, d)| {
+            let m = [d.mean[0], d.mean[1]];
+            let c = [
+                [d.covariance[(0, 0)], d.covariance[(0, 1)]],
+                [d.covariance[(1, 0)], d.covariance[(1, 1)]],
+            ];
+            (*u, ellipse(m, c))
+        })
+        .collect();
+    let (mut x0, mut x1, mut y0, mut y1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for (_, pts) in &ellipses {
+        for (x, y) in pts {
+            x0 = x0.min(*x);
+            x1 = x1.max(*x);
+            y0 = y0.min(*y);
+            y1 = y1.max(*y);
+        }
+    }
+    let (x0, x1) = padded(x0, x1);
+    let (y0, y1) = padded(y0, y1);
+    let root = SVGBackend::new(path, (750, 700)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "{}: search distribution (2σ ellipses, dark = late)",
+                rec.name()
+            ),
+            ("sans-serif", 18),
+        )
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("θ₁")
+        .y_desc("θ₂")
+        .draw()
+        .map_err(|x| e(&x))?;
+    let changes: Vec<u64> = rec.task_changes.iter().map(|c| c.update).collect();
+    for (i, (u, pts)) in ellipses.iter().enumerate() {
+        let t = i as f64 / n as f64;
+        let color = if changes.contains(u) {
+            RGBColor(214, 39, 40).stroke_width(2)
+        } else {
+            let g = (200.0 * (1.0 - t)) as u8;
+            RGBColor(g, g, 255u8.saturating_sub((100.0 * t) as u8)).stroke_width(1)
+        };
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), color))
+            .map_err(|x| e(&x))?;
+    }
+    chart
+        .draw_series(LineSeries::new(
+            dists.iter().map(|(_, d)| (d.mean[0], d.mean[1])),
+            BLACK.stroke_width(1),
+        ))
+        .map_err(|x| e(&x))?
+        .label("mean θ per update")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+    chart
+        .draw_series(
+            dists
+                .iter()
+                .map(|(_, d)| Circle::new((d.mean[0], d.mean[1]), 2, BLACK.filled())),
+        )
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
+/// Per worker: (update, rollout duration in ms). Rollouts without their own timing (the
+/// in-process runner) get the update's wall time divided by K, under "<worker> (update time / K)".
+pub fn worker_times(rec: &Recording) -> BTreeMap<String, Vec<(u64, f64)>> {
+    let batch: BTreeMap<u64, (u64, u64, u32)> = rec
+        .updates
+        .iter()
+        .map(|u| (u.update, (u.batch_start_ns, u.batch_end_ns, u.rollouts)))
+        .collect();
+    let mut out: BTreeMap<String, Vec<(u64, f64)>> = BTreeMap::new();
+    for r in &rec.rollouts {
+        if r.end_ns > r.start_ns {
+            out.entry(r.worker.clone())
+                .or_default()
+                .push((r.update, (r.end_ns - r.start_ns) as f64 / 1e6));
+        } else if let Some(&(s, e, k)) = batch.get(&r.update) {
+            if e > s && k > 0 {
+                out.entry(format!("{} (update time / K)", r.worker))
+                    .or_default()
+                    .push((r.update, (e - s) as f64 / 1e6 / k as f64));
+            }
+        }
+    }
+    out
+}
+
+fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
+    let times = worker_times(rec);
+    let xmax = rec
+        .updates
+        .last()
+        .map(|u| u.update as f64 + 1.0)
+        .unwrap_or(1.0);
+    let ymax = times
+        .values()
+        .flat_map(|v| v.iter().map(|p| p.1))
+        .fold(0.0f64, f64::max);
+    let root = SVGBackend::new(path, (900, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("{}: rollout time per worker", rec.name()),
+            ("sans-serif", 20),
+        )
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0f64..xmax, 0f64..(ymax * 1.1).max(1e-3))
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("update")
+        .y_desc("rollout time [ms]")
+        .draw()
+        .map_err(|x| e(&x))?;
+    for (i, (worker, pts)) in times.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        let mean = pts.iter().map(|p| p.1).sum::<f64>() / pts.len().max(1) as f64;
+        chart
+            .draw_series(
+                pts.iter()
+                    .map(|(u, ms)| Circle::new((*u as f64, *ms), 2, color.filled())),
+            )
+            .map_err(|x| e(&x))?
+            .label(format!(
+                "{worker}: {} rollouts, mean {mean:.3} ms",
+                pts.len()
+            ))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Experiments: several sessions (files) of one or more runs
+
+/// Re-convergence of one segment of one session.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Segment {
+    /// First update of the segment (0, or the update a task change applies from).
+    pub start: u64,
+    /// One past the last update of the segment.
+    pub end: u64,
+    pub peak: f64,
+    /// Final level: the lowest eval cost within the segment.
+    pub level: f64,
+    /// First update from which every eval cost of the segment stays within the tolerance band.
+    pub converged_at: u64,
+}
+
+impl Segment {
+    pub fn updates_to_converge(&self) -> u64 {
+        self.converged_at - self.start
+    }
+}
+
+/// Splits the eval-cost curve at the task changes and finds, per segment, where it settles:
+/// with L the segment's lowest eval cost and H its highest, the first update from which every
+/// eval cost of the segment is ≤ L + tolerance·(H − L).
+pub fn reconvergence(rec: &Recording, tolerance: f64) -> Vec<Segment> {
+    let curve = rec.curve();
+    let Some(last) = curve.last().map(|s| s.update + 1) else {
+        return Vec::new();
+    };
+    let first = curve.first().map(|s| s.update).unwrap_or(0);
+    let mut bounds: Vec<u64> = std::iter::once(first)
+        .chain(rec.task_changes.iter().map(|c| c.update))
+        .filter(|u| *u >= first && *u < last)
+        .collect();
+    bounds.sort_unstable();
+    bounds.dedup();
+    bounds.push(last);
+    let mut out = Vec::new();
+    for w in bounds.windows(2) {
+        let (s, e) = (w[0], w[1]);
+        let seg: Vec<&proto::UpdateSummary> = curve
+            .iter()
+            .filter(|c| c.update >= s && c.update < e)
+            .collect();
+        if seg.is_empty() {
+            continue;
+        }
+        let level = seg
+            .iter()
+            .map(|c| c.eval_cost)
+            .fold(f64::INFINITY, f64::min);
+        let peak = seg
+            .iter()
+            .map(|c| c.eval_cost)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let threshold = level + tolerance * (peak - level);
+        let mut converged_at = seg.last().map(|c| c.update).unwrap_or(s);
+        for c in seg.iter().rev() {
+            if c.eval_cost <= threshold {
+                converged_at = c.update;
+            } else {
+                break;
+            }
+        }
+        out.push(Segment {
+            start: s,
+            end: e,
+            peak,
+            level,
+            converged_at,
+        });
+    }
+    out
+}
+
+/// What [`experiment`] computed and wrote.
+#[derive(Debug, Clone, Default)]
+pub struct ExperimentReport {
+    /// Markdown: mean curves summary and the re-convergence table.
+    pub table: String,
+    pub files: Vec<PathBuf>,
+}
+
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n.max(1.0);
+    let s = if v.len() > 1 {
+        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    (m, s)
+}
+
+/// Over the sessions of an experiment (grouped by run name): the mean eval-cost curve ± std over
+/// sessions and mean λ per update (`mean_curves.svg`, `mean_curves.csv`), and the
+/// re-convergence table (`reconvergence.csv`; also returned as Markdown).
+pub fn experiment(
+    recs: &[Recording],
+    out: Option<&Path>,
+    tolerance: f64,
+    figures: bool,
+) -> Result<ExperimentReport, RecordError> {
+    let mut groups: BTreeMap<String, Vec<&Recording>> = BTreeMap::new();
+    for r in recs {
+        groups.entry(r.name()).or_default().push(r);
+    }
+    let mut report = ExperimentReport::default();
+    let mut curves = Vec::new();
+    let mut mean_csv =
+        String::from("run,update,sessions,eval_cost_mean,eval_cost_std,lambda_mean\n");
+    let mut reconv_csv = String::from(
+        "run,file,segment_start,segment_end,peak,level,converged_at,updates_to_converge\n",
+    );
+    let t = &mut report.table;
+    let _ = writeln!(
+        t,
+        "## Experiment: {} sessions in {} run(s)\n",
+        recs.len(),
+        groups.len()
+    );
+    let _ = writeln!(
+        t,
+        "Re-convergence (tolerance {tolerance}): updates from the segment start until every later \
+         eval cost of the segment is within tolerance × (peak − lowest) of the lowest.\n"
+    );
+    let _ = writeln!(t, "| run | segment from update | sessions | updates to converge (mean ± std) | converged at (mean) | final eval cost (mean ± std) |");
+    let _ = writeln!(t, "|---|---|---|---|---|---|");
+    let changes: Vec<u64> = {
+        let mut c: Vec<u64> = recs
+            .iter()
+            .flat_map(|r| r.task_changes.iter().map(|c| c.update))
+            .collect();
+        c.sort_unstable();
+        c.dedup();
+        c
+    };
+    for (name, sessions) in &groups {
+        // Mean curve over the updates every session has.
+        let mut by_update: BTreeMap<u64, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+        for r in sessions {
+            for s in r.curve() {
+                let e = by_update.entry(s.update).or_default();
+                e.0.push(s.eval_cost);
+                e.1.push(s.lambda);
+            }
+        }
+        let mut c = Curve {
+            label: format!("{name} ({} sessions)", sessions.len()),
+            x: Vec::new(),
+            y: Vec::new(),
+            band: Some(Vec::new()),
+            lambda: Vec::new(),
+        };
+        for (u, (costs, lambdas)) in &by_update {
+            let (m, s) = mean_std(costs);
+            let (lm, _) = mean_std(lambdas);
+            c.x.push(*u as f64);
+            c.y.push(m);
+            if let Some(b) = c.band.as_mut() {
+                b.push(s);
+            }
+            c.lambda.push(lm);
+            let _ = writeln!(
+                mean_csv,
+                "{},{u},{},{},{},{}",
+                csv_field(name),
+                costs.len(),
+                f(m),
+                f(s),
+                f(lm)
+            );
+        }
+        curves.push(c);
+
+        // Re-convergence per session and segment.
+        let mut per_segment: BTreeMap<u64, Vec<&Segment>> = BTreeMap::new();
+        let segs: Vec<(PathBuf, Vec<Segment>)> = sessions
+            .iter()
+            .map(|r| (r.path.clone(), reconvergence(r, tolerance)))
+            .collect();
+        for (path, ss) in &segs {
+            for s in ss {
+                let _ = writeln!(
+                    reconv_csv,
+                    "{},{},{},{},{},{},{},{}",
+                    csv_field(name),
+                    csv_field(&path.display().to_string()),
+                    s.start,
+                    s.end,
+                    f(s.peak),
+                    f(s.level),
+                    s.converged_at,
+                    s.updates_to_converge()
+                );
+                per_segment.entry(s.start).or_default().push(s);
+            }
+        }
+        let finals: Vec<f64> = sessions
+            .iter()
+            .filter_map(|r| r.curve().last().map(|s| s.eval_cost))
+            .collect();
+        let (fm, fs) = mean_std(&finals);
+        for (start, ss) in &per_segment {
+            let n: Vec<f64> = ss.iter().map(|s| s.updates_to_converge() as f64).collect();
+            let at: Vec<f64> = ss.iter().map(|s| s.converged_at as f64).collect();
+            let (m, sd) = mean_std(&n);
+            let (am, _) = mean_std(&at);
+            let _ = writeln!(
+                t,
+                "| {name} | {start}{} | {} | {m:.1} ± {sd:.1} | {am:.1} | {fm:.4} ± {fs:.4} |",
+                if *start > 0 { " (task change)" } else { "" },
+                ss.len()
+            );
+        }
+    }
+    if let Some(dir) = out {
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        for (name, text) in [
+            ("mean_curves.csv", &mean_csv),
+            ("reconvergence.csv", &reconv_csv),
+        ] {
+            let p = dir.join(name);
+            std::fs::write(&p, text).map_err(io(&p))?;
+            report.files.push(p);
+        }
+        let p = dir.join("reconvergence.md");
+        std::fs::write(&p, &report.table).map_err(io(&p))?;
+        report.files.push(p);
+        if figures {
+            let p = dir.join("mean_curves.svg");
+            {
+                let root = SVGBackend::new(&p, (900, 650)).into_drawing_area();
+                draw_curves(
+                    &root,
+                    "eval cost: mean ± std over sessions",
+                    &curves,
+                    &changes,
+                    "eval cost",
+                )
+                .map_err(perr(&p, "mean_curves"))?;
+            }
+            report.files.push(p);
+        }
+    }
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec_with(costs: &[f64], change: Option<u64>) -> Recording {
+        let mut r = Recording::default();
+        for (u, c) in costs.iter().enumerate() {
+            r.summaries.push(proto::UpdateSummary {
+                update: u as u64,
+                eval_cost: *c,
+                lambda: 1.0,
+                ..Default::default()
+            });
+        }
+        if let Some(u) = change {
+            r.task_changes.push(proto::TaskChange {
+                update: u,
+                ..Default::default()
+            });
+        }
+        r
+    }
+
+    #[test]
+    fn reconvergence_hand_checked() {
+        // Segment 0..4: peak 100, level 1, band 1 + 0.05·99 = 5.95 → settled from update 2.
+        // Segment 4..8: peak 50 at 4, level 2, band 4.4 → 3.0 at 6 is within, 10 at 5 is not.
+        let r = rec_with(&[100.0, 30.0, 5.0, 1.0, 50.0, 10.0, 3.0, 2.0], Some(4));
+        let s = reconvergence(&r, 0.05);
+        assert_eq!(s.len(), 2);
+        assert_eq!((s[0].start, s[0].end, s[0].converged_at), (0, 4, 2));
+        assert_eq!(
+            (s[1].start, s[1].converged_at, s[1].updates_to_converge()),
+            (4, 6, 2)
+        );
+        assert_eq!(s[1].peak, 50.0);
+        assert_eq!(s[1].level, 2.0);
+    }
+
+    #[test]
+    fn ellipse_axes_follow_the_eigenvectors() {
+        // Σ = diag(4, 1): 2σ half-axes 4 along x and 2 along y.
+        let pts = ellipse([1.0, 2.0], [[4.0, 0.0], [0.0, 1.0]]);
+        let maxx = pts.iter().map(|p| p.0).fold(f64::MIN, f64::max);
+        let maxy = pts.iter().map(|p| p.1).fold(f64::MIN, f64::max);
+        assert!(
+            (maxx - 5.0).abs() < 1e-9 && (maxy - 4.0).abs() < 1e-2,
+            "{maxx} {maxy}"
+        );
+        // A rotated one: Σ with eigenvalues 3 and 1 along (1,1)/√2 and (1,−1)/√2.
+        let pts = ellipse([0.0, 0.0], [[2.0, 1.0], [1.0, 2.0]]);
+        let far = pts
+            .iter()
+            .max_by(|a, b| (a.0 * a.0 + a.1 * a.1).total_cmp(&(b.0 * b.0 + b.1 * b.1)))
+            .copied()
+            .unwrap();
+        assert!((far.0.abs() - far.1.abs()).abs() < 1e-9, "{far:?}");
+        assert!(((far.0 * far.0 + far.1 * far.1).sqrt() - 2.0 * 3f64.sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn csv_fields_are_quoted_and_floats_exact() {
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"x\""), "\"say \"\"x\"\"\"");
+        let v = 0.1 + 0.2;
+        assert_eq!(f(v).parse::<f64>().unwrap().to_bits(), v.to_bits());
+    }
+}

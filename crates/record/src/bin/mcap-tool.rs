@@ -1,0 +1,257 @@
+//! `mcap-tool`: record an in-process run to MCAP, inspect, verify, export, plot and recover
+//! recordings. The `pi2cma` CLI exposes the same library functions as `pi2cma analyze` and
+//! `pi2cma recover`.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use record::analyze::{self, AnalyzeArgs};
+use record::recover::{self, RecoverArgs};
+use record::{read_recording, McapRecorder};
+use session::{InProcess, Observer, Observers, RunConfig, UpdateRecord};
+
+struct Progress;
+
+impl Observer for Progress {
+    fn on_update(&mut self, r: &UpdateRecord<'_>) {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "recorded update {}", r.summary.update);
+        let _ = out.flush();
+    }
+}
+
+#[derive(Parser)]
+#[command(
+    name = "mcap-tool",
+    about = "pi2cma MCAP recordings: record, analyze, recover"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a config in-process and record it (Ctrl-C stops after the current update and still
+    /// leaves a complete file).
+    Record {
+        /// Run config (TOML); the built-in default (A1) without it.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Session seed; the config's `run.seed` without it.
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Override `run.updates`.
+        #[arg(long)]
+        updates: Option<u64>,
+        /// Override the task's `rollout_delay_ms` (via-point task only).
+        #[arg(long)]
+        rollout_delay_ms: Option<f64>,
+        /// Where to write the MCAP.
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Print `recorded update U` on stdout once update U is flushed to the file.
+        #[arg(long)]
+        progress: bool,
+    },
+    /// Summary, CSV, figures and (with several files) experiment tables.
+    Analyze(AnalyzeArgs),
+    /// Info summary of each file.
+    Info {
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+    },
+    /// Recompute every update from its recorded inputs; exits 1 on any mismatch.
+    Verify {
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+    },
+    /// CSV per topic into DIR.
+    Csv {
+        file: PathBuf,
+        #[arg(long, short)]
+        out: PathBuf,
+    },
+    /// SVG figures into DIR.
+    Plot {
+        file: PathBuf,
+        #[arg(long, short)]
+        out: PathBuf,
+    },
+    /// Mean curves and re-convergence table over the sessions of an experiment.
+    Experiment {
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        #[arg(long, short)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 0.05)]
+        tolerance: f64,
+    },
+    /// Rewrite a recording whose writer was killed into a complete, indexed file.
+    Recover(RecoverArgs),
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Record {
+            config,
+            seed,
+            updates,
+            rollout_delay_ms,
+            out,
+            progress,
+        } => record_run(
+            config.as_deref(),
+            seed,
+            updates,
+            rollout_delay_ms,
+            &out,
+            progress,
+        ),
+        Command::Analyze(args) => {
+            print!("{}", analyze::run(&args)?);
+            Ok(())
+        }
+        Command::Info { files } => {
+            for f in &files {
+                print!("{}", analyze::info(&read_recording(f)?));
+            }
+            Ok(())
+        }
+        Command::Verify { files } => {
+            let mut bad = 0;
+            for f in &files {
+                let rec = read_recording(f)?;
+                let r = record::recompute::verify(&rec)?;
+                println!(
+                    "{}: {} updates recomputed, {} mismatches {:?}",
+                    f.display(),
+                    r.updates,
+                    r.mismatches.len(),
+                    r.mismatches
+                );
+                bad += r.mismatches.len();
+            }
+            if bad > 0 {
+                bail!("{bad} updates differ from their recomputation");
+            }
+            Ok(())
+        }
+        Command::Csv { file, out } => {
+            for p in analyze::export_csv(&read_recording(&file)?, &out)? {
+                println!("wrote {}", p.display());
+            }
+            Ok(())
+        }
+        Command::Plot { file, out } => {
+            for p in analyze::plot(&read_recording(&file)?, &out)? {
+                println!("wrote {}", p.display());
+            }
+            Ok(())
+        }
+        Command::Experiment {
+            files,
+            out,
+            tolerance,
+        } => {
+            let recs = files
+                .iter()
+                .map(|f| read_recording(f))
+                .collect::<Result<Vec<_>, _>>()?;
+            let r = analyze::experiment(&recs, Some(&out), tolerance, true)?;
+            print!("{}", r.table);
+            for p in &r.files {
+                println!("wrote {}", p.display());
+            }
+            Ok(())
+        }
+        Command::Recover(args) => {
+            let r = recover::run(&args)?;
+            println!("{}", r.describe());
+            Ok(())
+        }
+    }
+}
+
+fn record_run(
+    config: Option<&Path>,
+    seed: Option<u64>,
+    updates: Option<u64>,
+    delay: Option<f64>,
+    out: &Path,
+    progress: bool,
+) -> Result<()> {
+    let (mut cfg, text) = match config {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            (RunConfig::parse(&text, p)?, Some(text))
+        }
+        None => (
+            RunConfig::default_config(),
+            Some(session::DEFAULT_CONFIG.to_string()),
+        ),
+    };
+    // Overrides make the recorded text differ from the file: record the rendered config then.
+    let mut text = text;
+    if let Some(u) = updates {
+        cfg.run.updates = Some(u);
+        text = None;
+    }
+    if let Some(d) = delay {
+        match &mut cfg.task {
+            session::TaskSection::ViaPoint(v) => v.rollout_delay_ms = d,
+            _ => bail!("--rollout-delay-ms: only for the via-point task"),
+        }
+        text = None;
+    }
+    cfg.validate()?;
+    let seed = seed.unwrap_or(cfg.run.seed);
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let mut recorder = McapRecorder::create(out)?;
+    if let Some(t) = text {
+        recorder = recorder.with_config_text(t);
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the SIGINT/SIGTERM handler")?;
+    }
+    let mut exec = InProcess::new(&cfg, seed)?;
+    let result = if progress {
+        // The recorder runs first: a printed update has been flushed to the file.
+        let mut p = Progress;
+        exec.run(&mut Observers(vec![&mut recorder, &mut p]), &|| {
+            stop.load(Ordering::SeqCst)
+        })
+    } else {
+        exec.run(&mut recorder, &|| stop.load(Ordering::SeqCst))
+    };
+    if let Err(e) = &result {
+        recorder.log_event(record::Event::Crash, &format!("run failed: {e}"));
+    }
+    let n = recorder.finish()?;
+    result?;
+    eprintln!(
+        "recorded {n} updates{} to {}\nanalyse with: mcap-tool analyze {} --out {}",
+        if stop.load(Ordering::SeqCst) {
+            " (interrupted)"
+        } else {
+            ""
+        },
+        out.display(),
+        out.display(),
+        out.with_extension("analysis").display()
+    );
+    if stop.load(Ordering::SeqCst) {
+        std::process::exit(130);
+    }
+    Ok(())
+}

@@ -1,0 +1,299 @@
+//! Conversions between the core's types and the recorded protobuf messages, and the run config
+//! back to TOML text.
+
+use nalgebra::{DMatrix, DVector};
+use pi2cma::{
+    CostMapping, Distribution, EigenvalueBounds, Exploration, Hyperparameters, TemporalAveraging,
+    Weighting,
+};
+use session::{Method, RunConfig, TaskSection, WeightingName};
+
+use crate::proto;
+
+pub(crate) fn distribution_to_proto(d: &Distribution) -> proto::Distribution {
+    let n = d.dim();
+    let mut covariance = Vec::with_capacity(n * n);
+    for r in 0..n {
+        for c in 0..n {
+            covariance.push(d.covariance[(r, c)]);
+        }
+    }
+    proto::Distribution {
+        dim: n as u32,
+        mean: d.mean.as_slice().to_vec(),
+        covariance,
+    }
+}
+
+/// The recorded distribution, bit for bit (not re-validated: a recording holds what the core
+/// produced). Errors name the inconsistent length.
+pub fn distribution_from_proto(d: &proto::Distribution) -> Result<Distribution, String> {
+    let n = d.dim as usize;
+    if d.mean.len() != n || d.covariance.len() != n * n {
+        return Err(format!(
+            "distribution of dim {n} has {} mean and {} covariance entries (expected {n} and {})",
+            d.mean.len(),
+            d.covariance.len(),
+            n * n
+        ));
+    }
+    Ok(Distribution {
+        mean: DVector::from_column_slice(&d.mean),
+        covariance: DMatrix::from_row_slice(n, n, &d.covariance),
+    })
+}
+
+pub(crate) fn hyperparameters_to_proto(hp: &Hyperparameters) -> proto::Hyperparameters {
+    let mut p = proto::Hyperparameters {
+        rollouts: hp.rollouts as u32,
+        evaluation_in_update: hp.evaluation_in_update,
+        ..Default::default()
+    };
+    match hp.mapping {
+        CostMapping::Exponential { eliteness } => {
+            p.set_mapping(proto::CostMapping::Exponential);
+            p.eliteness = eliteness;
+        }
+        CostMapping::Elites { count } => {
+            p.set_mapping(proto::CostMapping::Elites);
+            p.elites = count as u32;
+        }
+    }
+    match hp.exploration {
+        Exploration::Constant => p.set_exploration(proto::Exploration::Constant),
+        Exploration::Decay { factor } => {
+            p.set_exploration(proto::Exploration::Decay);
+            p.decay = factor;
+        }
+        Exploration::Adaptive { bounds } => {
+            p.set_exploration(proto::Exploration::Adaptive);
+            p.lambda_min = bounds.min;
+            p.lambda_max = bounds.max;
+        }
+    }
+    p.set_weighting(match hp.weighting {
+        Weighting::Episodic => proto::Weighting::Episodic,
+        Weighting::PerTimeStep {
+            temporal: TemporalAveraging::RemainingSteps,
+        } => proto::Weighting::PerTimeStepRemainingSteps,
+        Weighting::PerTimeStep {
+            temporal: TemporalAveraging::BasisActivation,
+        } => proto::Weighting::PerTimeStepBasisActivation,
+    });
+    p
+}
+
+/// The core's hyperparameters from their recorded form; errors name the unknown field value.
+pub fn hyperparameters_from_proto(p: &proto::Hyperparameters) -> Result<Hyperparameters, String> {
+    let mapping = match proto::CostMapping::try_from(p.mapping) {
+        Ok(proto::CostMapping::Exponential) => CostMapping::Exponential {
+            eliteness: p.eliteness,
+        },
+        Ok(proto::CostMapping::Elites) => CostMapping::Elites {
+            count: p.elites as usize,
+        },
+        _ => return Err(format!("hyperparameters.mapping = {}: unknown", p.mapping)),
+    };
+    let exploration = match proto::Exploration::try_from(p.exploration) {
+        Ok(proto::Exploration::Constant) => Exploration::Constant,
+        Ok(proto::Exploration::Decay) => Exploration::Decay { factor: p.decay },
+        Ok(proto::Exploration::Adaptive) => Exploration::Adaptive {
+            bounds: EigenvalueBounds {
+                min: p.lambda_min,
+                max: p.lambda_max,
+            },
+        },
+        _ => {
+            return Err(format!(
+                "hyperparameters.exploration = {}: unknown",
+                p.exploration
+            ))
+        }
+    };
+    let weighting = match proto::Weighting::try_from(p.weighting) {
+        Ok(proto::Weighting::Episodic) => Weighting::Episodic,
+        Ok(proto::Weighting::PerTimeStepRemainingSteps) => Weighting::PerTimeStep {
+            temporal: TemporalAveraging::RemainingSteps,
+        },
+        Ok(proto::Weighting::PerTimeStepBasisActivation) => Weighting::PerTimeStep {
+            temporal: TemporalAveraging::BasisActivation,
+        },
+        _ => {
+            return Err(format!(
+                "hyperparameters.weighting = {}: unknown",
+                p.weighting
+            ))
+        }
+    };
+    Ok(Hyperparameters {
+        rollouts: p.rollouts as usize,
+        mapping,
+        exploration,
+        weighting,
+        evaluation_in_update: p.evaluation_in_update,
+    })
+}
+
+/// The config as TOML that [`RunConfig::parse`] reads back to an equal config. Used when the
+/// caller has no original file text to record.
+pub fn config_to_toml(cfg: &RunConfig) -> String {
+    use toml::{Table, Value};
+    let mut root = Table::new();
+
+    let mut run = Table::new();
+    run.insert("name".into(), Value::String(cfg.run.name.clone()));
+    run.insert("seed".into(), int(cfg.run.seed));
+    if let Some(n) = cfg.run.updates {
+        run.insert("updates".into(), int(n));
+    }
+    root.insert("run".into(), Value::Table(run));
+
+    let o = &cfg.optimizer;
+    let mut opt = Table::new();
+    let method = match o.method {
+        Method::Cem => "cem",
+        Method::Pi2 => "pi2",
+        Method::Pi2Decay => "pi2-decay",
+        Method::Pi2Cma => "pi2-cma",
+    };
+    opt.insert("method".into(), Value::String(method.into()));
+    opt.insert("rollouts".into(), int(o.rollouts as u64));
+    opt.insert(
+        "evaluation_in_update".into(),
+        Value::Boolean(o.evaluation_in_update),
+    );
+    let weighting = match o.weighting {
+        WeightingName::Episodic => "episodic",
+        WeightingName::PerTimeStep => "per-time-step",
+    };
+    opt.insert("weighting".into(), Value::String(weighting.into()));
+    if o.temporal_averaging.is_some() {
+        let t = match cfg.weighting() {
+            Weighting::PerTimeStep {
+                temporal: TemporalAveraging::BasisActivation,
+            } => "basis-activation",
+            _ => "remaining-steps",
+        };
+        opt.insert("temporal_averaging".into(), Value::String(t.into()));
+    }
+    opt.insert("lambda_init".into(), Value::Float(o.lambda_init));
+    let floats = [
+        ("eliteness", o.eliteness),
+        ("decay", o.decay),
+        ("lambda_min", o.lambda_min),
+        ("lambda_max", o.lambda_max),
+    ];
+    for (k, v) in floats {
+        if let Some(v) = v {
+            opt.insert(k.into(), Value::Float(v));
+        }
+    }
+    if let Some(e) = o.elites {
+        opt.insert("elites".into(), int(e as u64));
+    }
+    root.insert("optimizer".into(), Value::Table(opt));
+
+    let mut task = Table::new();
+    let mut unrendered = Vec::new();
+    match &cfg.task {
+        TaskSection::ViaPoint(v) => {
+            let mut t = Table::new();
+            t.insert("basis_functions".into(), int(v.basis_functions as u64));
+            for (k, x) in [
+                ("duration", v.duration),
+                ("dt", v.dt),
+                ("start", v.start),
+                ("goal", v.goal),
+                ("viapoint", v.viapoint),
+                ("viapoint_time", v.viapoint_time),
+                ("viapoint_weight", v.viapoint_weight),
+                ("rollout_delay_ms", v.rollout_delay_ms),
+            ] {
+                t.insert(k.into(), Value::Float(x));
+            }
+            task.insert("via-point".into(), Value::Table(t));
+        }
+        other => unrendered.push(format!("task: {other:?}")),
+    }
+    root.insert("task".into(), Value::Table(task));
+
+    if !cfg.schedule.is_empty() {
+        let entries = cfg
+            .schedule
+            .iter()
+            .map(|s| {
+                let mut t = Table::new();
+                t.insert("from_update".into(), int(s.from_update));
+                t.insert("set".into(), Value::String(s.set.clone()));
+                t.insert("value".into(), Value::Float(s.value));
+                Value::Table(t)
+            })
+            .collect();
+        root.insert("schedule".into(), Value::Array(entries));
+    }
+    if let Some(p) = &cfg.pipeline {
+        let mut t = Table::new();
+        t.insert("workers".into(), int(p.workers as u64));
+        t.insert("max_workers".into(), int(p.max_workers as u64));
+        t.insert("restart_limit".into(), int(u64::from(p.restart_limit)));
+        t.insert("restart_window_s".into(), Value::Float(p.restart_window_s));
+        t.insert("startup_timeout_ms".into(), int(p.startup_timeout_ms));
+        t.insert("shutdown_timeout_ms".into(), int(p.shutdown_timeout_ms));
+        if let Some(u) = p.fault_nan_from_update {
+            t.insert("fault_nan_from_update".into(), int(u));
+        }
+        root.insert("pipeline".into(), Value::Table(t));
+    }
+    let mut text =
+        toml::to_string(&root).unwrap_or_else(|e| format!("# config could not be rendered: {e}\n"));
+    // Sections this renderer does not know are kept as comments rather than dropped silently;
+    // callers with the original file text should pass it instead (McapRecorder::with_config_text).
+    for u in unrendered {
+        text.push_str(&format!("# not rendered as TOML: {u}\n"));
+    }
+    text
+}
+
+fn int(v: u64) -> toml::Value {
+    // TOML integers are i64: a seed above i64::MAX is clamped here (the exact seed is in the
+    // metadata and in /run).
+    toml::Value::Integer(i64::try_from(v).unwrap_or(i64::MAX))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    #[test]
+    fn config_round_trips_through_toml() {
+        let cfg = RunConfig::default_config();
+        let text = config_to_toml(&cfg);
+        let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
+        assert_eq!(back, cfg, "{text}");
+    }
+
+    #[test]
+    fn hyperparameters_round_trip() {
+        let cfg = RunConfig::default_config();
+        let hp = cfg.hyperparameters();
+        let back = hyperparameters_from_proto(&hyperparameters_to_proto(&hp)).unwrap();
+        assert_eq!(back, hp);
+    }
+
+    #[test]
+    fn distribution_round_trips_bit_for_bit() {
+        let cov = DMatrix::from_row_slice(2, 2, &[4.0, 1.0 / 3.0, 1.0 / 3.0, 1.0]);
+        let d = Distribution::new(DVector::from_vec(vec![0.1, -2.5]), cov).unwrap();
+        assert_eq!(
+            distribution_from_proto(&distribution_to_proto(&d)).unwrap(),
+            d
+        );
+        let bad = proto::Distribution {
+            dim: 3,
+            mean: vec![0.0; 3],
+            covariance: vec![0.0; 4],
+        };
+        assert!(distribution_from_proto(&bad).unwrap_err().contains("dim 3"));
+    }
+}

@@ -1,0 +1,69 @@
+//! MCAP recordings of pi2cma runs: the protobuf message schemas, a writer, the
+//! [`McapRecorder`] observer for the in-process runner, readers, recomputation of every update
+//! from its recorded inputs, `recover` for files whose writer was killed, and post-hoc analysis
+//! (info, CSV, SVG figures, experiment tables).
+//!
+//! A recording holds every input of every update (distribution before, hyperparameters, the K
+//! samples, the K cost trajectories) and its outputs, so any update can be recomputed with the
+//! core and compared bit for bit. The writer flushes a complete zstd chunk after every update, so
+//! a writer killed with SIGKILL loses at most the update in flight.
+//!
+//! It is not an executor and does not know how rollouts are run: the in-process runner calls it
+//! through [`session::Observer`], the multiprocess pipeline's recorder process through
+//! [`RunWriter`]. Topic names and schemas are documented in `README-section.md`.
+
+pub mod analyze;
+mod convert;
+mod error;
+mod reader;
+pub mod recompute;
+mod recorder;
+pub mod recover;
+mod writer;
+
+/// Generated protobuf types (prost) of `proto/`.
+pub mod proto {
+    pub mod pi2cma {
+        pub mod record {
+            include!(concat!(env!("OUT_DIR"), "/pi2cma.record.rs"));
+        }
+    }
+    pub mod foxglove {
+        include!(concat!(env!("OUT_DIR"), "/foxglove.rs"));
+    }
+    pub use self::foxglove::Log;
+    pub use self::pi2cma::record::*;
+}
+
+pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_proto};
+pub use error::RecordError;
+pub use reader::{read_recording, Recording};
+pub use recorder::McapRecorder;
+pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
+
+/// The FileDescriptorSet of every schema (with `google/protobuf/timestamp.proto`), stored as the
+/// schema data of each channel.
+pub const DESCRIPTORS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/descriptors.bin"));
+
+/// Topic names and the fully qualified protobuf message name of each.
+pub mod topics {
+    pub const RUN: &str = "/run";
+    pub const UPDATE: &str = "/update";
+    pub const SUMMARY: &str = "/summary";
+    pub const ROLLOUT: &str = "/rollout";
+    pub const TASK_CHANGE: &str = "/task_change";
+    pub const LOG: &str = "/log";
+
+    /// (topic, schema name) of every channel a recording has, in the order they are created.
+    pub const ALL: [(&str, &str); 6] = [
+        (RUN, "pi2cma.record.RunInfo"),
+        (UPDATE, "pi2cma.record.Update"),
+        (SUMMARY, "pi2cma.record.UpdateSummary"),
+        (ROLLOUT, "pi2cma.record.Rollout"),
+        (TASK_CHANGE, "pi2cma.record.TaskChange"),
+        (LOG, "foxglove.Log"),
+    ];
+
+    /// Name of the MCAP metadata record with the run's config, seed and versions.
+    pub const METADATA: &str = "pi2cma.run";
+}

@@ -1,0 +1,104 @@
+//! Recomputing every recorded update with the core from its recorded inputs.
+
+use pi2cma::{CostBatch, Distribution, UpdateRule};
+
+use crate::{distribution_from_proto, hyperparameters_from_proto, proto, RecordError, Recording};
+
+/// One update recomputed: the core's new distribution and weights.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recomputed {
+    pub update: u64,
+    pub after: Distribution,
+    pub weights: Vec<f64>,
+}
+
+/// The outcome of recomputing a whole recording.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct VerifyReport {
+    pub updates: usize,
+    /// Updates whose recomputed distribution or weights differ from the recorded ones (bitwise).
+    pub mismatches: Vec<u64>,
+}
+
+fn err(rec: &Recording, update: u64, what: impl Into<String>) -> RecordError {
+    RecordError::Update {
+        file: rec.path.clone(),
+        update,
+        what: what.into(),
+    }
+}
+
+/// Recomputes update `u` with `UpdateRule::update(before, samples, costs)`.
+pub fn recompute_update(rec: &Recording, u: &proto::Update) -> Result<Recomputed, RecordError> {
+    let e = |what: String| err(rec, u.update, what);
+    let hp = hyperparameters_from_proto(
+        u.hyperparameters
+            .as_ref()
+            .ok_or_else(|| e("no hyperparameters".into()))?,
+    )
+    .map_err(e)?;
+    let before = distribution_from_proto(u.before.as_ref().ok_or_else(|| e("no `before`".into()))?)
+        .map_err(|w| e(format!("before: {w}")))?;
+    let (k, p, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
+    if u.samples.len() != k * p || u.cost_per_step.len() != k * n || u.cost_terminal.len() != k {
+        return Err(e(format!(
+            "K = {k}, P = {p}, N = {n} but {} samples, {} step costs, {} terminal costs",
+            u.samples.len(),
+            u.cost_per_step.len(),
+            u.cost_terminal.len()
+        )));
+    }
+    let basis = rec
+        .run_info()
+        .map(|r| r.basis_activations.as_slice())
+        .filter(|b| !b.is_empty());
+    let mut rule = UpdateRule::new(hp, p, n, basis).map_err(|x| e(x.to_string()))?;
+    let mut costs = CostBatch::new(k, n);
+    for r in 0..k {
+        costs
+            .insert(r, &u.cost_per_step[r * n..(r + 1) * n], u.cost_terminal[r])
+            .map_err(|x| e(x.to_string()))?;
+    }
+    let (after, weights) = rule
+        .update(&before, &u.samples, &costs)
+        .map_err(|x| e(x.to_string()))?;
+    Ok(Recomputed {
+        update: u.update,
+        after,
+        weights: weights.per_rollout,
+    })
+}
+
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// Whether the recomputed update equals the recorded one bit for bit (distribution after and
+/// per-rollout weights).
+pub fn matches_recorded(u: &proto::Update, r: &Recomputed) -> bool {
+    let Some(after) = u.after.as_ref() else {
+        return false;
+    };
+    let Ok(recorded) = distribution_from_proto(after) else {
+        return false;
+    };
+    same_bits(recorded.mean.as_slice(), r.after.mean.as_slice())
+        && same_bits(
+            recorded.covariance.as_slice(),
+            r.after.covariance.as_slice(),
+        )
+        && same_bits(&u.weights, &r.weights)
+}
+
+/// Recomputes every update of the recording and compares.
+pub fn verify(rec: &Recording) -> Result<VerifyReport, RecordError> {
+    let mut report = VerifyReport::default();
+    for u in &rec.updates {
+        let r = recompute_update(rec, u)?;
+        report.updates += 1;
+        if !matches_recorded(u, &r) {
+            report.mismatches.push(u.update);
+        }
+    }
+    Ok(report)
+}

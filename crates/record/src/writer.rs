@@ -1,0 +1,398 @@
+//! The low-level writer: one MCAP file per run, protobuf messages on fixed topics, a zstd chunk
+//! closed and flushed to the OS after every update. Both the in-process [`crate::McapRecorder`]
+//! and the pipeline's recorder process write through it.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Seek, Write};
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use mcap::records::{MessageHeader, Metadata};
+use mcap::{Compression, WriteOptions};
+use pi2cma::{CostBatch, Distribution, Hyperparameters, ParameterBatch, UpdateSummary};
+use prost::Message;
+
+use crate::convert::{distribution_to_proto, hyperparameters_to_proto};
+use crate::{proto, topics, RecordError, DESCRIPTORS};
+
+/// Wall-clock time in ns since the Unix epoch: the `log_time` of every message of every process.
+pub fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
+fn timestamp(ns: u64) -> prost_types::Timestamp {
+    prost_types::Timestamp {
+        seconds: (ns / 1_000_000_000) as i64,
+        nanos: (ns % 1_000_000_000) as i32,
+    }
+}
+
+/// Who ran one rollout and when (wall-clock ns; 0 = not timed).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RolloutTiming {
+    pub worker: String,
+    pub start_ns: u64,
+    pub end_ns: u64,
+}
+
+/// What a run records once, at its start.
+#[derive(Debug, Clone)]
+pub struct RunStart<'a> {
+    pub name: &'a str,
+    pub seed: u64,
+    /// The update the run starts (or resumes) at.
+    pub update: u64,
+    pub steps: usize,
+    pub hyperparameters: &'a Hyperparameters,
+    pub initial: &'a Distribution,
+    /// Row-major N × P, if the task has basis activations.
+    pub basis_activations: Option<&'a [f64]>,
+    /// The config as TOML text.
+    pub config_toml: &'a str,
+    /// "in-process" or "pipeline".
+    pub executor: &'a str,
+    pub task_settings: &'a [(&'a str, f64)],
+}
+
+/// Everything about one finished update.
+#[derive(Debug, Clone)]
+pub struct UpdateData<'a> {
+    pub hyperparameters: &'a Hyperparameters,
+    pub before: &'a Distribution,
+    pub after: &'a Distribution,
+    pub samples: &'a ParameterBatch,
+    pub costs: &'a CostBatch,
+    pub summary: &'a UpdateSummary,
+    pub task_settings: &'a [(&'a str, f64)],
+    /// Wall-clock interval of the update as seen by the caller.
+    pub batch_start_ns: u64,
+    pub batch_end_ns: u64,
+    /// One per rollout, in rollout order; if shorter (e.g. empty), the missing rollouts are
+    /// recorded with worker `default_worker` and no timing.
+    pub rollouts: &'a [RolloutTiming],
+    pub default_worker: &'a str,
+}
+
+/// A health event, recorded as a `foxglove.Log` message on `/log`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event {
+    Start,
+    Exit,
+    Crash,
+    Restart,
+    Scale,
+    Info,
+}
+
+impl Event {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Event::Start => "start",
+            Event::Exit => "exit",
+            Event::Crash => "crash",
+            Event::Restart => "restart",
+            Event::Scale => "scale",
+            Event::Info => "info",
+        }
+    }
+
+    fn level(self) -> proto::foxglove::log::Level {
+        use proto::foxglove::log::Level;
+        match self {
+            Event::Crash => Level::Error,
+            Event::Restart => Level::Warning,
+            _ => Level::Info,
+        }
+    }
+}
+
+/// Channel ids of the six topics, in [`topics::ALL`] order.
+struct Channels([u16; 6]);
+
+/// Writes one run's MCAP. Every `write_*` call encodes and appends; [`RunWriter::write_update`]
+/// also closes the chunk and flushes it to the OS. Dropping the writer finishes the file (summary
+/// and indexes); call [`RunWriter::finish`] to see errors.
+pub struct RunWriter<W: Write + Seek> {
+    mcap: mcap::Writer<W>,
+    file: PathBuf,
+    channels: Channels,
+    sequence: u32,
+    buf: Vec<u8>,
+}
+
+impl RunWriter<BufWriter<File>> {
+    /// Creates (truncates) `path`.
+    pub fn create(path: &Path) -> Result<Self, RecordError> {
+        let f = File::create(path).map_err(|e| RecordError::io(path, e))?;
+        Self::new(BufWriter::with_capacity(1 << 16, f), path)
+    }
+}
+
+impl<W: Write + Seek> RunWriter<W> {
+    /// `file` only names the destination in error messages.
+    pub fn new(w: W, file: impl Into<PathBuf>) -> Result<Self, RecordError> {
+        let file = file.into();
+        let opts = WriteOptions::new()
+            .compression(Some(Compression::Zstd))
+            .compression_threads(0)
+            // Chunks are closed by the flush after every update; this bound only matters for
+            // very large updates.
+            .chunk_size(Some(8 << 20))
+            .profile("")
+            .library(concat!("pi2cma-record/", env!("CARGO_PKG_VERSION")));
+        let mut mcap = opts
+            .create(w)
+            .map_err(|e| RecordError::mcap(file.clone(), e))?;
+        let mut ids = [0u16; 6];
+        for (i, (topic, schema)) in topics::ALL.iter().enumerate() {
+            let schema_id = mcap
+                .add_schema(schema, "protobuf", DESCRIPTORS)
+                .map_err(|e| RecordError::mcap(file.clone(), e))?;
+            ids[i] = mcap
+                .add_channel(schema_id, topic, "protobuf", &BTreeMap::new())
+                .map_err(|e| RecordError::mcap(file.clone(), e))?;
+        }
+        Ok(Self {
+            mcap,
+            file,
+            channels: Channels(ids),
+            sequence: 0,
+            buf: Vec::new(),
+        })
+    }
+
+    pub fn file(&self) -> &Path {
+        &self.file
+    }
+
+    fn mcap_err(&self, e: mcap::McapError) -> RecordError {
+        RecordError::mcap(self.file.clone(), e)
+    }
+
+    fn put<M: Message>(
+        &mut self,
+        channel: usize,
+        log_time: u64,
+        msg: &M,
+    ) -> Result<(), RecordError> {
+        self.buf.clear();
+        msg.encode(&mut self.buf)
+            .map_err(|e| RecordError::invalid(self.file.clone(), format!("encode: {e}")))?;
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = MessageHeader {
+            channel_id: self.channels.0[channel],
+            sequence: self.sequence,
+            log_time,
+            publish_time: log_time,
+        };
+        self.mcap
+            .write_to_known_channel(&header, &self.buf)
+            .map_err(|e| RecordError::mcap(self.file.clone(), e))
+    }
+
+    /// The MCAP metadata record `pi2cma.run` (config TOML, seed, versions, …) and the `/run`
+    /// message; flushed.
+    pub fn write_start(&mut self, start: &RunStart<'_>) -> Result<(), RecordError> {
+        let now = now_ns();
+        let versions = versions();
+        let mut meta = BTreeMap::new();
+        meta.insert("name".to_string(), start.name.to_string());
+        meta.insert("seed".to_string(), start.seed.to_string());
+        meta.insert("first_update".to_string(), start.update.to_string());
+        meta.insert("executor".to_string(), start.executor.to_string());
+        meta.insert("config_toml".to_string(), start.config_toml.to_string());
+        meta.insert("started_ns".to_string(), now.to_string());
+        for (k, v) in &versions {
+            meta.insert(format!("version.{k}"), v.clone());
+        }
+        self.mcap
+            .write_metadata(&Metadata {
+                name: topics::METADATA.to_string(),
+                metadata: meta,
+            })
+            .map_err(|e| self.mcap_err(e))?;
+        let info = proto::RunInfo {
+            timestamp: Some(timestamp(now)),
+            update: start.update,
+            name: start.name.to_string(),
+            seed: start.seed,
+            dim: start.initial.dim() as u32,
+            steps: start.steps as u32,
+            hyperparameters: Some(hyperparameters_to_proto(start.hyperparameters)),
+            initial: Some(distribution_to_proto(start.initial)),
+            basis_activations: start
+                .basis_activations
+                .map(<[f64]>::to_vec)
+                .unwrap_or_default(),
+            config_toml: start.config_toml.to_string(),
+            executor: start.executor.to_string(),
+            task_settings: settings(start.task_settings),
+            versions: versions
+                .into_iter()
+                .map(|(key, value)| proto::KeyValue { key, value })
+                .collect(),
+        };
+        self.put(0, now, &info)?;
+        self.flush()
+    }
+
+    /// `/update`, `/summary` and one `/rollout` per rollout, then a flush: after this returns,
+    /// the update survives a SIGKILL of this process.
+    pub fn write_update(&mut self, u: &UpdateData<'_>) -> Result<(), RecordError> {
+        let now = now_ns();
+        let s = u.summary;
+        let k = u.costs.rollouts();
+        let n = u.costs.steps();
+        if u.samples.rollouts != k || u.samples.update != s.update {
+            return Err(RecordError::Update {
+                file: self.file.clone(),
+                update: s.update,
+                what: format!(
+                    "samples are of update {} with {} rollouts, costs have {k} rollouts",
+                    u.samples.update, u.samples.rollouts
+                ),
+            });
+        }
+        let mut per_step = Vec::with_capacity(k * n);
+        let mut terminal = Vec::with_capacity(k);
+        for r in 0..k {
+            per_step.extend_from_slice(u.costs.per_step(r));
+            terminal.push(u.costs.terminal(r));
+        }
+        let after = distribution_to_proto(u.after);
+        let msg = proto::Update {
+            timestamp: Some(timestamp(now)),
+            update: s.update,
+            seed: u.samples.seed,
+            hyperparameters: Some(hyperparameters_to_proto(u.hyperparameters)),
+            before: Some(distribution_to_proto(u.before)),
+            rollouts: k as u32,
+            dim: u.samples.dim as u32,
+            steps: n as u32,
+            samples: u.samples.values.clone(),
+            cost_per_step: per_step,
+            cost_terminal: terminal,
+            weights: s.weights.clone(),
+            after: Some(after.clone()),
+            eval_cost: s.eval_cost,
+            exploration_cost_mean: s.exploration_cost_mean,
+            exploration_cost_std: s.exploration_cost_std,
+            lambda: s.lambda,
+            lambda_next: s.lambda_next,
+            task_settings: settings(u.task_settings),
+            batch_start_ns: u.batch_start_ns,
+            batch_end_ns: u.batch_end_ns,
+        };
+        self.put(1, now, &msg)?;
+        let summary = proto::UpdateSummary {
+            timestamp: Some(timestamp(now)),
+            update: s.update,
+            eval_cost: s.eval_cost,
+            exploration_cost_mean: s.exploration_cost_mean,
+            exploration_cost_std: s.exploration_cost_std,
+            lambda: s.lambda,
+            lambda_next: s.lambda_next,
+            mean: after.mean,
+        };
+        self.put(2, now, &summary)?;
+        for r in 0..k {
+            let (worker, start_ns, end_ns) = match u.rollouts.get(r) {
+                Some(t) => (t.worker.clone(), t.start_ns, t.end_ns),
+                None => (u.default_worker.to_string(), 0, 0),
+            };
+            let msg = proto::Rollout {
+                timestamp: Some(timestamp(now)),
+                update: s.update,
+                rollout: r as u32,
+                worker,
+                start_ns,
+                end_ns,
+                total_cost: u.costs.total(r),
+            };
+            self.put(3, now, &msg)?;
+        }
+        self.flush()
+    }
+
+    /// `/task_change`: setting `name` became `value` before update `update`.
+    pub fn write_task_change(
+        &mut self,
+        update: u64,
+        name: &str,
+        value: f64,
+    ) -> Result<(), RecordError> {
+        let now = now_ns();
+        let msg = proto::TaskChange {
+            timestamp: Some(timestamp(now)),
+            update,
+            name: name.to_string(),
+            value,
+        };
+        self.put(4, now, &msg)
+    }
+
+    /// `/log`: a health event about process `name` during update `update`.
+    pub fn write_event(
+        &mut self,
+        update: u64,
+        event: Event,
+        name: &str,
+        pid: u32,
+        message: &str,
+    ) -> Result<(), RecordError> {
+        let now = now_ns();
+        let msg = proto::Log {
+            timestamp: Some(timestamp(now)),
+            level: event.level() as i32,
+            message: message.to_string(),
+            name: name.to_string(),
+            file: String::new(),
+            line: 0,
+            update,
+            event: event.as_str().to_string(),
+            pid,
+        };
+        self.put(5, now, &msg)
+    }
+
+    /// Closes the current chunk and hands it to the OS.
+    pub fn flush(&mut self) -> Result<(), RecordError> {
+        self.mcap.flush().map_err(|e| self.mcap_err(e))
+    }
+
+    /// Writes the summary section and indexes and flushes the destination; the file is then
+    /// complete.
+    pub fn finish(mut self) -> Result<W, RecordError> {
+        self.mcap.finish().map_err(|e| self.mcap_err(e))?;
+        let file = self.file.clone();
+        let mut w = self.mcap.into_inner();
+        w.flush().map_err(|e| RecordError::io(file, e))?;
+        Ok(w)
+    }
+}
+
+fn settings(s: &[(&str, f64)]) -> Vec<proto::Setting> {
+    s.iter()
+        .map(|(name, value)| proto::Setting {
+            name: name.to_string(),
+            value: *value,
+        })
+        .collect()
+}
+
+/// Versions recorded with every run.
+pub(crate) fn versions() -> Vec<(String, String)> {
+    let mut v = vec![
+        ("record".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ("mcap-crate".to_string(), "0.26".to_string()),
+        ("schema".to_string(), "pi2cma.record/1".to_string()),
+    ];
+    if let Some(commit) = option_env!("PI2CMA_GIT_COMMIT") {
+        v.push(("git".to_string(), commit.to_string()));
+    }
+    v
+}

@@ -1,0 +1,175 @@
+#!/usr/bin/env python3
+"""Plot the learning curve of a pi2cma run from its MCAP recording.
+
+Reads the file with the PyPI packages `mcap` and `mcap-protobuf-support` only (no pi2cma code):
+the protobuf schemas are embedded in the recording. Draws the evaluation cost, the exploration
+cost mean ± std band and λ on a log axis, with task changes marked.
+
+    python3 tools/plot_learning_curve.py RUN.mcap [-o curve.svg] [--check]
+
+--check decodes every message of every topic and checks the recording's invariants (one
+/summary and K /rollout messages per /update, an update index on every message, consecutive
+updates, the distribution after one update is the one the next samples from); it exits non-zero
+on any failure. Files whose writer was killed (no summary section) are read as a stream.
+"""
+
+import argparse
+import collections
+import math
+import sys
+
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+EXPECTED_TOPICS = {
+    "/run": "pi2cma.record.RunInfo",
+    "/update": "pi2cma.record.Update",
+    "/summary": "pi2cma.record.UpdateSummary",
+    "/rollout": "pi2cma.record.Rollout",
+    "/task_change": "pi2cma.record.TaskChange",
+    "/log": "foxglove.Log",
+}
+
+
+def read(path):
+    """Returns {topic: [decoded message, ...]} and whether the file was indexed."""
+    by_topic = collections.defaultdict(list)
+    with open(path, "rb") as f:
+        try:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            summary = reader.get_summary()
+        except McapError:
+            summary = None
+        indexed = summary is not None
+        if indexed:
+            it = reader.iter_decoded_messages(log_time_order=False)
+        else:
+            f.seek(0)
+            reader = NonSeekingReader(f, decoder_factories=[DecoderFactory()])
+            it = reader.iter_decoded_messages(log_time_order=False)
+        try:
+            for schema, channel, _message, decoded in it:
+                by_topic[channel.topic].append((schema.name, decoded))
+        except McapError as e:
+            if indexed:
+                raise
+            print(f"{path}: stream ends early ({e}); using the readable prefix", file=sys.stderr)
+    return by_topic, indexed
+
+
+def check(path, by_topic):
+    """Returns a list of failure messages (empty if the recording is consistent)."""
+    failures = []
+
+    def fail(msg):
+        failures.append(f"{path}: {msg}")
+
+    for topic, schema in EXPECTED_TOPICS.items():
+        if topic not in by_topic and topic != "/task_change":
+            fail(f"topic {topic} is missing")
+        for name, _ in by_topic.get(topic, []):
+            if name != schema:
+                fail(f"topic {topic} has schema {name}, expected {schema}")
+    for topic, msgs in by_topic.items():
+        for i, (_, m) in enumerate(msgs):
+            if not m.HasField("timestamp"):
+                fail(f"{topic} message {i} has no timestamp")
+            if "update" not in m.DESCRIPTOR.fields_by_name:
+                fail(f"{topic} message {i} has no update index")
+    updates = [m for _, m in by_topic.get("/update", [])]
+    summaries = [m for _, m in by_topic.get("/summary", [])]
+    rollouts = [m for _, m in by_topic.get("/rollout", [])]
+    if not updates:
+        fail("no /update messages")
+        return failures
+    if [u.update for u in updates] != list(range(updates[0].update, updates[0].update + len(updates))):
+        fail("update indices are not consecutive")
+    if [s.update for s in summaries] != [u.update for u in updates]:
+        fail("/summary messages do not match /update messages one to one")
+    per_update = collections.Counter(r.update for r in rollouts)
+    for u in updates:
+        k, p, n = u.rollouts, u.dim, u.steps
+        if len(u.samples) != k * p or len(u.cost_per_step) != k * n or len(u.cost_terminal) != k:
+            fail(f"update {u.update}: shapes K={k} P={p} N={n} do not match the arrays")
+        if len(u.weights) != k:
+            fail(f"update {u.update}: {len(u.weights)} weights for {k} rollouts")
+        if per_update.get(u.update, 0) != k:
+            fail(f"update {u.update}: {per_update.get(u.update, 0)} /rollout messages, expected {k}")
+        total0 = u.cost_terminal[0] + sum(u.cost_per_step[0:n])
+        if not math.isclose(total0, u.eval_cost, rel_tol=1e-12, abs_tol=1e-12):
+            fail(f"update {u.update}: eval_cost {u.eval_cost} != total cost of rollout 0 {total0}")
+        if list(u.samples[0:p]) != list(u.before.mean):
+            fail(f"update {u.update}: rollout 0 is not the mean of the distribution before")
+    for a, b in zip(updates, updates[1:]):
+        if list(a.after.mean) != list(b.before.mean) or list(a.after.covariance) != list(
+            b.before.covariance
+        ):
+            fail(f"update {b.update}: distribution before is not update {a.update}'s distribution after")
+    return failures
+
+
+def plot(path, by_topic, out):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    summaries = [m for _, m in by_topic.get("/summary", [])]
+    run = [m for _, m in by_topic.get("/run", [])]
+    changes = [m for _, m in by_topic.get("/task_change", [])]
+    x = [s.update for s in summaries]
+    mean = [s.exploration_cost_mean for s in summaries]
+    std = [s.exploration_cost_std for s in summaries]
+    fig, (ax, axl) = plt.subplots(2, 1, sharex=True, figsize=(8, 6), height_ratios=[3, 2])
+    ax.fill_between(x, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
+                    alpha=0.25, label="exploration ± std")
+    ax.plot(x, mean, label="exploration mean")
+    ax.plot(x, [s.eval_cost for s in summaries], label="evaluation (rollout 0)")
+    # `lambda` is a Python keyword: the field is read with getattr.
+    axl.semilogy(x, [getattr(s, "lambda") for s in summaries], color="k")
+    for c in changes:
+        for a in (ax, axl):
+            a.axvline(c.update, ls="--", color="grey")
+    name = run[0].name if run else path
+    ax.set_title(f"{name}: learning curve")
+    ax.set_ylabel("cost")
+    axl.set_ylabel("λ")
+    axl.set_xlabel("update")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("files", nargs="+", help="MCAP recordings of pi2cma runs")
+    ap.add_argument("-o", "--out", help="figure file (one input) or suffix-free prefix (several)")
+    ap.add_argument("--check", action="store_true", help="decode every topic and check invariants")
+    args = ap.parse_args(argv)
+    failures = []
+    failed_files = 0
+    for i, path in enumerate(args.files):
+        by_topic, indexed = read(path)
+        counts = ", ".join(f"{t} {len(m)}" for t, m in sorted(by_topic.items()))
+        print(f"{path}: {'indexed' if indexed else 'NOT indexed (stream read)'}; decoded {counts}")
+        if args.check:
+            f = check(path, by_topic)
+            failed_files += bool(f)
+            failures += f
+        out = args.out
+        if out and len(args.files) > 1:
+            out = f"{out}-{i}.svg"
+        if out:
+            plot(path, by_topic, out)
+            print(f"wrote {out}")
+    for f in failures:
+        print(f"FAIL {f}", file=sys.stderr)
+    if args.check:
+        print(f"{len(args.files) - failed_files} passed, {failed_files} failed")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
