@@ -34,6 +34,10 @@ pub struct RunConfig {
     /// Task changes at given updates (e.g. the via-point moving from 0.3 to 0.1 after update 20).
     #[serde(default)]
     pub schedule: Vec<ScheduleEntry>,
+    /// How the multiprocess pipeline (`supervisor run`) runs this config; the in-process runner
+    /// ignores it. Absent means [`PipelineSection::default`].
+    #[serde(default)]
+    pub pipeline: Option<PipelineSection>,
     /// Where the file came from, for error messages; not a TOML key.
     #[serde(skip)]
     pub origin: PathBuf,
@@ -107,6 +111,8 @@ pub struct OptimizerSection {
 #[serde(deny_unknown_fields, rename_all = "kebab-case")]
 pub enum TaskSection {
     ViaPoint(ViaPointConfig),
+    /// `[task.tball]`: the T-ball task of Section IV-B (keys documented in `tball::TballConfig`).
+    Tball(Box<tball::TballConfig>),
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -149,6 +155,44 @@ pub struct ScheduleEntry {
     pub value: f64,
 }
 
+/// Settings of the multiprocess pipeline (crates `wire`, `pipeline`, `supervisor`).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PipelineSection {
+    /// Rollout workers started with the run (changeable at runtime with `supervisor scale`).
+    pub workers: usize,
+    /// The most workers the run may scale to; sizes the shared-memory services.
+    pub max_workers: usize,
+    /// Worker restarts allowed within `restart_window_s`; one more fails the run.
+    pub restart_limit: u32,
+    pub restart_window_s: f64,
+    /// Bound on each process's readiness handshake at start.
+    pub startup_timeout_ms: u64,
+    /// Bound on an orderly shutdown; then the whole group is killed.
+    pub shutdown_timeout_ms: u64,
+    /// FAULT INJECTION, for tests only: from this update on, workers report NaN costs.
+    pub fault_nan_from_update: Option<u64>,
+}
+
+impl PipelineSection {
+    /// The largest `max_workers` the wire layout supports.
+    pub const WORKER_LIMIT: usize = 256;
+}
+
+impl Default for PipelineSection {
+    fn default() -> Self {
+        Self {
+            workers: 3,
+            max_workers: 16,
+            restart_limit: 5,
+            restart_window_s: 60.0,
+            startup_timeout_ms: 10_000,
+            shutdown_timeout_ms: 5_000,
+            fault_nan_from_update: None,
+        }
+    }
+}
+
 /// The built-in default: PI²-CMA on the paper's via-point task (the A1 run), episodic weighting.
 pub const DEFAULT_CONFIG: &str = include_str!("default.toml");
 
@@ -185,7 +229,8 @@ impl RunConfig {
         }
     }
 
-    fn validate(&self) -> Result<(), ConfigError> {
+    /// Checks every range and cross-field rule; call again after changing fields in code.
+    pub fn validate(&self) -> Result<(), ConfigError> {
         let o = &self.optimizer;
         let only = |field: &str, present: bool, methods: &str| -> Result<(), ConfigError> {
             if present {
@@ -274,15 +319,44 @@ impl RunConfig {
         if self.run.updates == Some(0) {
             return Err(self.invalid("run.updates", 0, "must be at least 1 (omit for unbounded)"));
         }
-        match &self.task {
-            TaskSection::ViaPoint(v) => {
-                if !(v.rollout_delay_ms.is_finite() && (0.0..=3.6e6).contains(&v.rollout_delay_ms))
-                {
-                    return Err(self.invalid(
-                        "task.via-point.rollout_delay_ms",
-                        v.rollout_delay_ms,
-                        "must be between 0 and 3600000",
-                    ));
+        let (delay_field, delay_ms) = match &self.task {
+            TaskSection::ViaPoint(v) => ("task.via-point.rollout_delay_ms", v.rollout_delay_ms),
+            TaskSection::Tball(t) => ("task.tball.rollout_delay_ms", t.rollout_delay_ms),
+        };
+        if !(delay_ms.is_finite() && (0.0..=3.6e6).contains(&delay_ms)) {
+            return Err(self.invalid(delay_field, delay_ms, "must be between 0 and 3600000"));
+        }
+        if let Some(p) = &self.pipeline {
+            if !(1..=PipelineSection::WORKER_LIMIT).contains(&p.max_workers) {
+                return Err(self.invalid(
+                    "pipeline.max_workers",
+                    p.max_workers,
+                    &format!("must be between 1 and {}", PipelineSection::WORKER_LIMIT),
+                ));
+            }
+            if !(1..=p.max_workers).contains(&p.workers) {
+                return Err(self.invalid(
+                    "pipeline.workers",
+                    p.workers,
+                    &format!(
+                        "must be between 1 and pipeline.max_workers = {}",
+                        p.max_workers
+                    ),
+                ));
+            }
+            if !(p.restart_window_s.is_finite() && p.restart_window_s > 0.0) {
+                return Err(self.invalid(
+                    "pipeline.restart_window_s",
+                    p.restart_window_s,
+                    "must be finite and > 0",
+                ));
+            }
+            for (field, v) in [
+                ("startup_timeout_ms", p.startup_timeout_ms),
+                ("shutdown_timeout_ms", p.shutdown_timeout_ms),
+            ] {
+                if v == 0 {
+                    return Err(self.invalid(&format!("pipeline.{field}"), v, "must be > 0"));
                 }
             }
         }
@@ -361,19 +435,25 @@ impl RunConfig {
         )
     }
 
+    /// The pipeline settings, or their defaults when the config has no `[pipeline]` section.
+    pub fn pipeline(&self) -> PipelineSection {
+        self.pipeline.clone().unwrap_or_default()
+    }
+
     /// The rollout delay of the task, if any.
     pub fn rollout_delay(&self) -> std::time::Duration {
-        match &self.task {
-            TaskSection::ViaPoint(v) => {
-                std::time::Duration::from_secs_f64(v.rollout_delay_ms / 1e3)
-            }
-        }
+        let delay_ms = match &self.task {
+            TaskSection::ViaPoint(v) => v.rollout_delay_ms,
+            TaskSection::Tball(t) => t.rollout_delay_ms,
+        };
+        std::time::Duration::from_secs_f64(delay_ms / 1e3)
     }
 
     /// Builds the task without its rollout delay (see [`crate::build_task`] for the full one).
     pub fn build_task(&self) -> Result<Box<dyn tasks::Task>, tasks::TaskError> {
         match &self.task {
             TaskSection::ViaPoint(v) => Ok(Box::new(tasks::ViaPoint::new(&v.spec())?)),
+            TaskSection::Tball(t) => Ok(Box::new(tball::Tball::new(t)?)),
         }
     }
 }
@@ -432,6 +512,22 @@ mod tests {
             e.contains("schedule") && e.contains("no setting `goal`"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn tball_config_parses_and_rejects_unknown_keys() {
+        let text = include_str!("../../../config/tball.toml");
+        let c = parse(text).unwrap();
+        assert!(matches!(c.task, TaskSection::Tball(_)));
+        assert_eq!(c.build_task().unwrap().name(), "tball");
+        let e = parse(&text.replace("[task.tball]", "[task.tball]\nbat_radiu = 0.1"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown field `bat_radiu`"), "{e}");
+        let e = parse(&text.replace("set = \"ball_height\"", "set = \"ball_hight\""))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no setting `ball_hight`"), "{e}");
     }
 
     #[test]

@@ -1,0 +1,409 @@
+//! The paper's T-ball experiment (Section IV-B, Fig. 4): runs S learning sessions of a config
+//! in-process, writes per-update CSVs and Fig. 4-style SVGs into an output directory, and prints
+//! a summary table.
+//!
+//! ```text
+//! cargo run --release -p tball --example tball-experiment -- \
+//!     [--config config/tball.toml] [--sessions 10] [--out runs/tball]
+//! ```
+//!
+//! Updates are numbered from 1 in the output, as in the paper: "after 20 updates" is update 20,
+//! the last one with the ball at its first height; update 21 is the first with the lowered ball.
+
+use std::error::Error;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+use session::{Observer, RunConfig, TaskSection, UpdateRecord};
+use tasks::Task;
+use tball::{Tball, Trace};
+
+type Res<T> = Result<T, Box<dyn Error>>;
+
+/// One update of one session, as recorded.
+struct UpdateRow {
+    eval_cost: f64,
+    eval_terminal: f64,
+    landing_y: Option<f64>,
+    lambda: f64,
+    exploration_mean: f64,
+    exploration_std: f64,
+    /// The K parameter vectors (row 0: the evaluation rollout) and the ball height.
+    samples: Vec<Vec<f64>>,
+    ball_height: f64,
+}
+
+struct Recorder {
+    task: Tball,
+    rows: Vec<UpdateRow>,
+}
+
+impl Observer for Recorder {
+    fn on_update(&mut self, r: &UpdateRecord<'_>) {
+        for (name, value) in r.task_settings {
+            // The settings come from the same task type; a failure would be a bug here.
+            self.task
+                .set(name, *value)
+                .expect("settings reported by the task are valid");
+        }
+        let samples: Vec<Vec<f64>> = (0..r.samples.rollouts)
+            .map(|k| r.samples.row(k).to_vec())
+            .collect();
+        let outcome = self.task.trace(&samples[0]).outcome;
+        self.rows.push(UpdateRow {
+            eval_cost: r.summary.eval_cost,
+            eval_terminal: r.costs.terminal(0),
+            landing_y: outcome.hit.map(|h| h.landing[1]),
+            lambda: r.summary.lambda,
+            exploration_mean: r.summary.exploration_cost_mean,
+            exploration_std: r.summary.exploration_cost_std,
+            samples,
+            ball_height: self.task.resting_ball()[2],
+        });
+    }
+}
+
+struct Args {
+    config: PathBuf,
+    sessions: u64,
+    out: PathBuf,
+}
+
+fn parse_args() -> Res<Args> {
+    let mut args = Args {
+        config: PathBuf::from("config/tball.toml"),
+        sessions: 10,
+        out: PathBuf::from("runs/tball"),
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let value = it.next().ok_or(format!("{flag} needs a value"))?;
+        match flag.as_str() {
+            "--config" => args.config = value.into(),
+            "--sessions" => args.sessions = value.parse()?,
+            "--out" => args.out = value.into(),
+            _ => return Err(format!("unknown option {flag} (--config, --sessions, --out)").into()),
+        }
+    }
+    if args.sessions == 0 {
+        return Err("--sessions must be at least 1".into());
+    }
+    Ok(args)
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    s / n as f64
+}
+
+fn main() -> Res<()> {
+    let args = parse_args()?;
+    let cfg = RunConfig::load(&args.config)?;
+    let TaskSection::Tball(task_cfg) = &cfg.task else {
+        return Err(format!("{}: not a [task.tball] config", args.config.display()).into());
+    };
+    std::fs::create_dir_all(&args.out)?;
+    let mut sessions = Vec::new();
+    let start = std::time::Instant::now();
+    for s in 0..args.sessions {
+        let mut rec = Recorder {
+            task: Tball::new(task_cfg)?,
+            rows: Vec::new(),
+        };
+        session::run_session(&cfg, cfg.run.seed + s, &mut rec)?;
+        sessions.push(rec.rows);
+    }
+    let elapsed = start.elapsed();
+    write_csv(&args.out, &sessions)?;
+    let change = cfg.schedule.first().map(|c| c.from_update as usize);
+    print_summary(&sessions, change);
+    println!(
+        "{} sessions × {} updates in {:.2} s",
+        sessions.len(),
+        sessions[0].len(),
+        elapsed.as_secs_f64()
+    );
+    let task = Tball::new(task_cfg)?;
+    plot_learning_curve(&args.out.join("cost_lambda.svg"), &sessions, change)?;
+    plot_ball(&args.out.join("ball_trajectories.svg"), &task, &sessions[0])?;
+    plot_bat(&args.out.join("bat_paths.svg"), &task, &sessions[0])?;
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+fn write_csv(out: &Path, sessions: &[Vec<UpdateRow>]) -> Res<()> {
+    let mut all = String::from(
+        "session,update,eval_cost,eval_terminal,landing_y,in_target,lambda,exploration_mean,exploration_std,ball_height\n",
+    );
+    for (s, rows) in sessions.iter().enumerate() {
+        for (u, r) in rows.iter().enumerate() {
+            writeln!(
+                all,
+                "{s},{},{},{},{},{},{},{},{},{}",
+                u + 1,
+                r.eval_cost,
+                r.eval_terminal,
+                r.landing_y.map_or(String::from("miss"), |y| y.to_string()),
+                u8::from(r.landing_y.is_some() && r.eval_terminal == 0.0),
+                r.lambda,
+                r.exploration_mean,
+                r.exploration_std,
+                r.ball_height,
+            )?;
+        }
+    }
+    std::fs::write(out.join("sessions.csv"), all)?;
+    let mut m = String::from("update,eval_cost_mean,lambda_mean,in_target_fraction\n");
+    for u in 0..sessions[0].len() {
+        writeln!(
+            m,
+            "{},{},{},{}",
+            u + 1,
+            mean(sessions.iter().map(|s| s[u].eval_cost)),
+            mean(sessions.iter().map(|s| s[u].lambda)),
+            mean(sessions.iter().map(|s| f64::from(u8::from(
+                s[u].eval_terminal == 0.0 && s[u].landing_y.is_some()
+            )))),
+        )?;
+    }
+    std::fs::write(out.join("mean.csv"), m)?;
+    Ok(())
+}
+
+fn in_target(r: &UpdateRow) -> bool {
+    r.landing_y.is_some() && r.eval_terminal == 0.0
+}
+
+fn print_summary(sessions: &[Vec<UpdateRow>], change: Option<usize>) {
+    println!(
+        "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} {:>9} {:>9}",
+        "session", "first_hit", "cost@1", "cost@20", "cost@21", "λpeak@", "cost@40", "target@40"
+    );
+    let n = sessions[0].len();
+    let at = |rows: &[UpdateRow], u: usize| rows.get(u - 1).map_or(f64::NAN, |r| r.eval_cost);
+    let mut firsts = Vec::new();
+    let mut peaks = Vec::new();
+    for (s, rows) in sessions.iter().enumerate() {
+        let first = rows.iter().position(in_target).map(|u| u + 1);
+        let peak = change.filter(|&c| c < n).map(|c| {
+            let (i, _) = rows[c..]
+                .iter()
+                .enumerate()
+                .fold((0, f64::MIN), |b, (i, r)| {
+                    if r.lambda > b.1 {
+                        (i, r.lambda)
+                    } else {
+                        b
+                    }
+                });
+            c + i + 1
+        });
+        firsts.extend(first.map(|f| f as f64));
+        peaks.extend(peak.map(|p| p as f64));
+        println!(
+            "{:>7} {:>10} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>9.3} {:>9}",
+            s,
+            first.map_or("never".into(), |f| f.to_string()),
+            at(rows, 1),
+            at(rows, 20),
+            at(rows, 21),
+            peak.map_or("-".into(), |p| p.to_string()),
+            at(rows, n),
+            rows.last().is_some_and(in_target),
+        );
+    }
+    println!(
+        "{:>7} {:>10.1} {:>9.3} {:>9.3} {:>9.3} {:>10.1} {:>9.3} {:>9.2}",
+        "mean",
+        mean(firsts.iter().copied()),
+        mean(sessions.iter().map(|r| at(r, 1))),
+        mean(sessions.iter().map(|r| at(r, 20))),
+        mean(sessions.iter().map(|r| at(r, 21))),
+        mean(peaks.iter().copied()),
+        mean(sessions.iter().map(|r| at(r, n))),
+        mean(
+            sessions
+                .iter()
+                .map(|r| f64::from(u8::from(r.last().is_some_and(in_target))))
+        ),
+    );
+    if firsts.len() < sessions.len() {
+        println!(
+            "({} sessions never landed in the target)",
+            sessions.len() - firsts.len()
+        );
+    }
+}
+
+/// Cost of the evaluation rollout (mean over sessions, with the mean ± std of the exploration
+/// rollouts' costs as a band) and λ on a log axis, per update.
+fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<usize>) -> Res<()> {
+    let n = sessions[0].len();
+    let cost: Vec<(f64, f64)> = (0..n)
+        .map(|u| {
+            (
+                (u + 1) as f64,
+                mean(sessions.iter().map(|s| s[u].eval_cost)),
+            )
+        })
+        .collect();
+    let band: Vec<(f64, f64, f64)> = (0..n)
+        .map(|u| {
+            let m = mean(sessions.iter().map(|s| s[u].exploration_mean));
+            let sd = mean(sessions.iter().map(|s| s[u].exploration_std));
+            ((u + 1) as f64, m - sd, m + sd)
+        })
+        .collect();
+    let lambda: Vec<(f64, f64)> = (0..n)
+        .map(|u| ((u + 1) as f64, mean(sessions.iter().map(|s| s[u].lambda))))
+        .collect();
+    let y_max = band
+        .iter()
+        .map(|b| b.2)
+        .chain(cost.iter().map(|c| c.1))
+        .fold(0.0f64, f64::max)
+        * 1.05;
+    let root = SVGBackend::new(path, (800, 600)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (top, bottom) = root.split_vertically(300);
+    let mut c = ChartBuilder::on(&top)
+        .caption(
+            format!(
+                "T-ball: cost of the evaluation rollout (mean of {} sessions)",
+                sessions.len()
+            ),
+            ("sans-serif", 16),
+        )
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..(n as f64 + 1.0), 0.0..y_max)?;
+    c.configure_mesh().x_desc("update").y_desc("cost").draw()?;
+    let band_poly: Vec<(f64, f64)> = band
+        .iter()
+        .map(|b| (b.0, b.2.max(0.0)))
+        .chain(band.iter().rev().map(|b| (b.0, b.1.max(0.0))))
+        .collect();
+    c.draw_series(std::iter::once(Polygon::new(band_poly, BLUE.mix(0.15))))?
+        .label("exploration rollouts: mean ± std")
+        .legend(|(x, y)| Rectangle::new([(x, y - 4), (x + 15, y + 4)], BLUE.mix(0.15).filled()));
+    c.draw_series(LineSeries::new(cost, BLUE.stroke_width(2)))?
+        .label("evaluation rollout")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 15, y)], BLUE.stroke_width(2)));
+    if let Some(ch) = change {
+        let x = ch as f64 + 0.5;
+        c.draw_series(std::iter::once(PathElement::new(
+            vec![(x, 0.0), (x, y_max)],
+            BLACK.mix(0.5),
+        )))?
+        .label("ball 5 cm lower")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 15, y)], BLACK.mix(0.5)));
+    }
+    c.configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()?;
+
+    let (lo, hi) = lambda.iter().fold((f64::MAX, f64::MIN), |(lo, hi), l| {
+        (lo.min(l.1), hi.max(l.1))
+    });
+    let mut c = ChartBuilder::on(&bottom)
+        .caption(
+            "exploration magnitude λ (largest eigenvalue of Σ), mean",
+            ("sans-serif", 16),
+        )
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..(n as f64 + 1.0), (lo * 0.5..hi * 2.0).log_scale())?;
+    c.configure_mesh().x_desc("update").y_desc("λ").draw()?;
+    c.draw_series(LineSeries::new(lambda, RED.stroke_width(2)))?;
+    root.present()?;
+    Ok(())
+}
+
+/// Ball trajectories (side view: y–z) of the evaluation rollouts after updates 1, 20, 21, 40.
+fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
+    let updates = [1usize, 20, 21, 40];
+    let root = SVGBackend::new(path, (1000, 300)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let cfg = task.config();
+    for (area, &u) in root.split_evenly((1, 4)).iter().zip(&updates) {
+        let Some(row) = rows.get(u - 1) else { continue };
+        let mut t = task.clone();
+        t.set("ball_height", row.ball_height)?;
+        let trace: Trace = t.trace(&row.samples[0]);
+        let path = trace.ball_path(0.01, cfg.gravity, t.resting_ball());
+        let mut c = ChartBuilder::on(area)
+            .caption(format!("after {u} updates"), ("sans-serif", 14))
+            .margin(8)
+            .x_label_area_size(25)
+            .y_label_area_size(35)
+            .build_cartesian_2d(-2.5..0.5, 0.0..1.2)?;
+        c.configure_mesh().x_desc("y (m)").y_desc("z (m)").draw()?;
+        c.draw_series(std::iter::once(Rectangle::new(
+            [(cfg.target_y_min, 0.0), (cfg.target_y_max, 0.03)],
+            GREEN.mix(0.6).filled(),
+        )))?;
+        let ball = t.resting_ball();
+        c.draw_series(std::iter::once(PathElement::new(
+            vec![(ball[1], 0.0), (ball[1], ball[2] - cfg.ball_radius)],
+            BLACK.stroke_width(2),
+        )))?;
+        c.draw_series(LineSeries::new(
+            path.iter().map(|p| (p[1], p[2])),
+            BLUE.stroke_width(2),
+        ))?;
+        let label = match trace.outcome.hit {
+            Some(h) => format!("lands y = {:.2}", h.landing[1]),
+            None => "miss".into(),
+        };
+        c.draw_series(std::iter::once(Text::new(
+            label,
+            (-2.4, 1.1),
+            ("sans-serif", 12),
+        )))?;
+    }
+    root.present()?;
+    Ok(())
+}
+
+/// Bat end-point paths (front view: y–z) of the K rollouts of updates 1, 20, 27, 40.
+fn plot_bat(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
+    let updates = [1usize, 20, 27, 40];
+    let root = SVGBackend::new(path, (1000, 300)).into_drawing_area();
+    root.fill(&WHITE)?;
+    for (area, &u) in root.split_evenly((1, 4)).iter().zip(&updates) {
+        let Some(row) = rows.get(u - 1) else { continue };
+        let mut t = task.clone();
+        t.set("ball_height", row.ball_height)?;
+        let mut c = ChartBuilder::on(area)
+            .caption(format!("update {u}"), ("sans-serif", 14))
+            .margin(8)
+            .x_label_area_size(25)
+            .y_label_area_size(35)
+            .build_cartesian_2d(-1.2..0.6, 0.2..1.2)?;
+        c.configure_mesh().x_desc("y (m)").y_desc("z (m)").draw()?;
+        for (k, theta) in row.samples.iter().enumerate() {
+            let trace = t.trace(theta);
+            let style = if k == 0 {
+                BLACK.stroke_width(2)
+            } else {
+                RED.mix(0.6).stroke_width(1)
+            };
+            c.draw_series(LineSeries::new(
+                trace.bat_tip.iter().map(|p| (p[1], p[2])),
+                style,
+            ))?;
+        }
+        let ball = t.resting_ball();
+        c.draw_series(std::iter::once(Circle::new(
+            (ball[1], ball[2]),
+            4,
+            BLUE.filled(),
+        )))?;
+    }
+    root.present()?;
+    Ok(())
+}

@@ -1,0 +1,526 @@
+//! The T-ball task: DMP → joint trajectory → bat motion → impact → flight → cost.
+
+use dmp::{AffineDmp, Dmp, Gains};
+use tasks::{Task, TaskError};
+
+use crate::arm::{Arm, Vec3};
+use crate::config::TballConfig;
+use crate::contact::{
+    ball_at, closest_on_segment, flight, touch_within, BatStep, ContactModel, Impact,
+};
+
+const NAME: &str = "tball";
+
+/// The bat hit the ball.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Time of the impact since the start of the swing (s).
+    pub time: f64,
+    /// The ball's centre at the impact (still on the tee).
+    pub ball: Vec3,
+    pub impact: Impact,
+    pub flight_time: f64,
+    /// The ball's centre when it touches the ground.
+    pub landing: Vec3,
+}
+
+/// What one swing did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outcome {
+    pub hit: Option<Hit>,
+    /// Smallest distance between the bat's and the ball's surfaces before any impact (m; 0 if hit).
+    pub closest_gap: f64,
+    /// φ of Eq. 5, or the miss cost.
+    pub terminal_cost: f64,
+}
+
+impl Outcome {
+    /// Whether the ball landed in the target area (φ = 0 exactly).
+    pub fn in_target(&self) -> bool {
+        self.hit.is_some() && self.terminal_cost == 0.0
+    }
+}
+
+/// A swing with everything needed to draw it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trace {
+    pub outcome: Outcome,
+    /// Time of every step (s).
+    pub time: Vec<f64>,
+    /// Bat end-point at every step.
+    pub bat_tip: Vec<Vec3>,
+    pub grip: Vec<Vec3>,
+    /// Joint angles at every step.
+    pub joints: Vec<[f64; 7]>,
+}
+
+impl Trace {
+    /// The ball's centre from the start of the swing until it lands (or the end of the swing if
+    /// it is never hit), sampled every `dt` seconds.
+    pub fn ball_path(&self, dt: f64, gravity: f64, resting: Vec3) -> Vec<Vec3> {
+        match &self.outcome.hit {
+            None => vec![resting, resting],
+            Some(hit) => {
+                let mut path = vec![hit.ball];
+                let n = (hit.flight_time / dt).ceil() as usize;
+                for k in 1..n {
+                    path.push(ball_at(
+                        hit.ball,
+                        hit.impact.ball_velocity,
+                        gravity,
+                        k as f64 * dt,
+                    ));
+                }
+                path.push(hit.landing);
+                path
+            }
+        }
+    }
+}
+
+/// The paper's T-ball task (Section IV-B) with the simulation described in the crate docs.
+#[derive(Debug, Clone)]
+pub struct Tball {
+    config: TballConfig,
+    dmp: Dmp,
+    affine: AffineDmp,
+    initial_mean: Vec<f64>,
+    arm: Arm,
+    contact: ContactModel,
+}
+
+fn invalid(name: &str, value: f64, reason: &'static str) -> TaskError {
+    TaskError::InvalidSetting {
+        task: NAME,
+        name: name.into(),
+        value,
+        reason,
+    }
+}
+
+impl Tball {
+    pub fn new(config: &TballConfig) -> Result<Self, TaskError> {
+        let c = config;
+        let positive = [
+            ("upper_arm", c.upper_arm),
+            ("forearm", c.forearm),
+            ("hand", c.hand),
+            ("bat_length", c.bat_length),
+            ("bat_radius", c.bat_radius),
+            ("bat_effective_mass", c.bat_effective_mass),
+            ("ball_radius", c.ball_radius),
+            ("ball_mass", c.ball_mass),
+            ("gravity", c.gravity),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(invalid(name, v, "must be finite and > 0"));
+            }
+        }
+        let non_negative = [
+            ("friction", c.friction),
+            ("acceleration_weight", c.acceleration_weight),
+            ("miss_cost", c.miss_cost),
+            ("miss_gap_weight", c.miss_gap_weight),
+        ];
+        for (name, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(invalid(name, v, "must be finite and >= 0"));
+            }
+        }
+        for (name, v) in [
+            ("restitution", c.restitution),
+            ("tee_restitution", c.tee_restitution),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(invalid(name, v, "must be in [0, 1]"));
+            }
+        }
+        if !(c.target_y_min.is_finite()
+            && c.target_y_max.is_finite()
+            && c.target_y_min < c.target_y_max)
+        {
+            return Err(invalid(
+                "target_y_min",
+                c.target_y_min,
+                "target_y_min < target_y_max, both finite",
+            ));
+        }
+        let finite = c
+            .start_pose
+            .iter()
+            .chain(&c.end_pose)
+            .chain(&c.shoulder)
+            .all(|v| v.is_finite());
+        if !finite {
+            return Err(TaskError::Invalid {
+                task: NAME,
+                reason: "start_pose, end_pose and shoulder must be finite".into(),
+            });
+        }
+        let dmp = Dmp::new(
+            c.start_pose.to_vec(),
+            c.end_pose.to_vec(),
+            c.basis_functions,
+            c.duration,
+            c.dt,
+            Gains::default(),
+        )
+        .map_err(|e| TaskError::Invalid {
+            task: NAME,
+            reason: e.to_string(),
+        })?;
+        let initial_mean = dmp.fit_min_jerk(c.duration);
+        let mut task = Self {
+            affine: dmp.affine(),
+            dmp,
+            initial_mean,
+            arm: Arm {
+                shoulder: c.shoulder,
+                upper_arm: c.upper_arm,
+                forearm: c.forearm,
+                hand: c.hand,
+                bat_length: c.bat_length,
+            },
+            contact: ContactModel {
+                restitution: c.restitution,
+                friction: c.friction,
+                tee_restitution: c.tee_restitution,
+                ball_mass: c.ball_mass,
+                bat_effective_mass: c.bat_effective_mass,
+            },
+            config: c.clone(),
+        };
+        // Through `set`, so the settings are checked exactly as a schedule's changes are.
+        task.set("tee_x", c.tee_x)?;
+        task.set("tee_y", c.tee_y)?;
+        task.set("ball_height", c.ball_height)?;
+        Ok(task)
+    }
+
+    pub fn config(&self) -> &TballConfig {
+        &self.config
+    }
+
+    pub fn dmp(&self) -> &Dmp {
+        &self.dmp
+    }
+
+    pub fn arm(&self) -> &Arm {
+        &self.arm
+    }
+
+    /// The ball's centre while it rests on the tee.
+    pub fn resting_ball(&self) -> Vec3 {
+        [
+            self.config.tee_x,
+            self.config.tee_y,
+            self.config.ball_height,
+        ]
+    }
+
+    /// Distance from a landing point to the target area (0 inside).
+    pub fn distance_to_target(&self, landing: Vec3) -> f64 {
+        let y = landing[1];
+        if y > self.config.target_y_max {
+            y - self.config.target_y_max
+        } else if y < self.config.target_y_min {
+            self.config.target_y_min - y
+        } else {
+            0.0
+        }
+    }
+
+    #[inline]
+    fn joints_at(&self, i: usize, theta: &[f64]) -> [f64; 7] {
+        std::array::from_fn(|d| self.affine.position(i, d, theta))
+    }
+
+    /// Runs the swing θ: immediate costs into `per_step` (N values), and, when `trace` is given,
+    /// the bat's path over the whole swing.
+    pub fn simulate(
+        &self,
+        theta: &[f64],
+        per_step: &mut [f64],
+        mut trace: Option<&mut Trace>,
+    ) -> Outcome {
+        let n = self.affine.steps();
+        let dims = self.affine.dims();
+        let weight = self.config.acceleration_weight / n as f64;
+        for (i, q) in per_step.iter_mut().enumerate().take(n) {
+            let mut sum = 0.0;
+            for d in 0..dims {
+                let a = self.affine.acceleration(i, d, theta);
+                sum += a * a;
+            }
+            *q = weight * sum;
+        }
+
+        let ball = self.resting_ball();
+        let reach = self.config.bat_radius + self.config.ball_radius;
+        let dt = self.affine.dt();
+        let mut hit = None;
+        let mut closest = f64::INFINITY;
+        let mut prev = self.arm.pose(&self.joints_at(0, theta));
+        let mut apart = closest_on_segment(prev.grip, prev.tip, ball).1 > reach;
+        if let Some(t) = trace.as_deref_mut() {
+            t.time.clear();
+            t.bat_tip.clear();
+            t.grip.clear();
+            t.joints.clear();
+        }
+        for i in 0..n {
+            let q = self.joints_at(i, theta);
+            let pose = if i == 0 { prev } else { self.arm.pose(&q) };
+            if let Some(t) = trace.as_deref_mut() {
+                t.time.push(i as f64 * dt);
+                t.bat_tip.push(pose.tip);
+                t.grip.push(pose.grip);
+                t.joints.push(q);
+            }
+            if hit.is_none() {
+                let d = closest_on_segment(pose.grip, pose.tip, ball).1;
+                closest = closest.min(d);
+                if d <= reach && apart && i > 0 {
+                    let step = BatStep {
+                        grip0: prev.grip,
+                        tip0: prev.tip,
+                        grip1: pose.grip,
+                        tip1: pose.tip,
+                        dt,
+                    };
+                    let (s, along) = touch_within(&step, ball, reach);
+                    if let Some(impact) = self.contact.impact(&step, ball, s, along) {
+                        let (flight_time, landing) = flight(
+                            ball,
+                            impact.ball_velocity,
+                            self.config.gravity,
+                            self.config.ball_radius,
+                        );
+                        hit = Some(Hit {
+                            time: (i as f64 - 1.0 + s) * dt,
+                            ball,
+                            impact,
+                            flight_time,
+                            landing,
+                        });
+                        if trace.is_none() {
+                            break;
+                        }
+                    }
+                }
+                apart = d > reach;
+            }
+            prev = pose;
+        }
+        let (closest_gap, terminal_cost) = match &hit {
+            Some(h) => (0.0, self.distance_to_target(h.landing)),
+            None => {
+                let gap = (closest - reach).max(0.0);
+                (
+                    gap,
+                    self.config.miss_cost + self.config.miss_gap_weight * gap,
+                )
+            }
+        };
+        let outcome = Outcome {
+            hit,
+            closest_gap,
+            terminal_cost,
+        };
+        if let Some(t) = trace {
+            t.outcome = outcome;
+        }
+        outcome
+    }
+
+    /// The swing θ with its bat path, for figures.
+    pub fn trace(&self, theta: &[f64]) -> Trace {
+        let mut trace = Trace {
+            outcome: Outcome {
+                hit: None,
+                closest_gap: 0.0,
+                terminal_cost: 0.0,
+            },
+            time: Vec::new(),
+            bat_tip: Vec::new(),
+            grip: Vec::new(),
+            joints: Vec::new(),
+        };
+        let mut per_step = vec![0.0; self.affine.steps()];
+        self.simulate(theta, &mut per_step, Some(&mut trace));
+        trace
+    }
+}
+
+impl Task for Tball {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn parameters(&self) -> usize {
+        self.dmp.parameters()
+    }
+
+    fn steps(&self) -> usize {
+        self.dmp.steps()
+    }
+
+    fn initial_mean(&self) -> Vec<f64> {
+        self.initial_mean.clone()
+    }
+
+    fn basis_activations(&self) -> Option<Vec<f64>> {
+        Some(self.dmp.parameter_activations())
+    }
+
+    fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
+        self.simulate(theta, per_step, None).terminal_cost
+    }
+
+    fn settings(&self) -> Vec<(&'static str, f64)> {
+        vec![
+            ("ball_height", self.config.ball_height),
+            ("tee_x", self.config.tee_x),
+            ("tee_y", self.config.tee_y),
+        ]
+    }
+
+    fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+        let known = ["ball_height", "tee_x", "tee_y"];
+        if known.contains(&name) && !value.is_finite() {
+            return Err(invalid(name, value, "must be finite"));
+        }
+        match name {
+            "ball_height" if value < self.config.ball_radius => Err(invalid(
+                name,
+                value,
+                "the ball's centre must be at least its radius above the ground",
+            )),
+            "ball_height" => {
+                self.config.ball_height = value;
+                Ok(())
+            }
+            "tee_x" => {
+                self.config.tee_x = value;
+                Ok(())
+            }
+            "tee_y" => {
+                self.config.tee_y = value;
+                Ok(())
+            }
+            _ => Err(TaskError::UnknownSetting {
+                task: NAME,
+                name: name.into(),
+                known: known.join(", "),
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::arm::{norm, sub};
+
+    fn task() -> Tball {
+        Tball::new(&TballConfig::default()).unwrap()
+    }
+
+    #[test]
+    fn immediate_cost_is_equation_4() {
+        let mut t = task();
+        let theta = t.initial_mean();
+        let mut q = vec![0.0; t.steps()];
+        t.rollout(&theta, &mut q);
+        let traj = t.dmp().integrate(&theta);
+        let n = t.steps() as f64;
+        for i in [0, 1, 500, 1000] {
+            let expected: f64 = (0..7).map(|d| traj.acc[i * 7 + d].powi(2)).sum::<f64>() * 0.01 / n;
+            assert!(
+                (q[i] - expected).abs() <= 1e-9 * expected.max(1e-9),
+                "{i}: {} vs {expected}",
+                q[i]
+            );
+        }
+    }
+
+    #[test]
+    fn terminal_cost_is_distance_to_the_target_strip() {
+        let t = task();
+        assert_eq!(t.distance_to_target([0.3, -1.2, 0.0]), 0.0);
+        assert!((t.distance_to_target([0.0, -0.7, 0.0]) - 0.3).abs() < 1e-12);
+        assert!((t.distance_to_target([2.0, -1.9, 0.0]) - 0.4).abs() < 1e-12);
+        let theta = t.initial_mean();
+        let o = t.trace(&theta).outcome;
+        let hit = o.hit.expect("the initial swing hits the default ball");
+        assert_eq!(o.terminal_cost, t.distance_to_target(hit.landing));
+        // The ball lands on the ground, having left from the tee.
+        assert!((hit.landing[2] - t.config().ball_radius).abs() < 1e-9);
+        assert!(hit.time > 0.0 && hit.time < t.config().duration);
+    }
+
+    #[test]
+    fn a_miss_costs_the_documented_penalty() {
+        let mut t = task();
+        t.set("tee_x", 3.0).unwrap();
+        let theta = t.initial_mean();
+        let trace = t.trace(&theta);
+        assert!(trace.outcome.hit.is_none());
+        let reach = t.config().bat_radius + t.config().ball_radius;
+        let ball = t.resting_ball();
+        let gap = trace
+            .grip
+            .iter()
+            .zip(&trace.bat_tip)
+            .map(|(&g, &p)| closest_on_segment(g, p, ball).1 - reach)
+            .fold(f64::INFINITY, f64::min);
+        assert!(gap > 1.0);
+        let expected = 2.0 + 10.0 * gap;
+        assert!((trace.outcome.terminal_cost - expected).abs() < 1e-9);
+        assert!(trace.outcome.terminal_cost.is_finite());
+    }
+
+    #[test]
+    fn rollouts_are_deterministic_and_trace_agrees() {
+        let mut t = task();
+        let mut theta = t.initial_mean();
+        theta[4] += 3.0;
+        let mut a = vec![0.0; t.steps()];
+        let mut b = vec![0.0; t.steps()];
+        let pa = t.rollout(&theta, &mut a);
+        let pb = t.rollout(&theta, &mut b);
+        assert_eq!((pa, &a), (pb, &b));
+        assert_eq!(t.trace(&theta).outcome.terminal_cost, pa);
+    }
+
+    #[test]
+    fn bat_tip_follows_the_joint_trajectory() {
+        let t = task();
+        let trace = t.trace(&t.initial_mean());
+        assert_eq!(trace.bat_tip.len(), t.steps());
+        let p = t.arm().pose(&trace.joints[300]);
+        assert_eq!(p.tip, trace.bat_tip[300]);
+        let reach = t.arm().upper_arm + t.arm().forearm + t.arm().hand + t.arm().bat_length;
+        assert!(norm(sub(trace.bat_tip[0], t.arm().shoulder)) <= reach + 1e-9);
+    }
+
+    #[test]
+    fn settings_are_checked() {
+        let mut t = task();
+        assert!(matches!(
+            t.set("ball_hieght", 0.5),
+            Err(TaskError::UnknownSetting { .. })
+        ));
+        assert!(t.set("ball_height", 0.01).is_err());
+        assert!(t.set("ball_height", f64::NAN).is_err());
+        t.set("ball_height", 0.6).unwrap();
+        assert_eq!(t.resting_ball()[2], 0.6);
+        let mut c = TballConfig::default();
+        c.restitution = 1.5;
+        assert!(Tball::new(&c).is_err());
+        c = TballConfig::default();
+        c.target_y_min = -0.5;
+        assert!(Tball::new(&c).is_err());
+    }
+}
