@@ -97,6 +97,10 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     s / n as f64
 }
 
+fn geometric_mean(v: impl Iterator<Item = f64>) -> f64 {
+    mean(v.map(f64::ln)).exp()
+}
+
 fn main() -> Res<()> {
     let args = parse_args()?;
     let cfg = RunConfig::load(&args.config)?;
@@ -154,14 +158,17 @@ fn write_csv(out: &Path, sessions: &[Vec<UpdateRow>]) -> Res<()> {
         }
     }
     std::fs::write(out.join("sessions.csv"), all)?;
-    let mut m = String::from("update,eval_cost_mean,lambda_mean,in_target_fraction\n");
+    let mut m = String::from(
+        "update,eval_cost_mean,lambda_mean,lambda_geometric_mean,in_target_fraction\n",
+    );
     for u in 0..sessions[0].len() {
         writeln!(
             m,
-            "{},{},{},{}",
+            "{},{},{},{},{}",
             u + 1,
             mean(sessions.iter().map(|s| s[u].eval_cost)),
             mean(sessions.iter().map(|s| s[u].lambda)),
+            geometric_mean(sessions.iter().map(|s| s[u].lambda)),
             mean(sessions.iter().map(|s| f64::from(u8::from(
                 s[u].eval_terminal == 0.0 && s[u].landing_y.is_some()
             )))),
@@ -255,8 +262,15 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
             ((u + 1) as f64, m - sd, m + sd)
         })
         .collect();
+    // λ spans orders of magnitude and jumps between updates: its geometric mean over sessions
+    // is what a log axis shows faithfully.
     let lambda: Vec<(f64, f64)> = (0..n)
-        .map(|u| ((u + 1) as f64, mean(sessions.iter().map(|s| s[u].lambda))))
+        .map(|u| {
+            (
+                (u + 1) as f64,
+                geometric_mean(sessions.iter().map(|s| s[u].lambda)),
+            )
+        })
         .collect();
     let y_max = band
         .iter()
@@ -301,6 +315,7 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 15, y)], BLACK.mix(0.5)));
     }
     c.configure_series_labels()
+        .position(SeriesLabelPosition::LowerLeft)
         .border_style(BLACK)
         .background_style(WHITE.mix(0.8))
         .draw()?;
@@ -310,7 +325,7 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
     });
     let mut c = ChartBuilder::on(&bottom)
         .caption(
-            "exploration magnitude λ (largest eigenvalue of Σ), mean",
+            "exploration magnitude λ (largest eigenvalue of Σ), geometric mean over sessions",
             ("sans-serif", 16),
         )
         .margin(10)
@@ -336,10 +351,10 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
         let trace: Trace = t.trace(&row.samples[0]);
         let path = trace.ball_path(0.01, cfg.gravity, t.resting_ball());
         let mut c = ChartBuilder::on(area)
-            .caption(format!("after {u} updates"), ("sans-serif", 14))
+            .caption(format!("session 0, after {u} updates"), ("sans-serif", 14))
             .margin(8)
-            .x_label_area_size(25)
-            .y_label_area_size(35)
+            .x_label_area_size(35)
+            .y_label_area_size(40)
             .build_cartesian_2d(-2.5..0.5, 0.0..1.2)?;
         c.configure_mesh().x_desc("y (m)").y_desc("z (m)").draw()?;
         c.draw_series(std::iter::once(Rectangle::new(
@@ -379,10 +394,13 @@ fn plot_bat(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
         let mut t = task.clone();
         t.set("ball_height", row.ball_height)?;
         let mut c = ChartBuilder::on(area)
-            .caption(format!("update {u}"), ("sans-serif", 14))
+            .caption(
+                format!("session 0, update {u}: bat end-point, K rollouts"),
+                ("sans-serif", 13),
+            )
             .margin(8)
-            .x_label_area_size(25)
-            .y_label_area_size(35)
+            .x_label_area_size(35)
+            .y_label_area_size(40)
             .build_cartesian_2d(-1.2..0.6, 0.2..1.2)?;
         c.configure_mesh().x_desc("y (m)").y_desc("z (m)").draw()?;
         for (k, theta) in row.samples.iter().enumerate() {

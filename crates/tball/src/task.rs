@@ -516,11 +516,15 @@ mod tests {
         assert!(t.set("ball_height", f64::NAN).is_err());
         t.set("ball_height", 0.6).unwrap();
         assert_eq!(t.resting_ball()[2], 0.6);
-        let mut c = TballConfig::default();
-        c.restitution = 1.5;
-        assert!(Tball::new(&c).is_err());
-        c = TballConfig::default();
-        c.target_y_min = -0.5;
-        assert!(Tball::new(&c).is_err());
+        let bouncy = TballConfig {
+            restitution: 1.5,
+            ..TballConfig::default()
+        };
+        assert!(Tball::new(&bouncy).is_err());
+        let empty_target = TballConfig {
+            target_y_min: -0.5,
+            ..TballConfig::default()
+        };
+        assert!(Tball::new(&empty_target).is_err());
     }
 }

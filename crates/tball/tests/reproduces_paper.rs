@@ -35,7 +35,7 @@ impl Observer for Recorder {
 
 fn config() -> RunConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tball.toml");
-    RunConfig::load(&path).unwrap()
+    RunConfig::load(&path).expect("config/tball.toml loads")
 }
 
 fn sessions() -> &'static [Vec<Update>] {
@@ -45,7 +45,7 @@ fn sessions() -> &'static [Vec<Update>] {
         (0..SESSIONS)
             .map(|s| {
                 let mut rec = Recorder(Vec::new());
-                session::run_session(&cfg, cfg.run.seed + s, &mut rec).unwrap();
+                session::run_session(&cfg, cfg.run.seed + s, &mut rec).expect("session runs");
                 rec.0
             })
             .collect()
