@@ -1,0 +1,185 @@
+//! The processes of the pipeline: [`updater`] (owns the sans-IO optimizer: tells costs, publishes
+//! distributions), [`sampler`] (draws each update's parameter vectors and hands them out to
+//! workers by load) and [`worker`] (executes rollouts, writing costs straight into shared memory).
+//! The wire contract (message layouts, service names and settings) is the `wire` crate's; the
+//! binaries live in the `supervisor` crate, which starts and supervises these processes.
+//!
+//! **Architecture Invariant:** the processes never serialise on the data paths and never spin:
+//! each waits on its doorbell event ([`wait_loop`]) and then drains its subscribers.
+
+pub mod result;
+pub mod sampler;
+pub mod updater;
+pub mod worker;
+
+use std::fmt::Debug;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{anyhow, Context as _};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+use session::RunConfig;
+use wire::{Limits, Service};
+
+/// Arguments every pipeline process takes (the supervisor passes them).
+#[derive(Debug, Clone, clap::Args)]
+pub struct ProcessArgs {
+    /// The run's config (the supervisor writes it into the run directory).
+    #[arg(long)]
+    pub config: PathBuf,
+    /// The run directory: iceoryx2 files, result file.
+    #[arg(long)]
+    pub run_dir: PathBuf,
+    /// The run id, 16 hex digits.
+    #[arg(long, value_parser = parse_run_id)]
+    pub run_id: u64,
+}
+
+pub fn parse_run_id(s: &str) -> Result<u64, String> {
+    u64::from_str_radix(s, 16).map_err(|e| format!("run id `{s}` is not hex: {e}"))
+}
+
+/// What a process needs from its run: the config, the limits derived from it, and its node.
+pub struct Context {
+    pub config: RunConfig,
+    pub run_id: u64,
+    pub run_dir: PathBuf,
+    pub limits: Limits,
+    pub node: Node<Service>,
+}
+
+impl Context {
+    pub fn new(args: &ProcessArgs, node_name: &str) -> anyhow::Result<Self> {
+        let config = RunConfig::load(&args.config)?;
+        let limits = limits(&config)?;
+        let node = wire::node(args.run_id, node_name)?;
+        // Installs iceoryx2's SIGINT/SIGTERM handling now, so a signal before the first wait
+        // still ends in an orderly exit that removes this process's resources.
+        let _ = node.wait(Duration::ZERO);
+        Ok(Self {
+            config,
+            run_id: args.run_id,
+            run_dir: args.run_dir.clone(),
+            limits,
+            node,
+        })
+    }
+
+    pub fn result_path(&self) -> PathBuf {
+        result_path(&self.run_dir)
+    }
+}
+
+pub fn result_path(run_dir: &Path) -> PathBuf {
+    run_dir.join("result.toml")
+}
+
+/// K, P, N and the worker limit of a config: the numbers every service is sized from.
+pub fn limits(config: &RunConfig) -> anyhow::Result<Limits> {
+    let task = session::build_task(config)?;
+    Ok(Limits {
+        max_workers: config.pipeline().max_workers,
+        rollouts: config.optimizer.rollouts,
+        dim: task.parameters(),
+        steps: task.steps(),
+    })
+}
+
+/// Turns an iceoryx2 error (which are `Debug`) into an error that says what failed.
+pub fn iox<T, E: Debug>(r: Result<T, E>, what: &str) -> anyhow::Result<T> {
+    r.map_err(|e| anyhow!("{what}: {e:?}"))
+}
+
+/// How a [`wait_loop`] ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Exit {
+    /// The handler returned [`Flow::Stop`].
+    Done,
+    /// SIGINT or SIGTERM.
+    Signal,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    Stop,
+}
+
+/// Calls `on_wake` once, then every time the doorbell rings, until it returns [`Flow::Stop`] or a
+/// termination signal arrives. Notifications are consumed before `on_wake` drains its
+/// subscribers, so a sample published while draining rings again rather than being missed.
+pub fn wait_loop(
+    doorbell: &Listener<Service>,
+    mut on_wake: impl FnMut() -> anyhow::Result<Flow>,
+) -> anyhow::Result<Exit> {
+    let waitset = iox(
+        WaitSetBuilder::new().create::<Service>(),
+        "cannot create waitset",
+    )?;
+    let _guard = iox(
+        waitset.attach_notification(doorbell),
+        "cannot attach doorbell",
+    )?;
+    loop {
+        iox(doorbell.try_wait(|_| {}), "doorbell")?;
+        if on_wake()? == Flow::Stop {
+            return Ok(Exit::Done);
+        }
+        match iox(
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue),
+            "waitset",
+        )? {
+            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
+                return Ok(Exit::Signal)
+            }
+            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+        }
+    }
+}
+
+/// Keeps the lifecycle port alive: a sample of a dropped publisher may never be received.
+pub struct Announced {
+    _publisher: iceoryx2::port::publisher::Publisher<Service, wire::Lifecycle, ()>,
+}
+
+/// Announces on `lifecycle` that this process is ready, and rings the supervisor. Keep the
+/// returned value for the life of the process.
+pub fn announce_ready(
+    ctx: &Context,
+    role: u32,
+    worker: u32,
+    incarnation: u32,
+) -> anyhow::Result<Announced> {
+    let service = wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?;
+    let publisher = iox(service.publisher_builder().create(), "lifecycle publisher")?;
+    iox(
+        publisher.send_copy(wire::Lifecycle {
+            run_id: ctx.run_id,
+            pid: std::process::id(),
+            role,
+            worker,
+            incarnation,
+        }),
+        "send lifecycle",
+    )?;
+    let bell = wire::doorbell(&ctx.node, ctx.run_id, "supervisor", &ctx.limits)?;
+    let notifier = iox(bell.notifier_builder().create(), "supervisor notifier")?;
+    iox(notifier.notify_with_custom_event_id(wire::WAKE), "notify")?;
+    Ok(Announced {
+        _publisher: publisher,
+    })
+}
+
+/// Runs a process main: prints the error chain and returns exit code 1 on failure.
+pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
+    iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
+    match f().with_context(|| format!("{name} failed")) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,82 @@
+//! The result file the updater writes when a run ends (`<run dir>/result.toml`): the final
+//! distribution (with its exact bits), the last costs, and every task change with the update it
+//! took effect at.
+
+use std::path::Path;
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunResult {
+    pub name: String,
+    pub seed: u64,
+    /// Updates completed.
+    pub updates: u64,
+    /// Whether the configured number of updates was reached (false: stopped early).
+    pub complete: bool,
+    pub elapsed_s: f64,
+    /// Total cost of the evaluation rollout of the first and of the last update.
+    pub first_eval_cost: f64,
+    pub last_eval_cost: f64,
+    /// λ of the final distribution.
+    pub lambda: f64,
+    pub mean: Vec<f64>,
+    /// Σ, column-major.
+    pub covariance: Vec<f64>,
+    /// `f64::to_bits` of `mean` and `covariance` as hex, for bit-exact comparisons.
+    pub mean_bits: Vec<String>,
+    pub covariance_bits: Vec<String>,
+    #[serde(default)]
+    pub task_changes: Vec<RecordedChange>,
+}
+
+/// A task change and the update index it took effect at.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecordedChange {
+    pub from_update: u64,
+    pub name: String,
+    pub value: f64,
+    /// "schedule" (from the config) or "runtime" (`supervisor set`).
+    pub source: String,
+}
+
+pub fn bits(values: &[f64]) -> Vec<String> {
+    values
+        .iter()
+        .map(|v| format!("{:016x}", v.to_bits()))
+        .collect()
+}
+
+pub fn from_bits(bits: &[String]) -> anyhow::Result<Vec<f64>> {
+    bits.iter()
+        .map(|b| {
+            u64::from_str_radix(b, 16)
+                .map(f64::from_bits)
+                .with_context(|| format!("bad bits `{b}`"))
+        })
+        .collect()
+}
+
+impl RunResult {
+    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+        let text = toml::to_string(self).context("cannot encode result")?;
+        let tmp = path.with_extension("tmp");
+        std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("{}: bad result file", path.display()))
+    }
+
+    /// The exact final mean and covariance (from the bits).
+    pub fn exact(&self) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
+        Ok((
+            from_bits(&self.mean_bits)?,
+            from_bits(&self.covariance_bits)?,
+        ))
+    }
+}

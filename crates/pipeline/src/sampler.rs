@@ -1,0 +1,258 @@
+//! The sampler: turns each published distribution into the update's K parameter vectors (the
+//! core's pure `ParameterBatch::sample`) and hands them out by load. A worker that announces
+//! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts (guided self-scheduling: large chunks while
+//! much work is left, single rollouts at the end), so a fast worker takes more rollouts than a
+//! slow one. Rollouts of a lost worker go back to the pending queue.
+
+use std::collections::{BTreeMap, VecDeque};
+
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::*;
+use nalgebra::{DMatrix, DVector};
+use pi2cma::{Distribution, ParameterBatch};
+use wire::{Control, DistributionHeader, Ready, Service, WorkHeader, MAX_SETTINGS};
+
+use crate::{announce_ready, iox, wait_loop, Context, Flow, ProcessArgs};
+
+type Inbox = (Publisher<Service, [f64], WorkHeader>, Notifier<Service>);
+
+struct Assignment {
+    chunk: u64,
+    update: u64,
+    rollouts: Vec<u32>,
+}
+
+struct WorkerPort {
+    incarnation: u32,
+    inbox: Publisher<Service, [f64], WorkHeader>,
+    bell: Notifier<Service>,
+    assignment: Option<Assignment>,
+}
+
+struct Current {
+    update: u64,
+    batch: ParameterBatch,
+    settings: [f64; MAX_SETTINGS],
+    settings_len: u32,
+}
+
+pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
+    let ctx = Context::new(args, "sampler")?;
+    let (dim, k_total, steps) = (ctx.limits.dim, ctx.limits.rollouts, ctx.limits.steps);
+    let dist = iox(
+        wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "distribution subscriber",
+    )?;
+    let ready = iox(
+        wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "ready subscriber",
+    )?;
+    let control = iox(
+        wire::control(&ctx.node, ctx.run_id, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "control subscriber",
+    )?;
+    let doorbell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, "sampler", &ctx.limits)?
+            .listener_builder()
+            .create(),
+        "sampler doorbell",
+    )?;
+    let _announced = announce_ready(&ctx, wire::role::SAMPLER, 0, 0)?;
+
+    let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
+    let mut idle: VecDeque<u32> = VecDeque::new();
+    let mut pending: VecDeque<u32> = VecDeque::new();
+    let mut current: Option<Current> = None;
+    let mut next_chunk: u64 = 0;
+    let mut finished = false;
+
+    wait_loop(&doorbell, || {
+        // Lost workers: their unfinished rollouts go back to the queue.
+        while let Some(msg) = iox(control.receive(), "receive control")? {
+            let m = *msg.payload();
+            if m.run_id != ctx.run_id || m.kind != Control::WORKER_LOST {
+                continue;
+            }
+            if workers
+                .get(&m.worker)
+                .is_some_and(|w| w.incarnation == m.incarnation)
+            {
+                let w = workers.remove(&m.worker).expect("checked above");
+                requeue(w.assignment, &current, &mut pending);
+                idle.retain(|i| *i != m.worker);
+            }
+        }
+        // The newest distribution starts a new update.
+        let mut newest = None;
+        while let Some(sample) = iox(dist.receive(), "receive distribution")? {
+            let h = *sample.user_header();
+            if h.run_id != ctx.run_id || current.as_ref().is_some_and(|c| c.update >= h.update) {
+                continue;
+            }
+            if h.flags & DistributionHeader::FINAL != 0 {
+                finished = true;
+                newest = None;
+                continue;
+            }
+            let p = sample.payload();
+            let d = Distribution {
+                mean: DVector::from_column_slice(&p[..dim]),
+                covariance: DMatrix::from_column_slice(dim, dim, &p[dim..dim + dim * dim]),
+            };
+            newest = Some((h, d));
+        }
+        if let Some((h, d)) = newest {
+            current = Some(Current {
+                update: h.update,
+                batch: ParameterBatch::sample(&d, h.seed, h.update, k_total),
+                settings: h.settings,
+                settings_len: h.settings_len,
+            });
+            pending = (0..k_total as u32).collect();
+        }
+        if finished {
+            pending.clear();
+        }
+        // Workers asking for work.
+        while let Some(msg) = iox(ready.receive(), "receive ready")? {
+            let r = *msg.payload();
+            if r.run_id != ctx.run_id {
+                continue;
+            }
+            match workers.get_mut(&r.worker) {
+                Some(w) if r.incarnation < w.incarnation => {} // from a lost predecessor
+                Some(w) if r.incarnation == w.incarnation => {
+                    if r.completed_chunk != Ready::NO_CHUNK
+                        && w.assignment
+                            .as_ref()
+                            .is_some_and(|a| a.chunk == r.completed_chunk)
+                    {
+                        w.assignment = None;
+                        if !idle.contains(&r.worker) {
+                            idle.push_back(r.worker);
+                        }
+                    }
+                }
+                _ => {
+                    // A new worker, or a restarted one: what its predecessor held is requeued.
+                    let old = workers.remove(&r.worker);
+                    let (inbox, bell) = match old {
+                        Some(w) => {
+                            requeue(w.assignment, &current, &mut pending);
+                            (w.inbox, w.bell)
+                        }
+                        None => open_inbox(&ctx, r.worker)?,
+                    };
+                    workers.insert(
+                        r.worker,
+                        WorkerPort {
+                            incarnation: r.incarnation,
+                            inbox,
+                            bell,
+                            assignment: None,
+                        },
+                    );
+                    idle.retain(|i| *i != r.worker);
+                    idle.push_back(r.worker);
+                }
+            }
+        }
+        // Hand out work.
+        let Some(cur) = current.as_ref() else {
+            return Ok(Flow::Continue);
+        };
+        while !pending.is_empty() {
+            let Some(id) = idle.pop_front() else { break };
+            let live = workers.len().max(1);
+            let Some(w) = workers.get_mut(&id) else {
+                continue;
+            };
+            let n = pending.len().div_ceil(live);
+            let rollouts: Vec<u32> = pending.drain(..n.max(1).min(pending.len())).collect();
+            let chunk = next_chunk;
+            next_chunk += 1;
+            let mut delivered = true;
+            for &k in &rollouts {
+                let sample = iox(w.inbox.loan_slice_uninit(dim), "loan work item")?;
+                let mut sample = sample.write_from_slice(cur.batch.row(k as usize));
+                *sample.user_header_mut() = WorkHeader {
+                    run_id: ctx.run_id,
+                    update: cur.update,
+                    chunk,
+                    rollout: k,
+                    chunk_len: rollouts.len() as u32,
+                    worker: id,
+                    steps: steps as u32,
+                    settings_len: cur.settings_len,
+                    _reserved: 0,
+                    settings: cur.settings,
+                };
+                if iox(sample.send(), "send work item")? == 0 {
+                    delivered = false;
+                }
+            }
+            if !delivered {
+                // Its inbox has no subscriber: the worker is gone.
+                workers.remove(&id);
+                for k in rollouts.into_iter().rev() {
+                    pending.push_front(k);
+                }
+                continue;
+            }
+            iox(
+                w.bell.notify_with_custom_event_id(wire::WAKE),
+                "notify worker",
+            )?;
+            w.assignment = Some(Assignment {
+                chunk,
+                update: cur.update,
+                rollouts,
+            });
+        }
+        Ok(Flow::Continue)
+    })?;
+    Ok(())
+}
+
+fn requeue(assignment: Option<Assignment>, current: &Option<Current>, pending: &mut VecDeque<u32>) {
+    if let (Some(a), Some(c)) = (assignment, current) {
+        if a.update == c.update {
+            for k in a.rollouts.into_iter().rev() {
+                if !pending.contains(&k) {
+                    pending.push_front(k);
+                }
+            }
+        }
+    }
+}
+
+fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
+    let inbox = iox(
+        wire::work(&ctx.node, ctx.run_id, worker, &ctx.limits)?
+            .publisher_builder()
+            .initial_max_slice_len(ctx.limits.dim)
+            .allocation_strategy(AllocationStrategy::Static)
+            .max_loaned_samples(2)
+            .create(),
+        "work publisher",
+    )?;
+    let bell = iox(
+        wire::doorbell(
+            &ctx.node,
+            ctx.run_id,
+            &format!("worker/{worker}"),
+            &ctx.limits,
+        )?
+        .notifier_builder()
+        .create(),
+        "worker notifier",
+    )?;
+    Ok((inbox, bell))
+}

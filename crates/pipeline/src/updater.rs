@@ -1,0 +1,309 @@
+//! The updater: owns the optimizer. Collects the K cost trajectories of an update in place from
+//! shared memory, tells the core, and publishes the next distribution with the task settings in
+//! force for it. Scheduled task changes and runtime ones (`supervisor set`) take effect at the
+//! update they are published with, which is recorded in the result file.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, bail};
+use iceoryx2::prelude::*;
+use pi2cma::CostError;
+use tasks::TaskChange;
+use wire::{Control, DistributionHeader, Progress};
+
+use crate::result::{bits, RecordedChange, RunResult};
+use crate::{announce_ready, iox, wait_loop, Context, Exit, Flow, ProcessArgs};
+
+const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
+
+pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
+    let ctx = Context::new(args, "updater")?;
+    let cfg = &ctx.config;
+    let seed = cfg.run.seed;
+    let mut task = session::build_task(cfg)?;
+    let mut optimizer = session::build_optimizer(cfg, task.as_ref(), seed)?;
+    let initial_settings = task.settings();
+    let schedule = cfg.schedule();
+    schedule.configure(task.as_mut(), &initial_settings, 0)?;
+    let (k_total, steps, dim) = (ctx.limits.rollouts, ctx.limits.steps, ctx.limits.dim);
+
+    let dist_service = wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?;
+    let dist_pub = iox(
+        dist_service
+            .publisher_builder()
+            .initial_max_slice_len(wire::distribution_len(&ctx.limits))
+            .allocation_strategy(AllocationStrategy::Static)
+            .create(),
+        "distribution publisher",
+    )?;
+    let costs = iox(
+        wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "costs subscriber",
+    )?;
+    let control = iox(
+        wire::control(&ctx.node, ctx.run_id, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "control subscriber",
+    )?;
+    let progress_pub = iox(
+        wire::progress(&ctx.node, ctx.run_id, &ctx.limits)?
+            .publisher_builder()
+            .create(),
+        "progress publisher",
+    )?;
+    let doorbell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, "updater", &ctx.limits)?
+            .listener_builder()
+            .create(),
+        "updater doorbell",
+    )?;
+    let sampler_bell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, "sampler", &ctx.limits)?
+            .notifier_builder()
+            .create(),
+        "sampler notifier",
+    )?;
+    let supervisor_bell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, "supervisor", &ctx.limits)?
+            .notifier_builder()
+            .create(),
+        "supervisor notifier",
+    )?;
+    let _announced = announce_ready(&ctx, wire::role::UPDATER, 0, 0)?;
+
+    let mut batch = optimizer.cost_batch();
+    let mut started: Option<Instant> = None;
+    let mut last_progress = Instant::now();
+    let mut first_eval = f64::NAN;
+    let mut last_eval = f64::NAN;
+    let mut recorded: Vec<RecordedChange> = Vec::new();
+    let mut runtime: Vec<TaskChange> = Vec::new();
+    let mut complete = false;
+    // Scheduled changes of update 0 are in force from the start; record them.
+    for c in schedule.at(0) {
+        recorded.push(RecordedChange {
+            from_update: 0,
+            name: c.name.clone(),
+            value: c.value,
+            source: "schedule".into(),
+        });
+    }
+
+    let publish = |optimizer: &pi2cma::Optimizer,
+                   settings: &[(&'static str, f64)],
+                   flags: u32|
+     -> anyhow::Result<()> {
+        let d = optimizer.distribution();
+        let values: Vec<f64> = settings.iter().map(|(_, v)| *v).collect();
+        let (packed, len) = wire::pack_settings(&values);
+        let sample = iox(
+            dist_pub.loan_slice_uninit(dim + dim * dim),
+            "loan distribution",
+        )?;
+        let mut sample = sample.write_from_fn(|i| {
+            if i < dim {
+                d.mean[i]
+            } else {
+                d.covariance.as_slice()[i - dim]
+            }
+        });
+        *sample.user_header_mut() = DistributionHeader {
+            run_id: ctx.run_id,
+            update: optimizer.update_index(),
+            seed,
+            dim: dim as u32,
+            rollouts: k_total as u32,
+            steps: steps as u32,
+            flags,
+            settings_len: len,
+            _reserved: 0,
+            lambda: optimizer.lambda(),
+            settings: packed,
+        };
+        iox(sample.send(), "send distribution")?;
+        iox(
+            sampler_bell.notify_with_custom_event_id(wire::WAKE),
+            "notify sampler",
+        )?;
+        Ok(())
+    };
+    let report = |optimizer: &pi2cma::Optimizer,
+                  settings: &[(&'static str, f64)],
+                  eval: f64,
+                  elapsed: Duration,
+                  flags: u32|
+     -> anyhow::Result<()> {
+        let values: Vec<f64> = settings.iter().map(|(_, v)| *v).collect();
+        let (packed, len) = wire::pack_settings(&values);
+        iox(
+            progress_pub.send_copy(Progress {
+                run_id: ctx.run_id,
+                updates: optimizer.update_index(),
+                elapsed_ns: elapsed.as_nanos() as u64,
+                eval_cost: eval,
+                lambda: optimizer.lambda(),
+                flags,
+                settings_len: len,
+                settings: packed,
+            }),
+            "send progress",
+        )?;
+        iox(
+            supervisor_bell.notify_with_custom_event_id(wire::WAKE),
+            "notify supervisor",
+        )?;
+        Ok(())
+    };
+
+    let exit = wait_loop(&doorbell, || {
+        while let Some(msg) = iox(control.receive(), "receive control")? {
+            let m = *msg.payload();
+            if m.run_id != ctx.run_id {
+                continue;
+            }
+            match m.kind {
+                Control::START if started.is_none() => {
+                    started = Some(Instant::now());
+                    publish(&optimizer, &task.settings(), 0)?;
+                }
+                Control::SET_TASK => {
+                    let change = TaskChange {
+                        // Update u is out (its distribution is published): u + 1 is the first
+                        // update that can see the change. Before the start, update 0 can.
+                        from_update: optimizer.update_index() + u64::from(started.is_some()),
+                        name: m.name().to_string(),
+                        value: m.value,
+                    };
+                    println!(
+                        "task change: {} = {} from update {} (runtime)",
+                        change.name, change.value, change.from_update
+                    );
+                    if started.is_none() {
+                        apply(&mut *task, &change, "runtime", &mut recorded)?;
+                    } else {
+                        runtime.push(change);
+                    }
+                }
+                _ => {}
+            }
+        }
+        let Some(t0) = started else {
+            return Ok(Flow::Continue);
+        };
+        let u = optimizer.update_index();
+        while let Some(sample) = iox(costs.receive(), "receive costs")? {
+            let h = *sample.user_header();
+            if h.run_id != ctx.run_id || h.update != u {
+                continue; // a re-executed rollout of an earlier update
+            }
+            match batch.insert(h.rollout as usize, sample.payload(), h.terminal) {
+                Ok(()) => {}
+                Err(CostError::Duplicate { .. }) => {} // re-executed after a worker was lost
+                Err(e) => bail!(
+                    "update {u}: {e} (reported by worker-{} for rollout {})",
+                    h.worker,
+                    h.rollout
+                ),
+            }
+        }
+        if !batch.is_complete() {
+            return Ok(Flow::Continue);
+        }
+        let summary = optimizer
+            .tell(&batch)
+            .map_err(|e| anyhow!("update {u}: {e}"))?;
+        batch.clear();
+        if u == 0 {
+            first_eval = summary.eval_cost;
+        }
+        last_eval = summary.eval_cost;
+        let next = optimizer.update_index();
+        let done = cfg.run.updates.is_some_and(|n| next >= n);
+        if done {
+            complete = true;
+            report(
+                &optimizer,
+                &task.settings(),
+                last_eval,
+                t0.elapsed(),
+                Progress::FINAL,
+            )?;
+            publish(&optimizer, &task.settings(), DistributionHeader::FINAL)?;
+            return Ok(Flow::Stop);
+        }
+        for c in schedule.at(next) {
+            apply(&mut *task, c, "schedule", &mut recorded)?;
+        }
+        for c in runtime.drain(..) {
+            apply(
+                &mut *task,
+                &TaskChange {
+                    from_update: next,
+                    ..c
+                },
+                "runtime",
+                &mut recorded,
+            )?;
+        }
+        publish(&optimizer, &task.settings(), 0)?;
+        if last_progress.elapsed() >= PROGRESS_INTERVAL {
+            last_progress = Instant::now();
+            report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
+        }
+        Ok(Flow::Continue)
+    })?;
+
+    let elapsed = started.map(|t| t.elapsed()).unwrap_or_default();
+    if exit == Exit::Signal {
+        report(
+            &optimizer,
+            &task.settings(),
+            last_eval,
+            elapsed,
+            Progress::FINAL,
+        )?;
+    }
+    let d = optimizer.distribution();
+    let result = RunResult {
+        name: cfg.run.name.clone(),
+        seed,
+        updates: optimizer.update_index(),
+        complete,
+        elapsed_s: elapsed.as_secs_f64(),
+        first_eval_cost: first_eval,
+        last_eval_cost: last_eval,
+        lambda: optimizer.lambda(),
+        mean: d.mean.as_slice().to_vec(),
+        covariance: d.covariance.as_slice().to_vec(),
+        mean_bits: bits(d.mean.as_slice()),
+        covariance_bits: bits(d.covariance.as_slice()),
+        task_changes: recorded,
+    };
+    result.write(&ctx.result_path())?;
+    Ok(())
+}
+
+fn apply(
+    task: &mut dyn tasks::Task,
+    change: &TaskChange,
+    source: &str,
+    recorded: &mut Vec<RecordedChange>,
+) -> anyhow::Result<()> {
+    task.set(&change.name, change.value)?;
+    if source == "schedule" {
+        println!(
+            "task change: {} = {} from update {} (schedule)",
+            change.name, change.value, change.from_update
+        );
+    }
+    recorded.push(RecordedChange {
+        from_update: change.from_update,
+        name: change.name.clone(),
+        value: change.value,
+        source: source.into(),
+    });
+    Ok(())
+}

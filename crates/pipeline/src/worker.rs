@@ -1,0 +1,174 @@
+//! A rollout worker: executes the θ of each work item in its inbox (read in place from shared
+//! memory) and writes the cost trajectory straight into a loaned `costs` sample. The task settings
+//! of the item's update come with the item, so a worker that joins or restarts mid-run needs no
+//! history.
+
+use std::time::{Duration, Instant};
+
+use anyhow::bail;
+use iceoryx2::prelude::*;
+use wire::{CostHeader, Ready};
+
+use crate::{announce_ready, iox, wait_loop, Context, Flow, ProcessArgs};
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct WorkerArgs {
+    #[command(flatten)]
+    pub process: ProcessArgs,
+    /// This worker's slot (its inbox is `work/<worker>`).
+    #[arg(long)]
+    pub worker: u32,
+    /// Increases with every restart of the slot.
+    #[arg(long, default_value_t = 0)]
+    pub incarnation: u32,
+}
+
+/// Costs are announced to the updater at least this often while a chunk is being worked on.
+const NOTIFY_INTERVAL: Duration = Duration::from_millis(1);
+
+pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
+    let (w, incarnation) = (args.worker, args.incarnation);
+    let ctx = Context::new(&args.process, &format!("worker-{w}"))?;
+    if w as usize >= ctx.limits.max_workers {
+        bail!(
+            "worker slot {w} is beyond pipeline.max_workers = {}",
+            ctx.limits.max_workers
+        );
+    }
+    let mut task = session::build_task(&ctx.config)?;
+    let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
+    let mut applied: Vec<f64> = task.settings().iter().map(|(_, v)| *v).collect();
+    let nan_from = ctx.config.pipeline().fault_nan_from_update;
+    let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
+
+    let inbox = iox(
+        wire::work(&ctx.node, ctx.run_id, w, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "work subscriber",
+    )?;
+    let doorbell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, &format!("worker/{w}"), &ctx.limits)?
+            .listener_builder()
+            .create(),
+        "worker doorbell",
+    )?;
+    let costs = iox(
+        wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
+            .publisher_builder()
+            .initial_max_slice_len(steps)
+            .allocation_strategy(AllocationStrategy::Static)
+            .create(),
+        "costs publisher",
+    )?;
+    let ready = iox(
+        wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?
+            .publisher_builder()
+            .create(),
+        "ready publisher",
+    )?;
+    let updater_bell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, "updater", &ctx.limits)?
+            .notifier_builder()
+            .create(),
+        "updater notifier",
+    )?;
+    let sampler_bell = iox(
+        wire::doorbell(&ctx.node, ctx.run_id, "sampler", &ctx.limits)?
+            .notifier_builder()
+            .create(),
+        "sampler notifier",
+    )?;
+    let ask = |completed_chunk: u64| -> anyhow::Result<()> {
+        iox(
+            ready.send_copy(Ready {
+                run_id: ctx.run_id,
+                completed_chunk,
+                worker: w,
+                incarnation,
+                pid: std::process::id(),
+                _reserved: 0,
+            }),
+            "send ready",
+        )?;
+        iox(
+            sampler_bell.notify_with_custom_event_id(wire::WAKE),
+            "notify sampler",
+        )?;
+        Ok(())
+    };
+    let _announced = announce_ready(&ctx, wire::role::WORKER, w, incarnation)?;
+    ask(Ready::NO_CHUNK)?;
+
+    let mut chunk = (u64::MAX, 0u32);
+    let mut last_notify = Instant::now();
+    let mut unannounced = false;
+    wait_loop(&doorbell, || {
+        while let Some(item) = iox(inbox.receive(), "receive work")? {
+            let h = *item.user_header();
+            if h.run_id != ctx.run_id {
+                continue;
+            }
+            if item.payload().len() != dim || h.steps as usize != steps {
+                bail!(
+                    "work item of update {} has θ of length {} and {} steps, expected {dim} and {steps}",
+                    h.update,
+                    item.payload().len(),
+                    h.steps
+                );
+            }
+            let settings = &h.settings[..(h.settings_len as usize).min(names.len())];
+            for (i, v) in settings.iter().enumerate() {
+                if applied[i].to_bits() != v.to_bits() {
+                    task.set(names[i], *v)?;
+                    applied[i] = *v;
+                }
+            }
+            let start = Instant::now();
+            let sample = iox(costs.loan_slice_uninit(steps), "loan cost sample")?;
+            let mut sample = sample.write_from_fn(|_| 0.0);
+            let mut terminal = task.rollout(item.payload(), sample.payload_mut());
+            if nan_from.is_some_and(|n| h.update >= n) {
+                // Fault injection (pipeline.fault_nan_from_update): a task returning NaN.
+                terminal = f64::NAN;
+            }
+            *sample.user_header_mut() = CostHeader {
+                run_id: ctx.run_id,
+                update: h.update,
+                rollout: h.rollout,
+                worker: w,
+                duration_ns: start.elapsed().as_nanos() as u64,
+                terminal,
+            };
+            drop(item);
+            iox(sample.send(), "send costs")?;
+            unannounced = true;
+            if chunk.0 != h.chunk {
+                chunk = (h.chunk, 0);
+            }
+            chunk.1 += 1;
+            let chunk_done = chunk.1 >= h.chunk_len;
+            let more = iox(inbox.has_samples(), "inbox")?;
+            if chunk_done || !more || last_notify.elapsed() >= NOTIFY_INTERVAL {
+                iox(
+                    updater_bell.notify_with_custom_event_id(wire::WAKE),
+                    "notify updater",
+                )?;
+                last_notify = Instant::now();
+                unannounced = false;
+            }
+            if chunk_done {
+                ask(h.chunk)?;
+            }
+        }
+        if unannounced {
+            iox(
+                updater_bell.notify_with_custom_event_id(wire::WAKE),
+                "notify updater",
+            )?;
+            unannounced = false;
+        }
+        Ok(Flow::Continue)
+    })?;
+    Ok(())
+}

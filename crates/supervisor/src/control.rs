@@ -1,0 +1,160 @@
+//! The control socket: one line per command, the reply until EOF (first line `ok` or `error`).
+
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{self, Sender};
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+
+/// A command from `supervisor status|scale|set|stop`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Command {
+    Status,
+    Scale(usize),
+    Set(String, f64),
+    Stop,
+}
+
+impl Command {
+    pub fn parse(line: &str) -> Result<Self, String> {
+        let parts: Vec<&str> = line.split_whitespace().collect();
+        match parts.as_slice() {
+            ["status"] => Ok(Self::Status),
+            ["stop"] => Ok(Self::Stop),
+            ["scale", n] => n
+                .parse()
+                .map(Self::Scale)
+                .map_err(|_| format!("scale: `{n}` is not a worker count")),
+            ["set", name, value] => value
+                .parse()
+                .map(|v| Self::Set(name.to_string(), v))
+                .map_err(|_| format!("set: `{value}` is not a number")),
+            _ => Err(format!("unknown command `{line}`")),
+        }
+    }
+}
+
+/// A command with the channel its reply goes to.
+pub type Request = (Command, Sender<Result<String, String>>);
+
+/// The directory holding one directory per active run.
+pub fn runs_dir() -> PathBuf {
+    match std::env::var_os("PI2CMA_RUN_DIR") {
+        Some(d) => PathBuf::from(d),
+        None => {
+            // SAFETY: getuid cannot fail and has no preconditions.
+            #[allow(unsafe_code)]
+            let uid = unsafe { libc::getuid() };
+            PathBuf::from(format!("/tmp/pi2cma-{uid}"))
+        }
+    }
+}
+
+pub fn socket_path(run_dir: &Path) -> PathBuf {
+    run_dir.join("control.sock")
+}
+
+/// Accepts connections on the run's socket and forwards each command to `tx`.
+pub fn serve(run_dir: &Path, tx: Sender<super::run::Event>) -> anyhow::Result<()> {
+    let path = socket_path(run_dir);
+    let listener =
+        UnixListener::bind(&path).with_context(|| format!("cannot bind {}", path.display()))?;
+    std::thread::Builder::new()
+        .name("control".into())
+        .spawn(move || {
+            for stream in listener.incoming() {
+                let Ok(stream) = stream else { continue };
+                let tx = tx.clone();
+                // One short-lived thread per connection, so a client that never sends a line
+                // cannot block the others.
+                let _ = std::thread::Builder::new()
+                    .name("control-conn".into())
+                    .spawn(move || handle(stream, tx));
+            }
+        })?;
+    Ok(())
+}
+
+fn handle(stream: UnixStream, tx: Sender<super::run::Event>) {
+    let _ = stream.set_read_timeout(Some(Duration::from_secs(5)));
+    let mut line = String::new();
+    let mut reader = BufReader::new(&stream);
+    if reader.read_line(&mut line).is_err() {
+        return;
+    }
+    let reply = match Command::parse(line.trim()) {
+        Err(e) => Err(e),
+        Ok(cmd) => {
+            let (rtx, rrx) = mpsc::channel();
+            if tx.send(super::run::Event::Command((cmd, rtx))).is_err() {
+                Err("the run is shutting down".to_string())
+            } else {
+                rrx.recv_timeout(Duration::from_secs(5))
+                    .unwrap_or_else(|_| Err("the run is shutting down".to_string()))
+            }
+        }
+    };
+    let mut w = &stream;
+    let _ = match reply {
+        Ok(text) => write!(w, "ok\n{text}"),
+        Err(text) => write!(w, "error\n{text}"),
+    };
+}
+
+/// Finds the run to talk to: `run` if given, else the only active run.
+fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
+    let base = runs_dir();
+    if let Some(id) = run {
+        let dir = base.join(id);
+        if !socket_path(&dir).exists() {
+            bail!("no active run `{id}` under {}", base.display());
+        }
+        return Ok(dir);
+    }
+    let mut found = Vec::new();
+    if let Ok(entries) = std::fs::read_dir(&base) {
+        for e in entries.flatten() {
+            if socket_path(&e.path()).exists() {
+                found.push(e.path());
+            }
+        }
+    }
+    match found.len() {
+        0 => bail!("no active run under {}", base.display()),
+        1 => Ok(found.remove(0)),
+        _ => bail!(
+            "{} active runs under {}; choose one with --run: {}",
+            found.len(),
+            base.display(),
+            found
+                .iter()
+                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// Sends one command to a running supervisor and returns its reply.
+pub fn client(run: Option<&str>, command: &str) -> anyhow::Result<String> {
+    let dir = find_run(run)?;
+    let path = socket_path(&dir);
+    let mut stream = UnixStream::connect(&path).with_context(|| {
+        format!(
+            "cannot reach the run's supervisor at {} (stale run directory?)",
+            path.display()
+        )
+    })?;
+    stream.set_read_timeout(Some(Duration::from_secs(10)))?;
+    writeln!(stream, "{command}")?;
+    let mut reply = String::new();
+    std::io::Read::read_to_string(&mut stream, &mut reply)?;
+    match reply.split_once('\n') {
+        Some(("ok", text)) => Ok(text.to_string()),
+        Some(("error", text)) => bail!("{text}"),
+        _ if reply == "ok" => Ok(String::new()),
+        _ => bail!("unexpected reply from the supervisor: {reply:?}"),
+    }
+}

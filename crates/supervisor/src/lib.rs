@@ -1,0 +1,20 @@
+//! The supervisor of a pipeline run: starts the updater, the sampler and N rollout workers in
+//! order with readiness handshakes, restarts failed workers (with backoff and a limit per time
+//! window), scales workers at runtime, forwards task changes, shuts everything down in reverse
+//! order on a signal or `stop`, and leaves nothing of the run behind.
+//!
+//! Control commands (`status`, `scale`, `set`, `stop`) reach a running supervisor through a Unix
+//! socket in its run directory `<runs>/<run id>/control.sock`, where `<runs>` is
+//! `$PI2CMA_RUN_DIR` or `/tmp/pi2cma-<uid>`.
+//!
+//! **Architecture Invariant:** the supervisor never touches rollouts or costs; it only sees
+//! lifecycle and progress messages, and sends control messages (see the `wire` crate).
+
+mod control;
+mod run;
+
+pub use control::{client, runs_dir};
+pub use run::{run, RunOptions};
+
+/// Exit code of a run stopped by SIGINT/SIGTERM.
+pub const EXIT_INTERRUPTED: u8 = 130;

@@ -1,0 +1,110 @@
+//! `supervisor`: runs a pi2cma pipeline (updater, sampler, rollout workers over iceoryx2) and
+//! talks to a running one.
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(about = "Runs PI²-CMA as a multiprocess pipeline over iceoryx2 shared memory")]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Starts a run and supervises it until it ends (without CONFIG: the built-in default,
+    /// PI²-CMA on the via-point task with 3 workers).
+    Run {
+        /// A run config (TOML); its `[pipeline]` section sets workers, limits and timeouts.
+        config: Option<PathBuf>,
+        /// Rollout workers to start with (overrides `pipeline.workers`).
+        #[arg(long)]
+        workers: Option<usize>,
+        /// Fix the run id (16 hex digits) instead of drawing one.
+        #[arg(long, value_parser = pipeline::parse_run_id)]
+        run_id: Option<u64>,
+        /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries
+        /// (default: the supervisor's own directory).
+        #[arg(long)]
+        bin_dir: Option<PathBuf>,
+        /// Also write the result (final distribution with exact bits) to this file.
+        #[arg(long)]
+        result: Option<PathBuf>,
+        /// Print no progress lines.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Shows workers, update rate, current cost and λ of a running run.
+    Status {
+        /// The run id (needed only when several runs are active).
+        #[arg(long)]
+        run: Option<String>,
+    },
+    /// Changes the number of rollout workers of a running run, without a restart.
+    Scale {
+        #[arg(long)]
+        workers: usize,
+        #[arg(long)]
+        run: Option<String>,
+    },
+    /// Sets a task setting of a running run from its next update on (e.g. `set viapoint 0.1`).
+    Set {
+        name: String,
+        value: f64,
+        #[arg(long)]
+        run: Option<String>,
+    },
+    /// Stops a running run (exit code 0, with its summary).
+    Stop {
+        #[arg(long)]
+        run: Option<String>,
+    },
+}
+
+fn main() -> ExitCode {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    let cli = Cli::parse();
+    let remote = |run: Option<String>, line: String| match supervisor::client(run.as_deref(), &line)
+    {
+        Ok(text) => {
+            print!("{text}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    };
+    match cli.command {
+        Cmd::Run {
+            config,
+            workers,
+            run_id,
+            bin_dir,
+            result,
+            quiet,
+        } => {
+            let opts = supervisor::RunOptions {
+                config,
+                workers,
+                run_id,
+                bin_dir,
+                result,
+                quiet,
+            };
+            match supervisor::run(&opts) {
+                Ok(code) => ExitCode::from(code),
+                Err(e) => {
+                    eprintln!("[supervisor] error: {e:#}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Cmd::Status { run } => remote(run, "status".into()),
+        Cmd::Scale { workers, run } => remote(run, format!("scale {workers}")),
+        Cmd::Set { name, value, run } => remote(run, format!("set {name} {value:?}")),
+        Cmd::Stop { run } => remote(run, "stop".into()),
+    }
+}

@@ -1,0 +1,1055 @@
+//! `supervisor run`: the event loop that owns the run's processes.
+//!
+//! Everything happens on the main thread (children must be forked by a thread that lives as
+//! long as the supervisor, for PR_SET_PDEATHSIG). Helper threads only forward events into one
+//! channel: a child exited, a control command arrived, a signal arrived, the supervisor's
+//! doorbell rang (lifecycle or progress messages waiting).
+
+use std::collections::{BTreeMap, VecDeque};
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use pipeline::iox;
+use pipeline::result::RunResult;
+use session::{PipelineSection, RunConfig};
+use wire::{Control, Lifecycle, Limits, Progress, Service};
+
+use crate::control::{self, Command as Cmd, Request};
+use crate::EXIT_INTERRUPTED;
+
+/// What `supervisor run` was asked to do.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// The config file; `None` runs the built-in default.
+    pub config: Option<PathBuf>,
+    /// Overrides `pipeline.workers`.
+    pub workers: Option<usize>,
+    /// Fixes the run id (16 hex digits) instead of drawing one.
+    pub run_id: Option<u64>,
+    /// Where the process binaries are; default: next to the supervisor's executable.
+    pub bin_dir: Option<PathBuf>,
+    /// Copy the result file here.
+    pub result: Option<PathBuf>,
+    /// No progress lines.
+    pub quiet: bool,
+}
+
+/// Messages into the supervisor's event loop.
+pub enum Event {
+    Exited { pid: u32, status: ExitStatus },
+    Command(Request),
+    Signal,
+    Bell,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    Updater,
+    Sampler,
+    Worker(u32),
+}
+
+impl Role {
+    fn name(self) -> String {
+        match self {
+            Role::Updater => "updater".into(),
+            Role::Sampler => "sampler".into(),
+            Role::Worker(w) => format!("worker-{w}"),
+        }
+    }
+    fn binary(self) -> &'static str {
+        match self {
+            Role::Updater => "updater",
+            Role::Sampler => "sampler",
+            Role::Worker(_) => "rollout-worker",
+        }
+    }
+}
+
+const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
+
+struct Proc {
+    role: Role,
+    incarnation: u32,
+    ready: bool,
+    stopping: bool,
+    last_line: Arc<Mutex<String>>,
+}
+
+#[derive(Default)]
+struct Slot {
+    incarnation: u32,
+    pid: Option<u32>,
+    restarts: VecDeque<Instant>,
+    restart_at: Option<Instant>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum Outcome {
+    Complete,
+    Stopped,
+    Interrupted,
+    Failed(String),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Phase {
+    StartUpdater,
+    StartSampler,
+    StartWorkers,
+    Running,
+    Stopping,
+}
+
+struct Ports {
+    lifecycle: Subscriber<Service, Lifecycle, ()>,
+    progress: Subscriber<Service, Progress, ()>,
+    control: Publisher<Service, Control, ()>,
+    sampler_bell: Notifier<Service>,
+    updater_bell: Notifier<Service>,
+    // Dropped last: ports above belong to it.
+    _node: Node<Service>,
+}
+
+struct Supervisor {
+    cfg: RunConfig,
+    pipe: PipelineSection,
+    run_id: u64,
+    run_dir: PathBuf,
+    bin_dir: PathBuf,
+    config_file: PathBuf,
+    quiet: bool,
+    tx: Sender<Event>,
+    procs: BTreeMap<u32, Proc>,
+    slots: BTreeMap<u32, Slot>,
+    target_workers: usize,
+    phase: Phase,
+    phase_deadline: Option<Instant>,
+    outcome: Option<Outcome>,
+    killed: bool,
+    started: Instant,
+    progress: Option<Progress>,
+    rate: f64,
+    last_shown: Option<Instant>,
+    total_restarts: u32,
+    ports: Option<Ports>,
+}
+
+fn say(msg: &str) {
+    println!("[supervisor] {msg}");
+}
+
+fn draw_run_id() -> u64 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    // splitmix64 of time and pid: distinct for runs started at once.
+    let mut z = nanos ^ (u64::from(std::process::id()) << 40);
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Runs a pipeline to the end and returns the process exit code (0, 1 or 130).
+pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
+    let (text, origin) = match &opts.config {
+        Some(p) => (
+            std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?,
+            p.clone(),
+        ),
+        None => (
+            session::DEFAULT_CONFIG.to_string(),
+            PathBuf::from("<built-in default>"),
+        ),
+    };
+    let cfg = RunConfig::parse(&text, &origin)?;
+    let pipe = cfg.pipeline();
+    let target_workers = opts.workers.unwrap_or(pipe.workers);
+    if !(1..=pipe.max_workers).contains(&target_workers) {
+        bail!(
+            "{}: workers = {target_workers}: must be between 1 and pipeline.max_workers = {}",
+            origin.display(),
+            pipe.max_workers
+        );
+    }
+    let bin_dir = match &opts.bin_dir {
+        Some(d) => d.clone(),
+        None => std::env::current_exe()?
+            .parent()
+            .context("the supervisor executable has no directory")?
+            .to_path_buf(),
+    };
+    for b in BINARIES {
+        let p = bin_dir.join(b);
+        if !p.is_file() {
+            bail!(
+                "missing binary `{b}`: {} does not exist (build the workspace, or pass --bin-dir)",
+                p.display()
+            );
+        }
+    }
+    let limits = pipeline::limits(&cfg)?;
+    let run_id = opts.run_id.unwrap_or_else(draw_run_id);
+    let run_dir = control::runs_dir().join(wire::run_id_hex(run_id));
+    if run_dir.exists() {
+        bail!(
+            "run directory {} exists: run {} is active or was killed (remove the directory)",
+            run_dir.display(),
+            wire::run_id_hex(run_id)
+        );
+    }
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("cannot create {}", run_dir.display()))?;
+    let (tx, rx) = mpsc::channel();
+    let mut sup = Supervisor {
+        pipe: pipe.clone(),
+        run_id,
+        config_file: run_dir.join("config.toml"),
+        run_dir,
+        bin_dir,
+        quiet: opts.quiet,
+        tx,
+        procs: BTreeMap::new(),
+        slots: BTreeMap::new(),
+        target_workers,
+        phase: Phase::StartUpdater,
+        phase_deadline: None,
+        outcome: None,
+        killed: false,
+        started: Instant::now(),
+        progress: None,
+        rate: 0.0,
+        last_shown: None,
+        total_restarts: 0,
+        ports: None,
+        cfg,
+    };
+    let result = sup.run(&text, &limits, rx);
+    // Whatever happened, nothing of the run stays behind.
+    sup.ports = None;
+    let summary = sup.finish(opts.result.as_deref());
+    let code = result?;
+    summary?;
+    Ok(code)
+}
+
+impl Supervisor {
+    fn run(&mut self, text: &str, limits: &Limits, rx: Receiver<Event>) -> anyhow::Result<u8> {
+        std::fs::write(&self.config_file, text)
+            .with_context(|| format!("cannot write {}", self.config_file.display()))?;
+        let bell_stop = Arc::new(AtomicBool::new(false));
+        let bell = spawn_bell(self.run_id, *limits, self.tx.clone(), bell_stop.clone())?;
+        let node = wire::node(self.run_id, "supervisor")?;
+        self.ports = Some(Ports {
+            lifecycle: iox(
+                wire::lifecycle(&node, self.run_id, limits)?
+                    .subscriber_builder()
+                    .create(),
+                "lifecycle subscriber",
+            )?,
+            progress: iox(
+                wire::progress(&node, self.run_id, limits)?
+                    .subscriber_builder()
+                    .create(),
+                "progress subscriber",
+            )?,
+            control: iox(
+                wire::control(&node, self.run_id, limits)?
+                    .publisher_builder()
+                    .create(),
+                "control publisher",
+            )?,
+            sampler_bell: iox(
+                wire::doorbell(&node, self.run_id, "sampler", limits)?
+                    .notifier_builder()
+                    .create(),
+                "sampler notifier",
+            )?,
+            updater_bell: iox(
+                wire::doorbell(&node, self.run_id, "updater", limits)?
+                    .notifier_builder()
+                    .create(),
+                "updater notifier",
+            )?,
+            _node: node,
+        });
+        let tx = self.tx.clone();
+        ctrlc::set_handler(move || {
+            let _ = tx.send(Event::Signal);
+        })
+        .context("cannot install the SIGINT/SIGTERM handler")?;
+        control::serve(&self.run_dir, self.tx.clone())?;
+        say(&format!(
+            "run {} ({}): starting updater, sampler and {} workers",
+            wire::run_id_hex(self.run_id),
+            self.cfg.run.name,
+            self.target_workers
+        ));
+        let loop_result = self.event_loop(&rx);
+        bell_stop.store(true, Ordering::Relaxed);
+        let _ = bell.join();
+        if let Err(e) = loop_result {
+            // Bring the group down before reporting.
+            self.kill_all();
+            self.reap(&rx, Duration::from_secs(2));
+            return Err(e);
+        }
+        Ok(match &self.outcome {
+            Some(Outcome::Complete) | Some(Outcome::Stopped) => 0,
+            Some(Outcome::Interrupted) => EXIT_INTERRUPTED,
+            Some(Outcome::Failed(_)) | None => 1,
+        })
+    }
+
+    fn event_loop(&mut self, rx: &Receiver<Event>) -> anyhow::Result<()> {
+        self.advance()?;
+        loop {
+            let now = Instant::now();
+            let next = self
+                .deadlines()
+                .into_iter()
+                .min()
+                .map(|d| d.saturating_duration_since(now))
+                .unwrap_or(Duration::from_secs(3600));
+            match rx.recv_timeout(next) {
+                Ok(ev) => self.handle(ev)?,
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => bail!("event channel closed"),
+            }
+            while let Ok(ev) = rx.try_recv() {
+                self.handle(ev)?;
+            }
+            self.poll_ports()?;
+            self.check_deadlines();
+            self.advance()?;
+            if self.phase == Phase::Stopping && self.procs.is_empty() {
+                return Ok(());
+            }
+        }
+    }
+
+    fn deadlines(&self) -> Vec<Instant> {
+        let mut d: Vec<Instant> = self.slots.values().filter_map(|s| s.restart_at).collect();
+        d.extend(self.phase_deadline);
+        d
+    }
+
+    fn fail(&mut self, reason: String) {
+        if self.outcome.is_none() || self.outcome == Some(Outcome::Complete) {
+            say(&format!("error: {reason}"));
+            self.outcome = Some(Outcome::Failed(reason));
+        }
+        self.begin_stop();
+    }
+
+    fn begin_stop(&mut self) {
+        if self.phase == Phase::Stopping {
+            return;
+        }
+        self.phase = Phase::Stopping;
+        self.phase_deadline =
+            Some(Instant::now() + Duration::from_millis(self.pipe.shutdown_timeout_ms));
+        for s in self.slots.values_mut() {
+            s.restart_at = None;
+        }
+    }
+
+    fn check_deadlines(&mut self) {
+        let now = Instant::now();
+        let Some(deadline) = self.phase_deadline else {
+            return;
+        };
+        if now < deadline {
+            return;
+        }
+        match self.phase {
+            Phase::StartUpdater | Phase::StartSampler | Phase::StartWorkers => {
+                let waiting: Vec<String> = self
+                    .procs
+                    .values()
+                    .filter(|p| !p.ready)
+                    .map(|p| p.role.name())
+                    .collect();
+                self.fail(format!(
+                    "{} did not become ready within {} ms (pipeline.startup_timeout_ms)",
+                    waiting.join(", "),
+                    self.pipe.startup_timeout_ms
+                ));
+            }
+            Phase::Stopping if !self.killed => {
+                let names: Vec<String> = self
+                    .procs
+                    .iter()
+                    .map(|(pid, p)| format!("{} (pid {pid})", p.role.name()))
+                    .collect();
+                say(&format!(
+                    "shutdown took longer than {} ms; killing {}",
+                    self.pipe.shutdown_timeout_ms,
+                    names.join(", ")
+                ));
+                self.kill_all();
+                self.phase_deadline = Some(now + Duration::from_secs(5));
+            }
+            Phase::Stopping => {
+                // Killed processes that still have not been reaped: nothing more to do.
+                let names: Vec<String> = self.procs.values().map(|p| p.role.name()).collect();
+                say(&format!(
+                    "giving up waiting for {} after SIGKILL",
+                    names.join(", ")
+                ));
+                self.procs.clear();
+            }
+            Phase::Running => self.phase_deadline = None,
+        }
+    }
+
+    fn kill_all(&mut self) {
+        self.killed = true;
+        for pid in self.procs.keys() {
+            signal_group(*pid, libc::SIGKILL);
+        }
+    }
+
+    /// Waits (bounded) for the exits of killed processes.
+    fn reap(&mut self, rx: &Receiver<Event>, bound: Duration) {
+        let end = Instant::now() + bound;
+        while !self.procs.is_empty() {
+            match rx.recv_timeout(end.saturating_duration_since(Instant::now())) {
+                Ok(Event::Exited { pid, .. }) => {
+                    self.procs.remove(&pid);
+                }
+                Ok(_) => {}
+                Err(_) => break,
+            }
+        }
+    }
+
+    fn role_pid(&self, role: Role) -> Option<u32> {
+        self.procs
+            .iter()
+            .find(|(_, p)| p.role == role)
+            .map(|(pid, _)| *pid)
+    }
+
+    fn role_ready(&self, role: Role) -> bool {
+        self.procs.values().any(|p| p.role == role && p.ready)
+    }
+
+    fn advance(&mut self) -> anyhow::Result<()> {
+        let startup = Duration::from_millis(self.pipe.startup_timeout_ms);
+        match self.phase {
+            Phase::StartUpdater => {
+                if self.role_pid(Role::Updater).is_none() {
+                    self.spawn(Role::Updater, 0)?;
+                    self.phase_deadline = Some(Instant::now() + startup);
+                } else if self.role_ready(Role::Updater) {
+                    self.spawn(Role::Sampler, 0)?;
+                    self.phase = Phase::StartSampler;
+                    self.phase_deadline = Some(Instant::now() + startup);
+                }
+            }
+            Phase::StartSampler => {
+                if self.role_ready(Role::Sampler) {
+                    self.phase = Phase::StartWorkers;
+                    self.phase_deadline = Some(Instant::now() + startup);
+                    self.apply_scale()?;
+                }
+            }
+            Phase::StartWorkers => {
+                let workers: Vec<&Proc> = self
+                    .procs
+                    .values()
+                    .filter(|p| matches!(p.role, Role::Worker(_)))
+                    .collect();
+                if workers.len() >= self.target_workers && workers.iter().all(|p| p.ready) {
+                    self.send_control(Control::plain(self.run_id, Control::START), true)?;
+                    self.phase = Phase::Running;
+                    self.phase_deadline = None;
+                    say(&format!(
+                        "all {} processes ready after {} ms; run started",
+                        self.procs.len(),
+                        self.started.elapsed().as_millis()
+                    ));
+                }
+            }
+            Phase::Running => {
+                let now = Instant::now();
+                let due: Vec<u32> = self
+                    .slots
+                    .iter()
+                    .filter(|(_, s)| s.restart_at.is_some_and(|t| t <= now))
+                    .map(|(w, _)| *w)
+                    .collect();
+                for w in due {
+                    let inc = {
+                        let s = self.slots.get_mut(&w).expect("due slot exists");
+                        s.restart_at = None;
+                        s.incarnation += 1;
+                        s.incarnation
+                    };
+                    if let Err(e) = self.spawn(Role::Worker(w), inc) {
+                        self.fail(format!("cannot restart worker-{w}: {e:#}"));
+                    }
+                }
+            }
+            Phase::Stopping => {
+                // Reverse start order: workers, then the sampler, then the updater.
+                let workers: Vec<u32> = self
+                    .procs
+                    .iter()
+                    .filter(|(_, p)| matches!(p.role, Role::Worker(_)))
+                    .map(|(pid, _)| *pid)
+                    .collect();
+                let stage = if !workers.is_empty() {
+                    workers
+                } else if let Some(pid) = self.role_pid(Role::Sampler) {
+                    vec![pid]
+                } else {
+                    self.role_pid(Role::Updater).into_iter().collect()
+                };
+                for pid in stage {
+                    let p = self.procs.get_mut(&pid).expect("pid from procs");
+                    if !p.stopping {
+                        p.stopping = true;
+                        signal_group(pid, libc::SIGTERM);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
+    /// slots are stopped first).
+    fn apply_scale(&mut self) -> anyhow::Result<()> {
+        let live: Vec<u32> = self.slots.keys().copied().collect();
+        if live.len() < self.target_workers {
+            let mut w = 0;
+            while self.slots.len() < self.target_workers {
+                if let std::collections::btree_map::Entry::Vacant(e) = self.slots.entry(w) {
+                    e.insert(Slot::default());
+                    self.spawn(Role::Worker(w), 0)?;
+                }
+                w += 1;
+            }
+        } else {
+            for w in live
+                .into_iter()
+                .rev()
+                .take(self.slots.len() - self.target_workers)
+            {
+                let slot = self.slots.remove(&w).expect("live slot");
+                if let Some(pid) = slot.pid {
+                    if let Some(p) = self.procs.get_mut(&pid) {
+                        p.stopping = true;
+                        signal_group(pid, libc::SIGTERM);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn spawn(&mut self, role: Role, incarnation: u32) -> anyhow::Result<()> {
+        let exe = self.bin_dir.join(role.binary());
+        let mut cmd = Command::new(&exe);
+        cmd.arg("--config")
+            .arg(&self.config_file)
+            .arg("--run-dir")
+            .arg(&self.run_dir)
+            .arg("--run-id")
+            .arg(wire::run_id_hex(self.run_id));
+        if let Role::Worker(w) = role {
+            cmd.arg("--worker")
+                .arg(w.to_string())
+                .arg("--incarnation")
+                .arg(incarnation.to_string());
+        }
+        let (reader, writer) = std::io::pipe()?;
+        cmd.stdin(Stdio::null())
+            .stdout(writer.try_clone()?)
+            .stderr(writer)
+            .process_group(0);
+        die_with_parent(&mut cmd);
+        let mut child = cmd
+            .spawn()
+            .with_context(|| format!("cannot start {} ({})", role.name(), exe.display()))?;
+        drop(cmd); // closes our copies of the pipe's write end
+        let pid = child.id();
+        let last_line = Arc::new(Mutex::new(String::new()));
+        let name = role.name();
+        let last = last_line.clone();
+        let printer = std::thread::Builder::new()
+            .name(format!("out-{name}"))
+            .spawn(move || {
+                for line in BufReader::new(reader).lines() {
+                    let Ok(line) = line else { break };
+                    println!("[{name}] {line}");
+                    if let Ok(mut l) = last.lock() {
+                        *l = line;
+                    }
+                }
+            })?;
+        let tx = self.tx.clone();
+        std::thread::Builder::new()
+            .name(format!("wait-{pid}"))
+            .spawn(move || {
+                let status = child.wait();
+                let _ = printer.join(); // the child's last words are printed before its exit
+                if let Ok(status) = status {
+                    let _ = tx.send(Event::Exited { pid, status });
+                }
+            })?;
+        self.procs.insert(
+            pid,
+            Proc {
+                role,
+                incarnation,
+                ready: false,
+                stopping: false,
+                last_line,
+            },
+        );
+        if let Role::Worker(w) = role {
+            self.slots.entry(w).or_default().pid = Some(pid);
+        }
+        Ok(())
+    }
+
+    fn send_control(&self, msg: Control, to_updater: bool) -> anyhow::Result<()> {
+        let Some(ports) = &self.ports else {
+            return Ok(());
+        };
+        iox(ports.control.send_copy(msg), "send control")?;
+        let bell = if to_updater {
+            &ports.updater_bell
+        } else {
+            &ports.sampler_bell
+        };
+        iox(bell.notify_with_custom_event_id(wire::WAKE), "notify")?;
+        Ok(())
+    }
+
+    fn poll_ports(&mut self) -> anyhow::Result<()> {
+        let Some(ports) = &self.ports else {
+            return Ok(());
+        };
+        let mut ready = Vec::new();
+        while let Some(s) = iox(ports.lifecycle.receive(), "receive lifecycle")? {
+            ready.push(*s.payload());
+        }
+        let mut progress = Vec::new();
+        while let Some(s) = iox(ports.progress.receive(), "receive progress")? {
+            progress.push(*s.payload());
+        }
+        for l in ready {
+            if l.run_id != self.run_id {
+                continue;
+            }
+            if let Some(p) = self.procs.get_mut(&l.pid) {
+                p.ready = true;
+            }
+        }
+        for p in progress {
+            if p.run_id != self.run_id {
+                continue;
+            }
+            if let Some(prev) = &self.progress {
+                let dt = (p.elapsed_ns.saturating_sub(prev.elapsed_ns)) as f64 * 1e-9;
+                if dt > 0.0 && p.updates > prev.updates {
+                    self.rate = (p.updates - prev.updates) as f64 / dt;
+                }
+            } else if p.elapsed_ns > 0 {
+                self.rate = p.updates as f64 / (p.elapsed_ns as f64 * 1e-9);
+            }
+            self.progress = Some(p);
+            let due = self
+                .last_shown
+                .is_none_or(|t| t.elapsed() >= Duration::from_secs(1));
+            if !self.quiet && due && p.flags & Progress::FINAL == 0 {
+                self.last_shown = Some(Instant::now());
+                say(&self.progress_line());
+            }
+        }
+        Ok(())
+    }
+
+    fn progress_line(&self) -> String {
+        let Some(p) = &self.progress else {
+            return "no update finished yet".into();
+        };
+        let of = self
+            .cfg
+            .run
+            .updates
+            .map_or("∞".to_string(), |n| n.to_string());
+        format!(
+            "update {}/{of}  eval cost {:.4}  λ {:.4}  {:.0} updates/s  {} workers",
+            p.updates,
+            p.eval_cost,
+            p.lambda,
+            self.rate,
+            self.worker_count()
+        )
+    }
+
+    fn worker_count(&self) -> usize {
+        self.procs
+            .values()
+            .filter(|p| matches!(p.role, Role::Worker(_)) && !p.stopping)
+            .count()
+    }
+
+    fn handle(&mut self, ev: Event) -> anyhow::Result<()> {
+        match ev {
+            Event::Bell => Ok(()),
+            Event::Signal => {
+                if self.phase == Phase::Stopping {
+                    say("second signal: killing the group now");
+                    self.kill_all();
+                } else {
+                    say("signal received: stopping (again to kill at once)");
+                    if self.outcome.is_none() {
+                        self.outcome = Some(Outcome::Interrupted);
+                    }
+                    self.begin_stop();
+                }
+                Ok(())
+            }
+            Event::Command((cmd, reply)) => {
+                let r = self.command(cmd);
+                let _ = reply.send(r);
+                Ok(())
+            }
+            Event::Exited { pid, status } => {
+                self.exited(pid, status);
+                Ok(())
+            }
+        }
+    }
+
+    fn command(&mut self, cmd: Cmd) -> Result<String, String> {
+        match cmd {
+            Cmd::Status => Ok(self.status()),
+            Cmd::Stop => {
+                if self.outcome.is_none() {
+                    self.outcome = Some(Outcome::Stopped);
+                }
+                self.begin_stop();
+                Ok("stopping".into())
+            }
+            Cmd::Scale(n) => {
+                if self.phase == Phase::Stopping {
+                    return Err("the run is stopping".into());
+                }
+                if !(1..=self.pipe.max_workers).contains(&n) {
+                    return Err(format!(
+                        "cannot scale to {n} workers: must be between 1 and pipeline.max_workers = {}",
+                        self.pipe.max_workers
+                    ));
+                }
+                let was = self.target_workers;
+                self.target_workers = n;
+                if self.phase != Phase::StartUpdater && self.phase != Phase::StartSampler {
+                    self.apply_scale().map_err(|e| format!("{e:#}"))?;
+                }
+                say(&format!("scaling from {was} to {n} workers"));
+                Ok(format!("scaling from {was} to {n} workers"))
+            }
+            Cmd::Set(name, value) => {
+                if self.phase == Phase::Stopping {
+                    return Err("the run is stopping".into());
+                }
+                let mut task = session::build_task(&self.cfg).map_err(|e| e.to_string())?;
+                task.set(&name, value).map_err(|e| e.to_string())?;
+                let msg = Control::set_task(self.run_id, &name, value)
+                    .ok_or_else(|| format!("setting name `{name}` is too long"))?;
+                self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
+                say(&format!("task change {name} = {value} sent to the updater"));
+                Ok(format!(
+                    "{name} = {value}: takes effect at the next update; the updater prints and records its index"
+                ))
+            }
+        }
+    }
+
+    fn status(&self) -> String {
+        let mut s = format!(
+            "run {} ({}), {:?} for {:.1} s\n",
+            wire::run_id_hex(self.run_id),
+            self.cfg.run.name,
+            self.phase,
+            self.started.elapsed().as_secs_f64()
+        );
+        s += &format!(
+            "workers: {} running (target {}, max {}), restarts {}\n",
+            self.worker_count(),
+            self.target_workers,
+            self.pipe.max_workers,
+            self.total_restarts
+        );
+        for (pid, p) in &self.procs {
+            s += &format!(
+                "  {} pid {pid} incarnation {}{}{}\n",
+                p.role.name(),
+                p.incarnation,
+                if p.ready { "" } else { " (starting)" },
+                if p.stopping { " (stopping)" } else { "" }
+            );
+        }
+        match &self.progress {
+            Some(p) => {
+                let names: Vec<&'static str> = session::build_task(&self.cfg)
+                    .map(|t| t.settings().into_iter().map(|(n, _)| n).collect())
+                    .unwrap_or_default();
+                let settings: Vec<String> = names
+                    .iter()
+                    .zip(&p.settings[..p.settings_len as usize])
+                    .map(|(n, v)| format!("{n} = {v}"))
+                    .collect();
+                s += &format!(
+                    "updates: {} of {}, {:.1} updates/s\ncurrent cost: {}\nlambda: {}\ntask: {}\n",
+                    p.updates,
+                    self.cfg
+                        .run
+                        .updates
+                        .map_or("unbounded".to_string(), |n| n.to_string()),
+                    self.rate,
+                    p.eval_cost,
+                    p.lambda,
+                    settings.join(", ")
+                );
+            }
+            None => s += "updates: 0\n",
+        }
+        s
+    }
+
+    fn exited(&mut self, pid: u32, status: ExitStatus) {
+        let Some(p) = self.procs.remove(&pid) else {
+            return;
+        };
+        let last = p.last_line.lock().map(|l| l.clone()).unwrap_or_default();
+        let cause = if last.is_empty() {
+            status.to_string()
+        } else {
+            format!("{status}: {last}")
+        };
+        match p.role {
+            Role::Worker(w) => {
+                let _ =
+                    self.send_control(Control::worker_lost(self.run_id, w, p.incarnation), false);
+                let Some(slot) = self.slots.get_mut(&w) else {
+                    return; // scaled away
+                };
+                slot.pid = None;
+                if p.stopping || self.phase == Phase::Stopping {
+                    return;
+                }
+                let now = Instant::now();
+                let window = Duration::from_secs_f64(self.pipe.restart_window_s);
+                while slot
+                    .restarts
+                    .front()
+                    .is_some_and(|t| now.duration_since(*t) > window)
+                {
+                    slot.restarts.pop_front();
+                }
+                if slot.restarts.len() >= self.pipe.restart_limit as usize {
+                    let n = slot.restarts.len();
+                    self.fail(format!(
+                        "worker-{w} died ({cause}) after {n} restarts within {} s: restart limit (pipeline.restart_limit = {}) exhausted",
+                        self.pipe.restart_window_s, self.pipe.restart_limit
+                    ));
+                    return;
+                }
+                slot.restarts.push_back(now);
+                let backoff =
+                    Duration::from_millis(100) * 2u32.pow((slot.restarts.len() as u32 - 1).min(6));
+                slot.restart_at = Some(now + backoff.min(Duration::from_secs(5)));
+                self.total_restarts += 1;
+                say(&format!(
+                    "worker-{w} (pid {pid}) died ({cause}); its rollouts go to the others; restart {} of {} in {} ms",
+                    slot.restarts.len(),
+                    self.pipe.restart_limit,
+                    backoff.as_millis()
+                ));
+            }
+            Role::Updater => {
+                if self.phase == Phase::Stopping && p.stopping {
+                    return;
+                }
+                if status.success() && self.phase == Phase::Running {
+                    if self.outcome.is_none() {
+                        self.outcome = Some(Outcome::Complete);
+                    }
+                    self.begin_stop();
+                } else {
+                    self.fail(format!("updater exited ({cause})"));
+                }
+            }
+            Role::Sampler => {
+                if self.phase == Phase::Stopping && p.stopping {
+                    return;
+                }
+                self.fail(format!("sampler exited ({cause})"));
+            }
+        }
+    }
+
+    /// Removes everything of the run and prints the summary.
+    fn finish(&mut self, copy_result: Option<&Path>) -> anyhow::Result<()> {
+        let result_path = pipeline::result_path(&self.run_dir);
+        let result = RunResult::read(&result_path).ok();
+        if let (Some(dest), true) = (copy_result, result_path.exists()) {
+            std::fs::copy(&result_path, dest)
+                .with_context(|| format!("cannot copy the result to {}", dest.display()))?;
+        }
+        let _ = std::fs::remove_dir_all(&self.run_dir);
+        let _ = std::fs::remove_dir_all(wire::iceoryx_root(self.run_id));
+        remove_prefixed(&wire::file_prefix(self.run_id));
+        if let Some(r) = result {
+            let of = self
+                .cfg
+                .run
+                .updates
+                .map_or("unbounded".to_string(), |n| n.to_string());
+            say(&format!(
+                "summary: run {} ({}): {} updates of {of} in {:.2} s ({:.0} updates/s), {} workers at the end, {} restarts",
+                wire::run_id_hex(self.run_id),
+                r.name,
+                r.updates,
+                r.elapsed_s,
+                r.updates as f64 / r.elapsed_s.max(1e-9),
+                self.target_workers,
+                self.total_restarts
+            ));
+            say(&format!(
+                "  evaluation cost {:.4} → {:.4}, final λ {:.4}",
+                r.first_eval_cost, r.last_eval_cost, r.lambda
+            ));
+            say(&format!("  final mean θ = {:?}", r.mean));
+            for c in &r.task_changes {
+                say(&format!(
+                    "  task change {} = {} from update {} ({})",
+                    c.name, c.value, c.from_update, c.source
+                ));
+            }
+        }
+        match &self.outcome {
+            Some(Outcome::Complete) => say("finished"),
+            Some(Outcome::Stopped) => say("stopped on request"),
+            Some(Outcome::Interrupted) => say("interrupted"),
+            Some(Outcome::Failed(reason)) => say(&format!("failed: {reason}")),
+            None => {}
+        }
+        Ok(())
+    }
+}
+
+/// Removes the run's shared-memory segments and iceoryx2's files in the temp directory (a
+/// SIGKILLed process leaves its own behind).
+fn remove_prefixed(prefix: &str) {
+    for dir in ["/dev/shm", "/tmp"] {
+        if let Ok(entries) = std::fs::read_dir(dir) {
+            for e in entries.flatten() {
+                if e.file_name().to_string_lossy().starts_with(prefix) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+    }
+}
+
+/// A thread that waits on the supervisor's doorbell and turns each ring into [`Event::Bell`].
+fn spawn_bell(
+    run_id: u64,
+    limits: Limits,
+    tx: Sender<Event>,
+    stop: Arc<AtomicBool>,
+) -> anyhow::Result<std::thread::JoinHandle<()>> {
+    let (ok_tx, ok_rx) = mpsc::channel::<Result<(), String>>();
+    let handle = std::thread::Builder::new()
+        .name("doorbell".into())
+        .spawn(move || {
+            let setup = || -> anyhow::Result<_> {
+                let node = wire::node(run_id, "supervisor-bell")?;
+                let listener = iox(
+                    wire::doorbell(&node, run_id, "supervisor", &limits)?
+                        .listener_builder()
+                        .create(),
+                    "supervisor doorbell",
+                )?;
+                Ok((node, listener))
+            };
+            let (_node, listener) = match setup() {
+                Ok(v) => {
+                    let _ = ok_tx.send(Ok(()));
+                    v
+                }
+                Err(e) => {
+                    let _ = ok_tx.send(Err(format!("{e:#}")));
+                    return;
+                }
+            };
+            // The timeout only bounds how long the thread takes to notice `stop`.
+            while !stop.load(Ordering::Relaxed) {
+                match listener.timed_wait(|_| {}, Duration::from_millis(250)) {
+                    Ok(0) => {}
+                    Ok(_) => {
+                        if tx.send(Event::Bell).is_err() {
+                            break;
+                        }
+                    }
+                    Err(_) => break,
+                }
+            }
+        })?;
+    match ok_rx.recv() {
+        Ok(Ok(())) => Ok(handle),
+        Ok(Err(e)) => bail!("{e}"),
+        Err(_) => bail!("the doorbell thread died"),
+    }
+}
+
+/// Sends `sig` to the process group of child `pid` (each child leads its own group).
+fn signal_group(pid: u32, sig: libc::c_int) {
+    // SAFETY: killpg has no memory-safety preconditions; a stale group id only yields ESRCH.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::killpg(pid as libc::pid_t, sig);
+    }
+}
+
+/// The child gets SIGKILL when the supervisor dies, however it dies.
+fn die_with_parent(cmd: &mut Command) {
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs in the forked child before exec and only calls the
+    // async-signal-safe functions prctl, getppid and _exit; it allocates nothing.
+    #[allow(unsafe_code)]
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The supervisor died between fork and prctl: the signal would never come.
+            if libc::getppid() != parent {
+                libc::_exit(1);
+            }
+            Ok(())
+        });
+    }
+}

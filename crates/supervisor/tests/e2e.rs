@@ -1,0 +1,530 @@
+//! End-to-end tests: start the real `supervisor` binary (which starts the real `updater`,
+//! `sampler` and `rollout-worker` binaries of this crate), and compare its result bit for bit with
+//! the in-process runner. Every wait is bounded, so a hang fails the test instead of blocking CI.
+//! Each test uses its own runs directory (`PI2CMA_RUN_DIR`) and run id, so tests run in parallel
+//! without seeing each other — which is itself a check of run isolation.
+
+// Test helpers outside #[test] functions; a failed unwrap is a failed test.
+#![allow(clippy::unwrap_used)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use pipeline::result::RunResult;
+use session::RunConfig;
+
+const SUPERVISOR: &str = env!("CARGO_BIN_EXE_supervisor");
+
+/// A temporary runs directory, removed on drop.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(name: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("p2c-e2e-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+    fn path(&self, file: &str) -> PathBuf {
+        self.0.join(file)
+    }
+    fn runs(&self) -> PathBuf {
+        self.0.join("runs")
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+struct Run {
+    child: Child,
+    output: Arc<Mutex<Vec<String>>>,
+    run_id: String,
+    runs: PathBuf,
+}
+
+fn run_id(n: u64) -> String {
+    format!("{:016x}", (u64::from(std::process::id()) << 20) ^ n)
+}
+
+impl Run {
+    fn start(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
+        let run_id = run_id(id);
+        let mut child = Command::new(SUPERVISOR)
+            .arg("run")
+            .args(args)
+            .args(["--run-id", &run_id])
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let output = Arc::new(Mutex::new(Vec::new()));
+        for stream in [
+            Box::new(child.stdout.take().unwrap()) as Box<dyn std::io::Read + Send>,
+            Box::new(child.stderr.take().unwrap()),
+        ] {
+            let out = output.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stream).lines().map_while(Result::ok) {
+                    out.lock().unwrap().push(line);
+                }
+            });
+        }
+        Self {
+            child,
+            output,
+            run_id,
+            runs: scratch.runs(),
+        }
+    }
+
+    fn text(&self) -> String {
+        self.output.lock().unwrap().join("\n")
+    }
+
+    fn wait(&mut self, bound: Duration) -> ExitStatus {
+        let end = Instant::now() + bound;
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                // Let the output threads drain the pipes.
+                std::thread::sleep(Duration::from_millis(50));
+                return s;
+            }
+            if Instant::now() > end {
+                let _ = self.child.kill();
+                panic!("supervisor still running after {bound:?}:\n{}", self.text());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// `supervisor <args> --run <id>`; returns (success, stdout + stderr).
+    fn ctl(&self, args: &[&str]) -> (bool, String) {
+        let out = Command::new(SUPERVISOR)
+            .args(args)
+            .args(["--run", &self.run_id])
+            .env("PI2CMA_RUN_DIR", &self.runs)
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    }
+
+    /// Polls `status` until `pred` holds (bounded); the run's socket may not exist yet.
+    fn wait_status(&self, what: &str, pred: impl Fn(&str) -> bool) -> String {
+        let end = Instant::now() + Duration::from_secs(30);
+        loop {
+            let (ok, s) = self.ctl(&["status"]);
+            if ok && pred(&s) {
+                return s;
+            }
+            assert!(
+                Instant::now() < end,
+                "timed out waiting for {what}; last status:\n{s}\noutput:\n{}",
+                self.text()
+            );
+            std::thread::sleep(Duration::from_millis(30));
+        }
+    }
+}
+
+impl Drop for Run {
+    /// A failed test must not leave its run behind: interrupt, then kill.
+    fn drop(&mut self) {
+        if self.child.try_wait().ok().flatten().is_none() {
+            let _ = Command::new("kill")
+                .args(["-INT", &self.child.id().to_string()])
+                .status();
+            let end = Instant::now() + Duration::from_secs(10);
+            while self.child.try_wait().ok().flatten().is_none() && Instant::now() < end {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+fn updates_in(status: &str) -> u64 {
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("updates: "))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0)
+}
+
+/// (role name, pid) of every process in a status reply.
+fn pids_in(status: &str) -> Vec<(String, u32)> {
+    status
+        .lines()
+        .filter_map(|l| {
+            let mut it = l.split_whitespace();
+            let name = it.next()?.to_string();
+            (it.next()? == "pid").then_some(())?;
+            Some((name, it.next()?.parse().ok()?))
+        })
+        .collect()
+}
+
+fn alive(pid: u32) -> bool {
+    // A zombie still has /proc/<pid>; treat it as gone only when its state is not Z.
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Err(_) => false,
+        Ok(s) => !s
+            .rsplit_once(')')
+            .is_some_and(|(_, rest)| rest.trim_start().starts_with('Z')),
+    }
+}
+
+/// Nothing of run `run_id` left: no run directory, no shared memory, no iceoryx2 files.
+fn assert_nothing_left(run: &Run) {
+    let dir = run.runs.join(&run.run_id);
+    assert!(!dir.exists(), "{} left behind", dir.display());
+    let root = PathBuf::from(format!("/tmp/p2c-{}", run.run_id));
+    assert!(!root.exists(), "{} left behind", root.display());
+    let prefix = format!("p2c{}_", run.run_id);
+    for d in ["/dev/shm", "/tmp", "/tmp/iceoryx2"] {
+        if let Ok(entries) = std::fs::read_dir(d) {
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().to_string();
+                assert!(!name.starts_with(&prefix), "{d}/{name} left behind");
+            }
+        }
+    }
+}
+
+/// The A1 config with changes applied by text replacement (checked to apply).
+fn config(edits: &[(&str, &str)]) -> String {
+    let mut text = session::DEFAULT_CONFIG.to_string();
+    for (from, to) in edits {
+        assert!(text.contains(from), "`{from}` not in the default config");
+        text = text.replacen(from, to, 1);
+    }
+    text
+}
+
+fn write_config(scratch: &Scratch, name: &str, text: &str) -> PathBuf {
+    let p = scratch.path(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Asserts the result's final distribution equals the in-process run's bit for bit.
+fn assert_bit_identical(config_text: &str, result: &Path) {
+    let r = RunResult::read(result).unwrap();
+    let mut cfg = RunConfig::parse(config_text, Path::new("test.toml")).unwrap();
+    cfg.run.updates = Some(r.updates);
+    // The rollout delay never changes a cost; leave it out to keep the reference fast.
+    if let session::TaskSection::ViaPoint(v) = &mut cfg.task {
+        v.rollout_delay_ms = 0.0;
+    }
+    let (_, d) = session::run_session(&cfg, cfg.run.seed, &mut session::NoObserver).unwrap();
+    let (mean, cov) = r.exact().unwrap();
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&mean), bits(d.mean.as_slice()), "mean differs");
+    assert_eq!(
+        bits(&cov),
+        bits(d.covariance.as_slice()),
+        "covariance differs"
+    );
+}
+
+const DELAYED: &str = "viapoint_weight = 1000.0\nrollout_delay_ms = 2.0";
+
+#[test]
+fn a1_is_bit_identical_to_in_process_with_1_3_and_8_workers_running_at_once() {
+    let scratch = Scratch::new("a1");
+    let mut runs: Vec<(Run, PathBuf)> = [1usize, 3, 8]
+        .iter()
+        .map(|&w| {
+            let result = scratch.path(&format!("result-{w}.toml"));
+            let run = Run::start(
+                &scratch,
+                w as u64,
+                &[
+                    "--workers",
+                    &w.to_string(),
+                    "--quiet",
+                    "--result",
+                    result.to_str().unwrap(),
+                ],
+            );
+            (run, result)
+        })
+        .collect();
+    for (run, result) in &mut runs {
+        let status = run.wait(Duration::from_secs(60));
+        assert!(status.success(), "{}", run.text());
+        assert!(run.text().contains("summary: run"), "{}", run.text());
+        let r = RunResult::read(result).unwrap();
+        assert_eq!(r.updates, 40);
+        assert!(r.complete);
+        assert_eq!(r.task_changes.len(), 1);
+        assert_eq!(r.task_changes[0].from_update, 20);
+        assert_bit_identical(session::DEFAULT_CONFIG, result);
+        assert_nothing_left(run);
+    }
+}
+
+#[test]
+fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
+    let scratch = Scratch::new("kill");
+    let text = config(&[
+        ("updates = 40", "updates = 200"),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "kill.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        100,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
+    let (_, victim) = pids_in(&status)
+        .into_iter()
+        .find(|(n, _)| n == "worker-1")
+        .expect("worker-1 in status");
+    assert_eq!(
+        std::process::Command::new("kill")
+            .args(["-9", &victim.to_string()])
+            .status()
+            .unwrap()
+            .code(),
+        Some(0)
+    );
+    let after = run.wait_status("restarted worker-1", |s| {
+        s.contains("worker-1 pid")
+            && !s.contains(&format!("pid {victim} "))
+            && s.contains("restarts 1")
+    });
+    assert!(after.contains("incarnation 1"), "{after}");
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    let out = run.text();
+    assert!(
+        out.contains(&format!("worker-1 (pid {victim}) died")),
+        "{out}"
+    );
+    assert!(!alive(victim));
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 200);
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
+    let scratch = Scratch::new("scale");
+    let text = config(&[
+        ("updates = 40", "updates = 120"),
+        ("viapoint_weight = 1000.0", DELAYED),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "scale.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        200,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    let s = run.wait_status("5 updates", |s| updates_in(s) >= 5);
+    assert!(s.contains("workers: 1 running"), "{s}");
+    let (ok, reply) = run.ctl(&["scale", "--workers", "4"]);
+    assert!(ok, "{reply}");
+    let s = run.wait_status("4 workers", |s| {
+        s.contains("workers: 4 running") && !s.contains("(starting)")
+    });
+    let at4 = updates_in(&s);
+    run.wait_status("progress with 4 workers", |s| updates_in(s) >= at4 + 5);
+    let (ok, reply) = run.ctl(&["scale", "--workers", "2"]);
+    assert!(ok, "{reply}");
+    let s = run.wait_status("2 workers", |s| pids_in(s).len() == 4);
+    assert!(s.contains("workers: 2 running"), "{s}");
+    // Above the limit: refused, run unaffected.
+    let (ok, reply) = run.ctl(&["scale", "--workers", "17"]);
+    assert!(!ok && reply.contains("max_workers = 16"), "{reply}");
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    assert_eq!(RunResult::read(&result).unwrap().updates, 120);
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
+    let scratch = Scratch::new("sigint");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nshutdown_timeout_ms = 2000",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "sigint.toml", &text);
+    let mut run = Run::start(&scratch, 300, &[cfg.to_str().unwrap(), "--quiet"]);
+    let status = run.wait_status("5 updates", |s| updates_in(s) >= 5);
+    let pids = pids_in(&status);
+    assert_eq!(pids.len(), 5, "{status}");
+    let t0 = Instant::now();
+    assert_eq!(
+        std::process::Command::new("kill")
+            .args(["-INT", &run.child.id().to_string()])
+            .status()
+            .unwrap()
+            .code(),
+        Some(0)
+    );
+    let exit = run.wait(Duration::from_secs(10));
+    assert_eq!(exit.code(), Some(130), "{}", run.text());
+    assert!(
+        t0.elapsed() < Duration::from_millis(2000 + 1500),
+        "{:?}",
+        t0.elapsed()
+    );
+    for (name, pid) in pids {
+        assert!(!alive(pid), "{name} (pid {pid}) survived");
+    }
+    assert!(run.text().contains("interrupted"), "{}", run.text());
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
+    let scratch = Scratch::new("continual");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+        (
+            "[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n",
+            "",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "continual.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        400,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let (ok, reply) = run.ctl(&["set", "goal", "2.0"]);
+    assert!(!ok && reply.contains("no setting `goal`"), "{reply}");
+    let (ok, reply) = run.ctl(&["set", "viapoint", "0.2"]);
+    assert!(ok, "{reply}");
+    run.wait_status("task change applied", |s| s.contains("viapoint = 0.2"));
+    let (ok, reply) = run.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    let exit = run.wait(Duration::from_secs(20));
+    assert!(exit.success(), "{}", run.text());
+    let r = RunResult::read(&result).unwrap();
+    assert!(!r.complete);
+    let change = r
+        .task_changes
+        .iter()
+        .find(|c| c.source == "runtime")
+        .expect("runtime change recorded");
+    assert_eq!((change.name.as_str(), change.value), ("viapoint", 0.2));
+    assert!(change.from_update >= 3 && change.from_update <= r.updates);
+    // The same change scheduled in the config reproduces the run in-process, bit for bit.
+    let replay = format!(
+        "{text}\n[[schedule]]\nfrom_update = {}\nset = \"viapoint\"\nvalue = 0.2\n",
+        change.from_update
+    );
+    assert_bit_identical(&replay, &result);
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
+    let scratch = Scratch::new("bad");
+    // Malformed config.
+    let bad = write_config(&scratch, "bad.toml", "[run\nname=");
+    let mut run = Run::start(&scratch, 500, &[bad.to_str().unwrap()]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(run.text().contains("bad.toml"), "{}", run.text());
+    assert_nothing_left(&run);
+
+    // Worker count above the limit.
+    let mut run = Run::start(&scratch, 501, &["--workers", "17"]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(
+        run.text().contains("workers = 17") && run.text().contains("max_workers = 16"),
+        "{}",
+        run.text()
+    );
+    assert_nothing_left(&run);
+    let over = write_config(
+        &scratch,
+        "over.toml",
+        &config(&[("workers = 3", "workers = 300")]),
+    );
+    let mut run = Run::start(&scratch, 502, &[over.to_str().unwrap()]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(
+        run.text().contains("pipeline.workers = 300"),
+        "{}",
+        run.text()
+    );
+
+    // A missing binary.
+    let bins = scratch.path("bins");
+    std::fs::create_dir_all(&bins).unwrap();
+    let here = Path::new(SUPERVISOR).parent().unwrap();
+    for b in ["updater", "sampler"] {
+        std::os::unix::fs::symlink(here.join(b), bins.join(b)).unwrap();
+    }
+    let mut run = Run::start(&scratch, 503, &["--bin-dir", bins.to_str().unwrap()]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(
+        run.text().contains("missing binary `rollout-worker`"),
+        "{}",
+        run.text()
+    );
+    assert_nothing_left(&run);
+
+    // A task that returns NaN (fault injection).
+    let nan = write_config(
+        &scratch,
+        "nan.toml",
+        &config(&[(
+            "max_workers = 16",
+            "max_workers = 16\nfault_nan_from_update = 3",
+        )]),
+    );
+    let mut run = Run::start(&scratch, 504, &[nan.to_str().unwrap()]);
+    let exit = run.wait(Duration::from_secs(20));
+    assert!(!exit.success(), "{}", run.text());
+    let out = run.text();
+    assert!(out.contains("update 3") && out.contains("NaN"), "{out}");
+    assert!(out.contains("updater exited"), "{out}");
+    assert_nothing_left(&run);
+}

@@ -1,0 +1,583 @@
+//! The wire contract of the pi2cma pipeline: every message type, every service name and every
+//! service's builder settings, in one place, so that every process — including a rollout worker
+//! written in another language with iceoryx2's C, C++ or Python bindings — opens each service with
+//! the same settings.
+//!
+//! **Architecture Invariant:** this crate knows nothing of the update rule, tasks or configs. It
+//! takes plain numbers ([`Limits`]) and returns iceoryx2 port factories. Nothing on the data paths
+//! is serialised: payloads are `#[repr(C)]` structs and `f64` slices read and written in place in
+//! shared memory.
+//!
+//! # Topology (publish-subscribe and event services only)
+//!
+//! All names start with `pi2cma/<run>/`, where `<run>` is the run id as 16 lower-case hex
+//! digits, and all processes of a run use the per-run iceoryx2 config of [`iceoryx_config`]
+//! (own `global.prefix` and root path), so two runs never see each other.
+//!
+//! | service | payload | user header | publishers → subscribers |
+//! |---|---|---|---|
+//! | `distribution` | `[f64]`: mean (P), then Σ (P×P, column-major) | [`DistributionHeader`] | updater → sampler, supervisor |
+//! | `work/<w>` | `[f64]`: θ (P) | [`WorkHeader`] | sampler → worker `w` (its inbox) |
+//! | `costs` | `[f64]`: immediate costs (N) | [`CostHeader`] | workers → updater |
+//! | `ready` | [`Ready`] | – | workers → sampler |
+//! | `progress` | [`Progress`] | – | updater → supervisor |
+//! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
+//! | `control` | [`Control`] | – | supervisor → sampler, updater |
+//!
+//! Every receiving process owns one event service, its doorbell: `wake/updater`,
+//! `wake/sampler`, `wake/supervisor`, `wake/worker/<w>`. A sender publishes its samples, then
+//! notifies the receiver's doorbell once (event id [`WAKE`]); the receiver waits on its doorbell
+//! (never spins), consumes all notifications, then drains its subscribers.
+//!
+//! # Protocol of one update u
+//!
+//! 1. The updater publishes the distribution of update u ([`DistributionHeader::update`] = u) with
+//!    the task settings in force for u, and rings `wake/sampler`.
+//! 2. The sampler draws the K parameter vectors (a pure function of seed, u and k), and hands
+//!    them out in chunks: a worker that announced [`Ready`] gets ⌈pending / workers⌉ rollouts,
+//!    one `work/<w>` sample per rollout, all with the same [`WorkHeader::chunk`].
+//! 3. The worker executes each θ and writes the N immediate costs straight into a loaned `costs`
+//!    sample ([`CostHeader::terminal`] holds the terminal cost), rings `wake/updater`; after the
+//!    last rollout of its chunk it publishes [`Ready`] with `completed_chunk` = that chunk and
+//!    rings `wake/sampler`. A worker that has just started sends [`Ready`] with
+//!    [`Ready::NO_CHUNK`].
+//! 4. The updater stores cost (u, k) (duplicates and other updates are ignored, so a rollout may
+//!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
+//!
+//! A worker that dies (or is scaled away) is reported by the supervisor on `control`
+//! ([`Control::WORKER_LOST`]); the sampler hands its unfinished rollouts to the others. Because a
+//! rollout's parameters depend only on (seed, u, k), the result is bit-identical whatever the
+//! worker count, completion order or crashes.
+//!
+//! A foreign worker joins as worker `w` by: creating a node with the run's config, subscribing to
+//! `work/<w>`, listening on `wake/worker/<w>`, publishing on `costs` and `ready` and notifying
+//! `wake/updater` and `wake/sampler`, then sending [`Ready`] with [`Ready::NO_CHUNK`]. Every
+//! service must be opened with the settings of the functions below (see [`Limits`]).
+
+use iceoryx2::port::event_id::EventId;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+/// Number of task settings a header can carry.
+pub const MAX_SETTINGS: usize = 8;
+
+/// Length of a setting name in a [`Control`] message.
+pub const MAX_NAME: usize = 32;
+
+/// The only event id used: "something for you was published".
+pub const WAKE: EventId = EventId::new(1);
+
+/// The iceoryx2 service flavour of every port in the pipeline.
+pub type Service = ipc::Service;
+
+/// Header of a `distribution` sample. Payload: P + P·P `f64`s, the mean and then the covariance
+/// in column-major order.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.DistributionHeader.v1")]
+pub struct DistributionHeader {
+    pub run_id: u64,
+    /// The update whose rollouts are drawn from this distribution (0-based).
+    pub update: u64,
+    /// Session seed: the noise of rollout k is a pure function of (seed, update, k).
+    pub seed: u64,
+    /// P.
+    pub dim: u32,
+    /// K.
+    pub rollouts: u32,
+    /// N.
+    pub steps: u32,
+    /// [`DistributionHeader::FINAL`]: no update follows; the sampler hands out no more work.
+    pub flags: u32,
+    /// Valid entries of `settings`.
+    pub settings_len: u32,
+    pub _reserved: u32,
+    /// λ of this distribution.
+    pub lambda: f64,
+    /// Task settings in force for `update`, in the order of the task's `settings()`.
+    pub settings: [f64; MAX_SETTINGS],
+}
+
+impl DistributionHeader {
+    pub const FINAL: u32 = 1;
+}
+
+/// Header of a `work/<w>` sample. Payload: θ, P `f64`s.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.WorkHeader.v1")]
+pub struct WorkHeader {
+    pub run_id: u64,
+    pub update: u64,
+    /// Sequence number of the assignment this rollout belongs to (unique per run).
+    pub chunk: u64,
+    /// k.
+    pub rollout: u32,
+    /// Number of rollouts in this chunk; the worker announces [`Ready`] after that many.
+    pub chunk_len: u32,
+    pub worker: u32,
+    /// N: the length of the cost trajectory to return.
+    pub steps: u32,
+    /// Valid entries of `settings`.
+    pub settings_len: u32,
+    pub _reserved: u32,
+    /// Task settings for `update` (see [`DistributionHeader::settings`]).
+    pub settings: [f64; MAX_SETTINGS],
+}
+
+/// Header of a `costs` sample. Payload: the N immediate costs q_i.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.CostHeader.v1")]
+pub struct CostHeader {
+    pub run_id: u64,
+    pub update: u64,
+    pub rollout: u32,
+    pub worker: u32,
+    /// Wall time of the rollout, for statistics.
+    pub duration_ns: u64,
+    /// φ_N.
+    pub terminal: f64,
+}
+
+/// A worker asks for work.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.Ready.v1")]
+pub struct Ready {
+    pub run_id: u64,
+    /// The chunk just finished, or [`Ready::NO_CHUNK`] from a worker that has just started.
+    pub completed_chunk: u64,
+    pub worker: u32,
+    /// Increases with every restart of worker `worker`.
+    pub incarnation: u32,
+    pub pid: u32,
+    pub _reserved: u32,
+}
+
+impl Ready {
+    pub const NO_CHUNK: u64 = u64::MAX;
+}
+
+/// What the updater reports to the supervisor (rate-limited, and always for the last update).
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.Progress.v1")]
+pub struct Progress {
+    pub run_id: u64,
+    /// Updates completed.
+    pub updates: u64,
+    /// Since the first distribution was published.
+    pub elapsed_ns: u64,
+    /// Total cost of the evaluation rollout of the last update.
+    pub eval_cost: f64,
+    /// λ of the current distribution.
+    pub lambda: f64,
+    pub flags: u32,
+    pub settings_len: u32,
+    pub settings: [f64; MAX_SETTINGS],
+}
+
+impl Progress {
+    /// The run is complete (bounded run) or the updater is stopping.
+    pub const FINAL: u32 = 1;
+}
+
+/// Process roles in [`Lifecycle`].
+pub mod role {
+    pub const UPDATER: u32 = 1;
+    pub const SAMPLER: u32 = 2;
+    pub const WORKER: u32 = 3;
+}
+
+/// A process announces it is ready (all its ports are open and connected).
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.Lifecycle.v1")]
+pub struct Lifecycle {
+    pub run_id: u64,
+    pub pid: u32,
+    /// One of [`role`].
+    pub role: u32,
+    pub worker: u32,
+    pub incarnation: u32,
+}
+
+/// A command from the supervisor.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.Control.v1")]
+pub struct Control {
+    pub run_id: u64,
+    pub kind: u32,
+    /// For [`Control::WORKER_LOST`].
+    pub worker: u32,
+    pub incarnation: u32,
+    /// Length of `name` in bytes (UTF-8).
+    pub name_len: u32,
+    pub name: [u8; MAX_NAME],
+    pub value: f64,
+}
+
+impl Control {
+    /// Worker `worker` (incarnation `incarnation`) is gone: hand its rollouts to others (sampler).
+    pub const WORKER_LOST: u32 = 1;
+    /// Set task setting `name` to `value` from the next update on (updater).
+    pub const SET_TASK: u32 = 2;
+    /// Start: the sampler is ready, publish the first distribution (updater).
+    pub const START: u32 = 3;
+
+    /// A message of `kind` without arguments.
+    pub fn plain(run_id: u64, kind: u32) -> Self {
+        Self {
+            kind,
+            ..Self::worker_lost(run_id, 0, 0)
+        }
+    }
+
+    pub fn worker_lost(run_id: u64, worker: u32, incarnation: u32) -> Self {
+        Self {
+            run_id,
+            kind: Self::WORKER_LOST,
+            worker,
+            incarnation,
+            name_len: 0,
+            name: [0; MAX_NAME],
+            value: 0.0,
+        }
+    }
+
+    /// `None` if the name is longer than [`MAX_NAME`] bytes.
+    pub fn set_task(run_id: u64, name: &str, value: f64) -> Option<Self> {
+        let bytes = name.as_bytes();
+        if bytes.len() > MAX_NAME {
+            return None;
+        }
+        let mut n = [0; MAX_NAME];
+        n[..bytes.len()].copy_from_slice(bytes);
+        Some(Self {
+            run_id,
+            kind: Self::SET_TASK,
+            worker: 0,
+            incarnation: 0,
+            name_len: bytes.len() as u32,
+            name: n,
+            value,
+        })
+    }
+
+    pub fn name(&self) -> &str {
+        let len = (self.name_len as usize).min(MAX_NAME);
+        std::str::from_utf8(&self.name[..len]).unwrap_or("")
+    }
+}
+
+/// Copies up to [`MAX_SETTINGS`] values into a header array; returns the count.
+pub fn pack_settings(values: &[f64]) -> ([f64; MAX_SETTINGS], u32) {
+    let mut out = [0.0; MAX_SETTINGS];
+    let n = values.len().min(MAX_SETTINGS);
+    out[..n].copy_from_slice(&values[..n]);
+    (out, n as u32)
+}
+
+/// The numbers every service size is derived from. Every process of a run must use the same.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// `pipeline.max_workers`.
+    pub max_workers: usize,
+    /// K.
+    pub rollouts: usize,
+    /// P.
+    pub dim: usize,
+    /// N.
+    pub steps: usize,
+}
+
+impl Limits {
+    /// Ports of crashed processes stay registered until a new node cleans them up; leave room.
+    fn worker_ports(&self) -> usize {
+        2 * self.max_workers + 2
+    }
+    fn nodes(&self) -> usize {
+        2 * self.max_workers + 8
+    }
+    /// Cost samples that can be in flight: one per rollout, plus re-executions after a crash.
+    fn cost_buffer(&self) -> usize {
+        2 * self.rollouts + self.max_workers + 4
+    }
+}
+
+/// A run id: shown as 16 hex digits.
+pub fn run_id_hex(run_id: u64) -> String {
+    format!("{run_id:016x}")
+}
+
+fn service_name(run_id: u64, tail: &str) -> Result<ServiceName, WireError> {
+    let name = format!("pi2cma/{}/{tail}", run_id_hex(run_id));
+    ServiceName::new(&name).map_err(|e| WireError::new(&name, format!("{e:?}")))
+}
+
+/// An iceoryx2 port or service that could not be opened or created.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2 service `{service}`: {reason}")]
+pub struct WireError {
+    pub service: String,
+    pub reason: String,
+}
+
+impl WireError {
+    pub fn new(service: &str, reason: impl Into<String>) -> Self {
+        Self {
+            service: service.to_string(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// The iceoryx2 file prefix of a run: shared memory is `/dev/shm/<prefix>…`.
+pub fn file_prefix(run_id: u64) -> String {
+    format!("p2c{}_", run_id_hex(run_id))
+}
+
+/// The per-run iceoryx2 root directory, `/tmp/p2c-<run>/`. Kept short on purpose: iceoryx2's
+/// event services are Unix sockets under it, and socket paths are limited to 108 bytes.
+pub fn iceoryx_root(run_id: u64) -> std::path::PathBuf {
+    std::path::PathBuf::from(format!("/tmp/p2c-{}/", run_id_hex(run_id)))
+}
+
+/// The per-run iceoryx2 config: `global.prefix` = [`file_prefix`], `global.root-path` =
+/// [`iceoryx_root`]. Everything else is iceoryx2's default. A foreign process joins the run by
+/// using the same two values.
+pub fn iceoryx_config(run_id: u64) -> Result<Config, WireError> {
+    let mut config = Config::default();
+    let prefix = file_prefix(run_id);
+    config.global.prefix = FileName::new(prefix.as_bytes())
+        .map_err(|e| WireError::new("config", format!("prefix {prefix}: {e:?}")))?;
+    let root = iceoryx_root(run_id);
+    let root = root.to_string_lossy();
+    let path = iceoryx2::prelude::Path::new(root.as_bytes())
+        .map_err(|e| WireError::new("config", format!("root path {root}: {e:?}")))?;
+    config.global.set_root_path(&path);
+    Ok(config)
+}
+
+/// Creates a named node with the run's config.
+pub fn node(run_id: u64, name: &str) -> Result<Node<Service>, WireError> {
+    let config = iceoryx_config(run_id)?;
+    let node_name =
+        NodeName::new(name).map_err(|e| WireError::new(name, format!("node name: {e:?}")))?;
+    NodeBuilder::new()
+        .name(&node_name)
+        .config(&config)
+        .create::<Service>()
+        .map_err(|e| WireError::new(name, format!("cannot create node: {e:?}")))
+}
+
+pub type SliceService<H> = publish_subscribe::PortFactory<Service, [f64], H>;
+pub type FixedService<T> = publish_subscribe::PortFactory<Service, T, ()>;
+pub type EventService = event::PortFactory<Service>;
+
+fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<Service>,
+    run_id: u64,
+    tail: &str,
+    publishers: usize,
+    subscribers: usize,
+    buffer: usize,
+    nodes: usize,
+) -> Result<SliceService<H>, WireError> {
+    let name = service_name(run_id, tail)?;
+    node.service_builder(&name)
+        .publish_subscribe::<[f64]>()
+        .user_header::<H>()
+        .max_publishers(publishers)
+        .max_subscribers(subscribers)
+        .subscriber_max_buffer_size(buffer)
+        .subscriber_max_borrowed_samples(2)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .max_nodes(nodes)
+        .open_or_create()
+        .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
+}
+
+fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<Service>,
+    run_id: u64,
+    tail: &str,
+    publishers: usize,
+    subscribers: usize,
+    buffer: usize,
+    nodes: usize,
+) -> Result<FixedService<T>, WireError> {
+    let name = service_name(run_id, tail)?;
+    node.service_builder(&name)
+        .publish_subscribe::<T>()
+        .max_publishers(publishers)
+        .max_subscribers(subscribers)
+        .subscriber_max_buffer_size(buffer)
+        .subscriber_max_borrowed_samples(2)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .max_nodes(nodes)
+        .open_or_create()
+        .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
+}
+
+/// `distribution`: 1 publisher (updater), up to 4 subscribers (sampler, supervisor, spare), a
+/// buffer of 4. Publishers use `initial_max_slice_len(P + P·P)`.
+pub fn distribution(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<SliceService<DistributionHeader>, WireError> {
+    slice_service(node, run_id, "distribution", 2, 4, 4, l.nodes())
+}
+
+/// Length of a distribution payload.
+pub fn distribution_len(l: &Limits) -> usize {
+    l.dim + l.dim * l.dim
+}
+
+/// `work/<w>`: 1 publisher (sampler), 2 subscribers (worker w; a crashed predecessor until
+/// cleaned), a buffer of K. Publishers use `initial_max_slice_len(P)`.
+pub fn work(
+    node: &Node<Service>,
+    run_id: u64,
+    worker: u32,
+    l: &Limits,
+) -> Result<SliceService<WorkHeader>, WireError> {
+    slice_service(
+        node,
+        run_id,
+        &format!("work/{worker}"),
+        2,
+        2,
+        l.rollouts.max(1),
+        8,
+    )
+}
+
+/// `costs`: 2·max_workers + 2 publishers, 2 subscribers, a buffer of 2K + max_workers + 4.
+/// Publishers use `initial_max_slice_len(N)`.
+pub fn costs(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<SliceService<CostHeader>, WireError> {
+    slice_service(
+        node,
+        run_id,
+        "costs",
+        l.worker_ports(),
+        2,
+        l.cost_buffer(),
+        l.nodes(),
+    )
+}
+
+/// `ready`: 2·max_workers + 2 publishers, 2 subscribers, a buffer of 2·max_workers + 4.
+pub fn ready(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<Ready>, WireError> {
+    fixed_service(
+        node,
+        run_id,
+        "ready",
+        l.worker_ports(),
+        2,
+        2 * l.max_workers + 4,
+        l.nodes(),
+    )
+}
+
+/// `progress`: 2 publishers, 4 subscribers, a buffer of 8.
+pub fn progress(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<Progress>, WireError> {
+    fixed_service(node, run_id, "progress", 2, 4, 8, l.nodes())
+}
+
+/// `lifecycle`: 2·max_workers + 6 publishers, 2 subscribers, a buffer of 2·max_workers + 8.
+pub fn lifecycle(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<Lifecycle>, WireError> {
+    fixed_service(
+        node,
+        run_id,
+        "lifecycle",
+        l.worker_ports() + 4,
+        2,
+        2 * l.max_workers + 8,
+        l.nodes(),
+    )
+}
+
+/// `control`: 2 publishers, 4 subscribers, a buffer of 2·max_workers + 16.
+pub fn control(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<Control>, WireError> {
+    fixed_service(
+        node,
+        run_id,
+        "control",
+        2,
+        4,
+        2 * l.max_workers + 16,
+        l.nodes(),
+    )
+}
+
+/// The doorbell of a receiving process: `wake/updater`, `wake/sampler`, `wake/supervisor` or
+/// `wake/worker/<w>`. Up to 2·max_workers + 6 notifiers, 2 listeners, event ids up to 1.
+pub fn doorbell(
+    node: &Node<Service>,
+    run_id: u64,
+    owner: &str,
+    l: &Limits,
+) -> Result<EventService, WireError> {
+    let name = service_name(run_id, &format!("wake/{owner}"))?;
+    node.service_builder(&name)
+        .event()
+        .max_notifiers(l.worker_ports() + 4)
+        .max_listeners(2)
+        .max_nodes(l.nodes())
+        .event_id_max_value(1)
+        .open_or_create()
+        .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_are_stable() {
+        // A foreign worker relies on these sizes; changing them needs a new type name version.
+        assert_eq!(
+            std::mem::size_of::<DistributionHeader>(),
+            56 + 8 * MAX_SETTINGS
+        );
+        assert_eq!(std::mem::size_of::<WorkHeader>(), 48 + 8 * MAX_SETTINGS);
+        assert_eq!(std::mem::size_of::<CostHeader>(), 40);
+        assert_eq!(std::mem::size_of::<Ready>(), 32);
+        assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
+        assert_eq!(std::mem::size_of::<Control>(), 24 + MAX_NAME + 8);
+        assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
+    }
+
+    #[test]
+    fn control_names_round_trip_and_are_bounded() {
+        let c = Control::set_task(7, "viapoint", 0.1).unwrap();
+        assert_eq!(c.name(), "viapoint");
+        assert!(Control::set_task(7, &"x".repeat(MAX_NAME + 1), 0.0).is_none());
+    }
+}
