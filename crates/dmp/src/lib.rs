@@ -284,31 +284,35 @@ impl Dmp {
     pub fn affine(&self) -> AffineDmp {
         let (n, dims, b) = (self.steps, self.dims(), self.basis);
         let base = self.integrate(&vec![0.0; self.parameters()]);
+        let by_dim = |v: &[f64]| -> Vec<f64> {
+            (0..dims)
+                .flat_map(|d| (0..n).map(move |i| v[i * dims + d]))
+                .collect()
+        };
         // Each dimension integrates independently with the same phase and basis, so the response
         // to a unit weight of dimension 0 serves every dimension.
-        let mut phi = [vec![0.0; n * b], vec![0.0; n * b], vec![0.0; n * b]];
         let single = Dmp {
             y0: vec![0.0],
             goal: vec![0.0],
             ..self.clone()
         };
+        let (mut phi_pos, mut phi_vel, mut phi_acc) = (Vec::new(), Vec::new(), Vec::new());
         for k in 0..b {
             let mut w = vec![0.0; b];
             w[k] = 1.0;
             let r = single.integrate(&w);
-            for i in 0..n {
-                phi[0][i * b + k] = r.pos[i];
-                phi[1][i * b + k] = r.vel[i];
-                phi[2][i * b + k] = r.acc[i];
-            }
+            phi_pos.extend_from_slice(&r.pos);
+            phi_vel.extend_from_slice(&r.vel);
+            phi_acc.extend_from_slice(&r.acc);
         }
-        let [phi_pos, phi_vel, phi_acc] = phi;
         AffineDmp {
             steps: n,
             dims,
             basis: b,
             dt: self.dt,
-            base,
+            base_pos: by_dim(&base.pos),
+            base_vel: by_dim(&base.vel),
+            base_acc: by_dim(&base.acc),
             phi_pos,
             phi_vel,
             phi_acc,
@@ -326,12 +330,12 @@ impl Dmp {
     pub fn fit(&self, target: &Trajectory) -> Vec<f64> {
         let aff = self.affine();
         let (n, dims, b) = (self.steps, self.dims(), self.basis);
-        let phi = DMatrix::from_row_slice(n, b, &aff.phi_pos);
+        let phi = DMatrix::from_column_slice(n, b, &aff.phi_pos);
         let svd = phi.clone().svd(true, true);
         let mut w = vec![0.0; dims * b];
         for d in 0..dims {
             let rhs = DVector::from_fn(n, |i, _| {
-                target.pos[i * dims + d] - aff.base.pos[i * dims + d]
+                target.pos[i * dims + d] - aff.base_pos[d * n + i]
             });
             let sol = svd
                 .solve(&rhs, 1e-12)
@@ -342,15 +346,18 @@ impl Dmp {
     }
 }
 
-/// y(t) = y_base(t) + Φ(t)·θ_d for each dimension, with Φ precomputed (N × B each for
-/// position, velocity and acceleration).
+/// y(t) = y_base(t) + Φ(t)·θ_d for each dimension, with Φ precomputed. Stored by dimension
+/// (base) and by basis function (Φ), N contiguous values each, so that a whole trajectory is a
+/// few vectorisable axpy passes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AffineDmp {
     steps: usize,
     dims: usize,
     basis: usize,
     dt: f64,
-    base: Trajectory,
+    base_pos: Vec<f64>,
+    base_vel: Vec<f64>,
+    base_acc: Vec<f64>,
     phi_pos: Vec<f64>,
     phi_vel: Vec<f64>,
     phi_acc: Vec<f64>,
@@ -379,39 +386,54 @@ impl AffineDmp {
 
     #[inline]
     fn eval(&self, base: &[f64], phi: &[f64], i: usize, d: usize, weights: &[f64]) -> f64 {
-        let b = self.basis;
-        let row = &phi[i * b..(i + 1) * b];
-        let w = &weights[d * b..(d + 1) * b];
-        let mut v = base[i * self.dims + d];
+        let (n, b) = (self.steps, self.basis);
+        let mut v = base[d * n + i];
         for k in 0..b {
-            v += row[k] * w[k];
+            v += phi[k * n + i] * weights[d * b + k];
         }
         v
     }
 
     #[inline]
+    fn eval_all(&self, base: &[f64], phi: &[f64], d: usize, weights: &[f64], out: &mut [f64]) {
+        let (n, b) = (self.steps, self.basis);
+        out.copy_from_slice(&base[d * n..(d + 1) * n]);
+        for k in 0..b {
+            let w = weights[d * b + k];
+            for (o, p) in out.iter_mut().zip(&phi[k * n..(k + 1) * n]) {
+                *o += p * w;
+            }
+        }
+    }
+
+    #[inline]
     pub fn position(&self, i: usize, d: usize, weights: &[f64]) -> f64 {
-        self.eval(&self.base.pos, &self.phi_pos, i, d, weights)
+        self.eval(&self.base_pos, &self.phi_pos, i, d, weights)
     }
 
     #[inline]
     pub fn velocity(&self, i: usize, d: usize, weights: &[f64]) -> f64 {
-        self.eval(&self.base.vel, &self.phi_vel, i, d, weights)
+        self.eval(&self.base_vel, &self.phi_vel, i, d, weights)
     }
 
     #[inline]
     pub fn acceleration(&self, i: usize, d: usize, weights: &[f64]) -> f64 {
-        self.eval(&self.base.acc, &self.phi_acc, i, d, weights)
+        self.eval(&self.base_acc, &self.phi_acc, i, d, weights)
     }
 
-    /// For a 1-D DMP: the base accelerations (N) and the row-major N × B basis responses, so
-    /// that ÿ_i = base_i + Φ_i·θ can be evaluated in a tight loop.
-    pub fn acceleration_terms(&self, d: usize) -> (impl Iterator<Item = f64> + '_, &[f64]) {
-        let dims = self.dims;
-        (
-            self.base.acc.iter().skip(d).step_by(dims).copied(),
-            &self.phi_acc[..],
-        )
+    /// Positions of dimension `d` at every step into `out` (N values).
+    pub fn positions_into(&self, d: usize, weights: &[f64], out: &mut [f64]) {
+        self.eval_all(&self.base_pos, &self.phi_pos, d, weights, out)
+    }
+
+    /// Velocities of dimension `d` at every step into `out` (N values).
+    pub fn velocities_into(&self, d: usize, weights: &[f64], out: &mut [f64]) {
+        self.eval_all(&self.base_vel, &self.phi_vel, d, weights, out)
+    }
+
+    /// Accelerations of dimension `d` at every step into `out` (N values).
+    pub fn accelerations_into(&self, d: usize, weights: &[f64], out: &mut [f64]) {
+        self.eval_all(&self.base_acc, &self.phi_acc, d, weights, out)
     }
 
     /// The whole trajectory for θ into `out` (no allocation).

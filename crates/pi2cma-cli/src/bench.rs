@@ -12,6 +12,8 @@ use session::{build_optimizer, build_task, RunConfig, WeightingName};
 pub struct Measurement {
     pub label: String,
     pub median: Duration,
+    /// The fastest group: less disturbed by other load on the machine than the median.
+    pub min: Duration,
     pub samples: usize,
 }
 
@@ -26,7 +28,7 @@ fn measure(label: &str, groups: usize, inner: usize, mut f: impl FnMut()) -> Mea
     for _ in 0..inner.min(100) {
         f();
     }
-    let times = (0..groups)
+    let times: Vec<Duration> = (0..groups)
         .map(|_| {
             let t = Instant::now();
             for _ in 0..inner {
@@ -37,6 +39,7 @@ fn measure(label: &str, groups: usize, inner: usize, mut f: impl FnMut()) -> Mea
         .collect();
     Measurement {
         label: label.to_string(),
+        min: times.iter().copied().min().unwrap_or_default(),
         median: median(times),
         samples: groups * inner,
     }

@@ -217,8 +217,8 @@ fn main() -> Result<()> {
         Command::Bench { quick, only } => {
             for m in bench::run_all(quick, &only) {
                 println!(
-                    "{:<90} median {:>12.3?}  ({} samples)",
-                    m.label, m.median, m.samples
+                    "{:<90} median {:>12.3?}  min {:>12.3?}  ({} samples)",
+                    m.label, m.median, m.min, m.samples
                 );
             }
         }

@@ -115,6 +115,27 @@ pub fn boundcovar2(a: f64, b: f64, c: f64, bounds: EigenvalueBounds) -> (f64, f6
     )
 }
 
+/// boundcovar for a symmetric 2×2 matrix without branches on the eigenvectors, so a loop over
+/// many matrices vectorises: with eigenvalues l1 ≥ l2, any matrix function satisfies
+/// f(Σ) = f(l2)·I + (f(l1) − f(l2))/(l1 − l2)·(Σ − l2·I) (Lagrange interpolation; exact for
+/// 2×2), and f = clip to [λ_min, λ_max]. When l1 = l2, Σ − l2·I = 0 and the slope is irrelevant.
+#[inline(always)]
+pub fn boundcovar2_interpolated(
+    a: f64,
+    b: f64,
+    c: f64,
+    bounds: EigenvalueBounds,
+) -> (f64, f64, f64) {
+    let half_diff = 0.5 * (a - c);
+    let r = (half_diff * half_diff + b * b).sqrt();
+    let mid = 0.5 * (a + c);
+    let (l1, l2) = (mid + r, mid - r);
+    let (f1, f2) = (bounds.clip(l1), bounds.clip(l2));
+    let spread = (l1 - l2).max(f64::MIN_POSITIVE);
+    let slope = (f1 - f2) / spread;
+    (f2 + slope * (a - l2), slope * b, f2 + slope * (c - l2))
+}
+
 /// boundcovar for a symmetric matrix of any size: V·clip(Λ)·Vᵀ, symmetrised exactly.
 pub fn boundcovar(m: &DMatrix<f64>, bounds: EigenvalueBounds) -> DMatrix<f64> {
     let n = m.nrows();
@@ -172,6 +193,23 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn interpolated_2x2_matches_eigen_clipping() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..2000 {
+            let m = random_symmetric(&mut rng, 2);
+            let min = rng.random_range(0.0..5.0);
+            let bounds = EigenvalueBounds::new(min, min + rng.random_range(0.0..50.0)).unwrap();
+            let (a, b, c) = boundcovar2_interpolated(m[(0, 0)], m[(0, 1)], m[(1, 1)], bounds);
+            let (ea, eb, ec) = boundcovar2(m[(0, 0)], m[(0, 1)], m[(1, 1)], bounds);
+            let tol = 1e-12 * (1.0 + m.amax());
+            assert!((a - ea).abs() < tol && (b - eb).abs() < tol && (c - ec).abs() < tol);
+        }
+        let (a, b, c) =
+            boundcovar2_interpolated(3.0, 0.0, 3.0, EigenvalueBounds::new(4.0, 5.0).unwrap());
+        assert_eq!((a, b, c), (4.0, 0.0, 4.0));
     }
 
     #[test]

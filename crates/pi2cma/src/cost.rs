@@ -153,7 +153,7 @@ impl CostBatch {
     }
 
     pub fn total(&self, k: usize) -> f64 {
-        self.terminal[k] + self.per_step(k).iter().sum::<f64>()
+        self.terminal[k] + sum(self.per_step(k))
     }
 
     pub fn trajectory(&self, k: usize) -> CostTrajectory {
@@ -163,10 +163,22 @@ impl CostBatch {
         }
     }
 
+    /// Writes every rollout's total cost S_0 into `out` (K values).
+    pub fn totals_into(&self, out: &mut [f64]) {
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self.terminal[k] + sum(self.per_step(k));
+        }
+    }
+
     /// Re-checks every value; used after in-place writes through [`CostBatch::slot_mut`].
     pub fn validate_filled(&self) -> Result<(), CostError> {
         if let Some(k) = self.missing().next() {
             return Err(CostError::Missing { rollout: k });
+        }
+        // NaN and ±∞ survive summation, so a finite sum proves every value finite; only
+        // otherwise (or on overflow of finite values) look for the culprit.
+        if (sum(&self.per_step) + sum(&self.terminal)).is_finite() {
+            return Ok(());
         }
         for k in 0..self.rollouts() {
             let t = self.terminal[k];
@@ -196,6 +208,19 @@ impl CostBatch {
     pub fn clear(&mut self) {
         self.filled.iter_mut().for_each(|f| *f = false);
     }
+}
+
+/// Σ v with four accumulators, so the additions pipeline instead of forming one long chain.
+pub(crate) fn sum(v: &[f64]) -> f64 {
+    let mut acc = [0.0; 4];
+    let chunks = v.chunks_exact(4);
+    let tail: f64 = chunks.remainder().iter().sum();
+    for c in chunks {
+        for l in 0..4 {
+            acc[l] += c[l];
+        }
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
 }
 
 #[cfg(test)]

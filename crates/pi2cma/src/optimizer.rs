@@ -153,19 +153,14 @@ impl Optimizer {
         let batch = self.batch.as_ref().expect("ask() fills the batch");
         let (new, weights) = self.rule.update(&self.distribution, &batch.values, costs)?;
         let k = costs.rollouts();
-        let eval_cost = costs.total(0);
-        let (mut mean, mut sq) = (0.0, 0.0);
-        let explore = k - 1;
-        for r in 1..k {
-            mean += costs.total(r);
-        }
-        mean /= explore.max(1) as f64;
-        for r in 1..k {
-            let d = costs.total(r) - mean;
-            sq += d * d;
-        }
-        let std = if explore > 1 {
-            (sq / (explore - 1) as f64).sqrt()
+        let mut totals = vec![0.0; k];
+        costs.totals_into(&mut totals);
+        let eval_cost = totals[0];
+        let explore = &totals[1..];
+        let mean = explore.iter().sum::<f64>() / explore.len().max(1) as f64;
+        let sq: f64 = explore.iter().map(|c| (c - mean) * (c - mean)).sum();
+        let std = if explore.len() > 1 {
+            (sq / (explore.len() - 1) as f64).sqrt()
         } else {
             0.0
         };

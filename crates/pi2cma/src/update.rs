@@ -6,11 +6,11 @@
 
 use nalgebra::DMatrix;
 
-use crate::boundcovar::{boundcovar, boundcovar2, EigenvalueBounds};
+use crate::boundcovar::{boundcovar, boundcovar2, boundcovar2_interpolated, EigenvalueBounds};
 use crate::cost::CostBatch;
 use crate::distribution::Distribution;
 use crate::error::{CostError, ParameterError};
-use crate::weighting::CostMapping;
+use crate::weighting::{exp_nonpositive, CostMapping};
 
 /// How Σ changes from one update to the next.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -115,8 +115,12 @@ pub struct UpdateRule {
     // Scratch, sized once.
     eps: Vec<f64>,
     cost_to_go: Vec<f64>,
-    /// Row-major N × K cost-to-go, for the per-time-step mode.
+    totals: Vec<f64>,
+    /// Rollout-major K × N cost-to-go and probabilities, for the per-time-step mode.
     step_costs: Vec<f64>,
+    step_probs: Vec<f64>,
+    /// 3·N scratch values for per-step reductions.
+    step_scratch: Vec<f64>,
     sqrt_probs: Vec<f64>,
     /// Rows: the scaled eigenvectors √(w·c_j)·D^½·v_j of one step (low-rank kernel).
     factor: DMatrix<f64>,
@@ -203,7 +207,10 @@ impl UpdateRule {
         };
         let k = hp.rollouts;
         let m = k - hp.first_updating_rollout();
-        let hp_weighting = hp.weighting;
+        let per_step_len = match hp.weighting {
+            Weighting::PerTimeStep { .. } => steps,
+            Weighting::Episodic => 0,
+        };
         let kernel = if dim == 2 {
             CovarianceKernel::Closed2
         } else if dim <= m {
@@ -220,10 +227,10 @@ impl UpdateRule {
             kernel,
             eps: vec![0.0; m * dim],
             cost_to_go: vec![0.0; m],
-            step_costs: match hp_weighting {
-                Weighting::PerTimeStep { .. } => vec![0.0; steps * m],
-                Weighting::Episodic => Vec::new(),
-            },
+            totals: vec![0.0; k],
+            step_costs: vec![0.0; per_step_len * m],
+            step_probs: vec![0.0; per_step_len * m],
+            step_scratch: vec![0.0; 3 * per_step_len],
             sqrt_probs: vec![0.0; m],
             factor: DMatrix::zeros(m, m),
             probs: vec![0.0; m],
@@ -292,9 +299,8 @@ impl UpdateRule {
 
         match self.hp.weighting {
             Weighting::Episodic => {
-                for (r, k) in (first..k_all).enumerate() {
-                    self.cost_to_go[r] = costs.total(k);
-                }
+                costs.totals_into(&mut self.totals);
+                self.cost_to_go.copy_from_slice(&self.totals[first..]);
                 self.hp
                     .mapping
                     .probabilities(&self.cost_to_go, &mut self.probs, &mut self.order);
@@ -304,38 +310,33 @@ impl UpdateRule {
                 }
             }
             Weighting::PerTimeStep { .. } => {
-                // S_{i,k} = φ_k + Σ_{j≥i} q_{j,k}, laid out by step so each step's K values
-                // are contiguous.
-                for (r, k) in (first..k_all).enumerate() {
-                    let q = costs.per_step(k);
-                    let mut acc = costs.terminal(k);
-                    for i in (0..n).rev() {
-                        acc += q[i];
-                        self.step_costs[i * m + r] = acc;
-                    }
+                self.step_probabilities(costs, first);
+                // Everything below works on whole rows of N steps at a time: the loops run over
+                // time steps, which vectorise, instead of over K rollouts per step.
+                let (probs, temporal) = (&self.step_probs, &self.temporal);
+                for r in 0..m {
+                    self.mean_weights[r] = dot(temporal, &probs[r * n..(r + 1) * n]);
                 }
-                for i in 0..n {
-                    self.hp.mapping.probabilities(
-                        &self.step_costs[i * m..(i + 1) * m],
-                        &mut self.probs,
-                        &mut self.order,
-                    );
-                    let w = self.temporal[i];
-                    for (a, pr) in self.mean_weights.iter_mut().zip(&self.probs) {
-                        *a += w * pr;
-                    }
-                    if let Some(bt) = &self.basis_temporal {
-                        let row = &bt[i * p..(i + 1) * p];
-                        for r in 0..m {
-                            let pr = self.probs[r];
+                if let Some(bt) = &self.basis_temporal {
+                    for r in 0..m {
+                        let pr = &probs[r * n..(r + 1) * n];
+                        for (i, &pri) in pr.iter().enumerate() {
+                            let row = &bt[i * p..(i + 1) * p];
                             for j in 0..p {
-                                self.basis_weights[r * p + j] += row[j] * pr;
+                                self.basis_weights[r * p + j] += row[j] * pri;
                             }
                         }
                     }
-                    if let Some(bounds) = adaptive {
-                        if !unbounded {
-                            self.accumulate_covariance(w, bounds, false);
+                }
+                if let Some(bounds) = adaptive.filter(|_| !unbounded) {
+                    if self.kernel == CovarianceKernel::Closed2 {
+                        self.closed2_per_step(bounds);
+                    } else {
+                        for i in 0..n {
+                            for r in 0..m {
+                                self.probs[r] = self.step_probs[r * n + i];
+                            }
+                            self.accumulate_covariance(self.temporal[i], bounds, false);
                         }
                     }
                 }
@@ -376,6 +377,113 @@ impl UpdateRule {
             Distribution { mean, covariance },
             UpdateWeights { per_rollout },
         ))
+    }
+
+    /// P_{i,k} for every step, rollout-major (row r holds the N probabilities of rollout r).
+    fn step_probabilities(&mut self, costs: &CostBatch, first: usize) {
+        let n = self.steps;
+        let m = self.probs.len();
+        // S_{i,k} = φ_k + Σ_{j≥i} q_{j,k}: a suffix sum along each rollout, computed for all
+        // rollouts step by step so that the K addition chains run side by side.
+        for (r, k) in (first..self.hp.rollouts).enumerate() {
+            self.cost_to_go[r] = costs.terminal(k);
+        }
+        for i in (0..n).rev() {
+            for (r, k) in (first..self.hp.rollouts).enumerate() {
+                self.cost_to_go[r] += costs.per_step(k)[i];
+                self.step_costs[r * n + i] = self.cost_to_go[r];
+            }
+        }
+        match self.hp.mapping {
+            CostMapping::Exponential { eliteness } => {
+                let (lo, hi) = self.step_scratch.split_at_mut(n);
+                let hi = &mut hi[..n];
+                lo.copy_from_slice(&self.step_costs[..n]);
+                hi.copy_from_slice(&self.step_costs[..n]);
+                for r in 1..m {
+                    let row = &self.step_costs[r * n..(r + 1) * n];
+                    for i in 0..n {
+                        lo[i] = lo[i].min(row[i]);
+                        hi[i] = hi[i].max(row[i]);
+                    }
+                }
+                // hi becomes the scale −h/(max − min); 0 when all costs of a step are equal,
+                // which makes every exponent 0 and the weights uniform.
+                for i in 0..n {
+                    let range = hi[i] - lo[i];
+                    hi[i] = if range > 0.0 { -eliteness / range } else { 0.0 };
+                }
+                for r in 0..m {
+                    let (s, pr) = (
+                        &self.step_costs[r * n..(r + 1) * n],
+                        &mut self.step_probs[r * n..(r + 1) * n],
+                    );
+                    for i in 0..n {
+                        pr[i] = exp_nonpositive((s[i] - lo[i]) * hi[i]);
+                    }
+                }
+                let z = &mut self.step_scratch[..n];
+                z.copy_from_slice(&self.step_probs[..n]);
+                for r in 1..m {
+                    for (z, e) in z.iter_mut().zip(&self.step_probs[r * n..(r + 1) * n]) {
+                        *z += e;
+                    }
+                }
+                for zi in z.iter_mut() {
+                    *zi = 1.0 / *zi;
+                }
+                for r in 0..m {
+                    for (pr, inv) in self.step_probs[r * n..(r + 1) * n].iter_mut().zip(&*z) {
+                        *pr *= inv;
+                    }
+                }
+            }
+            CostMapping::Elites { .. } => {
+                for i in 0..n {
+                    for r in 0..m {
+                        self.cost_to_go[r] = self.step_costs[r * n + i];
+                    }
+                    self.hp.mapping.probabilities(
+                        &self.cost_to_go,
+                        &mut self.probs,
+                        &mut self.order,
+                    );
+                    for r in 0..m {
+                        self.step_probs[r * n + i] = self.probs[r];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Per-time-step PI²-CMA covariance for P = 2, vectorised over the N steps: Σ_i per step,
+    /// boundcovar in closed form, then the temporal average.
+    fn closed2_per_step(&mut self, bounds: EigenvalueBounds) {
+        let n = self.steps;
+        let m = self.probs.len();
+        let (a, rest) = self.step_scratch.split_at_mut(n);
+        let (b, c) = rest.split_at_mut(n);
+        let c = &mut c[..n];
+        a.fill(0.0);
+        b.fill(0.0);
+        c.fill(0.0);
+        for r in 0..m {
+            let (x, y) = (self.eps[2 * r], self.eps[2 * r + 1]);
+            let (xx, xy, yy) = (x * x, x * y, y * y);
+            let pr = &self.step_probs[r * n..(r + 1) * n];
+            for i in 0..n {
+                a[i] += pr[i] * xx;
+                b[i] += pr[i] * xy;
+                c[i] += pr[i] * yy;
+            }
+        }
+        for i in 0..n {
+            (a[i], b[i], c[i]) = boundcovar2_interpolated(a[i], b[i], c[i], bounds);
+        }
+        let w = &self.temporal;
+        self.cov_acc[(0, 0)] = dot(w, a);
+        self.cov_acc[(0, 1)] = dot(w, b);
+        self.cov_acc[(1, 1)] = dot(w, c);
     }
 
     fn compute_gram(&mut self, m: usize) {
@@ -518,4 +626,22 @@ impl UpdateRule {
             }
         }
     }
+}
+
+/// Σ a_i·b_i with four accumulators, so the reduction pipelines.
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut acc = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..4 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    let mut tail = 0.0;
+    for (x, y) in ra.iter().zip(rb) {
+        tail += x * y;
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
 }

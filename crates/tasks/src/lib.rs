@@ -306,11 +306,9 @@ impl Task for ViaPoint {
 
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
         let inv_n = 1.0 / self.affine.steps() as f64;
-        let (base, phi) = self.affine.acceleration_terms(0);
-        let b = self.affine.basis();
-        for ((q, base), phi) in per_step.iter_mut().zip(base).zip(phi.chunks_exact(b)) {
-            let a = base + phi.iter().zip(theta).map(|(p, t)| p * t).sum::<f64>();
-            *q = a * a * inv_n;
+        self.affine.accelerations_into(0, theta, per_step);
+        for q in per_step.iter_mut() {
+            *q = *q * *q * inv_n;
         }
         let x = self.affine.position(self.viapoint_step, 0, theta);
         per_step[self.viapoint_step] += self.viapoint_weight * (x - self.viapoint).abs();
