@@ -339,3 +339,60 @@ fn summary_reports_eval_and_exploration_statistics() {
     assert!((s.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
     assert_eq!(opt.update_index(), 1);
 }
+
+/// With the same activation for every parameter, the original PI²'s per-parameter temporal
+/// weights reduce to Algorithm 1's (N − i) weights; with an activation that is zero after step 0
+/// a parameter only sees the first step's probabilities.
+#[test]
+fn basis_activation_averaging() {
+    let (k, n, p) = (4, 5, 2);
+    let mk = |temporal| {
+        hp(
+            k,
+            CostMapping::Exponential { eliteness: 5.0 },
+            Exploration::Constant,
+            Weighting::PerTimeStep { temporal },
+        )
+    };
+    let samples = [0.0, 0.0, 1.0, -1.0, 0.5, 2.0, -1.0, 0.25];
+    let mut costs = CostBatch::new(k, n);
+    for kk in 0..k {
+        let q: Vec<f64> = (0..n).map(|i| ((kk * 7 + i * 3) % 5) as f64).collect();
+        costs.insert(kk, &q, kk as f64).unwrap();
+    }
+    let old = Distribution::isotropic(DVector::zeros(p), 1.0).unwrap();
+    let uniform = vec![0.5; n * p];
+    let mut a = UpdateRule::new(mk(TemporalAveraging::RemainingSteps), p, n, None).unwrap();
+    let mut b =
+        UpdateRule::new(mk(TemporalAveraging::BasisActivation), p, n, Some(&uniform)).unwrap();
+    let (da, _) = a.update(&old, &samples, &costs).unwrap();
+    let (db, _) = b.update(&old, &samples, &costs).unwrap();
+    assert!((&da.mean - &db.mean).amax() < 1e-14);
+
+    // Parameter 1 active only at step 0: its update uses step 0's probabilities alone.
+    let mut first_only = vec![1.0; n * p];
+    for i in 1..n {
+        first_only[i * p + 1] = 0.0;
+    }
+    let mut c = UpdateRule::new(
+        mk(TemporalAveraging::BasisActivation),
+        p,
+        n,
+        Some(&first_only),
+    )
+    .unwrap();
+    let (dc, _) = c.update(&old, &samples, &costs).unwrap();
+    let s0: Vec<f64> = (0..k).map(|kk| costs.total(kk)).collect();
+    let mut probs = vec![0.0; k];
+    let mut order = vec![0; k];
+    CostMapping::Exponential { eliteness: 5.0 }.probabilities(&s0, &mut probs, &mut order);
+    let expect: f64 = (0..k).map(|kk| probs[kk] * samples[kk * p + 1]).sum();
+    assert!(
+        (dc.mean[1] - expect).abs() < 1e-14,
+        "{} vs {expect}",
+        dc.mean[1]
+    );
+
+    // Without activations the option is refused, not silently ignored.
+    assert!(UpdateRule::new(mk(TemporalAveraging::BasisActivation), p, n, None).is_err());
+}

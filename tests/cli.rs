@@ -1,0 +1,112 @@
+//! End-to-end tests of the `pi2cma` binary: the quick-start run, the paper configs, and the
+//! errors a user sees for bad input. (Wired in as an integration test of crates/pi2cma-cli.)
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn pi2cma(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("pi2cma starts")
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("pi2cma-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+#[test]
+fn default_run_prints_progress_and_saves_results() {
+    let d = scratch("run");
+    let out = pi2cma(&["run", "--out", "res"], &d);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("update  40/40"), "{stdout}");
+    assert!(stdout.contains("task change viapoint = 0.1"), "{stdout}");
+    for f in ["updates.csv", "mean_curves.csv", "fig2.svg", "summary.md"] {
+        let p = d.join("res").join(f);
+        assert!(
+            p.metadata().map(|m| m.len() > 100).unwrap_or(false),
+            "{} missing",
+            p.display()
+        );
+    }
+    let csv = std::fs::read_to_string(d.join("res/updates.csv")).expect("csv");
+    assert_eq!(csv.lines().count(), 41, "header + 40 updates");
+    assert!(csv
+        .lines()
+        .nth(1)
+        .is_some_and(|l| l.starts_with("A1,episodic,0,1,0,")));
+}
+
+#[test]
+fn every_paper_config_is_valid() {
+    let configs: Vec<String> = ["C1", "C2", "C3", "D", "A1", "A2", "A3", "A4"]
+        .iter()
+        .map(|c| {
+            repo()
+                .join(format!("config/{c}.toml"))
+                .display()
+                .to_string()
+        })
+        .collect();
+    let mut args = vec!["check"];
+    args.extend(configs.iter().map(String::as_str));
+    let out = pi2cma(&args, &repo());
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).matches(": ok").count(),
+        8
+    );
+}
+
+#[test]
+fn bad_config_names_file_field_and_value() {
+    let d = scratch("bad");
+    let text = session::DEFAULT_CONFIG.replace("lambda_min = 2.0", "lambda_min = -3.0");
+    std::fs::write(d.join("bad.toml"), text).expect("write");
+    let out = pi2cma(&["run", "bad.toml"], &d);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bad.toml") && err.contains("lambda_min") && err.contains("-3"),
+        "{err}"
+    );
+
+    let text = session::DEFAULT_CONFIG.replace("[run]", "[run]\nsedd = 4");
+    std::fs::write(d.join("typo.toml"), text).expect("write");
+    let out = pi2cma(&["run", "typo.toml"], &d);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("typo.toml") && err.contains("unknown field `sedd`"),
+        "{err}"
+    );
+
+    let out = pi2cma(&["run", "missing.toml"], &d);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.toml"));
+}
+
+#[test]
+fn unknown_option_is_rejected() {
+    let out = pi2cma(&["run", "--lambda-min", "3"], &repo());
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--lambda-min"));
+}
