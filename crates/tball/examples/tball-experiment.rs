@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run --release -p tball --example tball-experiment -- \
-//!     [--config config/tball.toml] [--sessions 10] [--out runs/tball]
+//!     [--config config/tball.toml] [--sessions 10] [--out runs/tball] [--weighting per-time-step]
 //! ```
 //!
 //! Updates are numbered from 1 in the output, as in the paper: "after 20 updates" is update 20,
@@ -15,7 +15,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
-use session::{Observer, RunConfig, TaskSection, UpdateRecord};
+use session::{Observer, RunConfig, TaskSection, UpdateRecord, WeightingName};
 use tasks::Task;
 use tball::{Tball, Trace};
 
@@ -68,6 +68,8 @@ struct Args {
     config: PathBuf,
     sessions: u64,
     out: PathBuf,
+    /// Overrides `optimizer.weighting`, to compare the two modes on the same run.
+    weighting: Option<WeightingName>,
 }
 
 fn parse_args() -> Res<Args> {
@@ -75,6 +77,7 @@ fn parse_args() -> Res<Args> {
         config: PathBuf::from("config/tball.toml"),
         sessions: 10,
         out: PathBuf::from("runs/tball"),
+        weighting: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -83,7 +86,21 @@ fn parse_args() -> Res<Args> {
             "--config" => args.config = value.into(),
             "--sessions" => args.sessions = value.parse()?,
             "--out" => args.out = value.into(),
-            _ => return Err(format!("unknown option {flag} (--config, --sessions, --out)").into()),
+            "--weighting" => {
+                args.weighting = Some(match value.as_str() {
+                    "episodic" => WeightingName::Episodic,
+                    "per-time-step" => WeightingName::PerTimeStep,
+                    _ => {
+                        return Err(format!("--weighting {value}: episodic or per-time-step").into())
+                    }
+                })
+            }
+            _ => {
+                return Err(format!(
+                    "unknown option {flag} (--config, --sessions, --out, --weighting)"
+                )
+                .into())
+            }
         }
     }
     if args.sessions == 0 {
@@ -103,7 +120,17 @@ fn geometric_mean(v: impl Iterator<Item = f64>) -> f64 {
 
 fn main() -> Res<()> {
     let args = parse_args()?;
-    let cfg = RunConfig::load(&args.config)?;
+    let mut cfg = RunConfig::load(&args.config)?;
+    if let Some(w) = args.weighting {
+        cfg.optimizer.weighting = w;
+        cfg.validate()?;
+    }
+    println!(
+        "{}: {} sessions, weighting {:?}",
+        args.config.display(),
+        args.sessions,
+        cfg.optimizer.weighting
+    );
     let TaskSection::Tball(task_cfg) = &cfg.task else {
         return Err(format!("{}: not a [task.tball] config", args.config.display()).into());
     };
