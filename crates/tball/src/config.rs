@@ -85,7 +85,7 @@ impl Default for TballConfig {
             target_y_max: -1.0,
             acceleration_weight: 0.01,
             miss_cost: 2.0,
-            miss_gap_weight: 10.0,
+            miss_gap_weight: 100.0,
             rollout_delay_ms: 0.0,
         }
     }

@@ -476,7 +476,7 @@ mod tests {
             .map(|(&g, &p)| closest_on_segment(g, p, ball).1 - reach)
             .fold(f64::INFINITY, f64::min);
         assert!(gap > 1.0);
-        let expected = 2.0 + 10.0 * gap;
+        let expected = 2.0 + 100.0 * gap;
         assert!((trace.outcome.terminal_cost - expected).abs() < 1e-9);
         assert!(trace.outcome.terminal_cost.is_finite());
     }
