@@ -397,6 +397,12 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
             path.iter().map(|p| (p[1], p[2])),
             BLUE.stroke_width(2),
         ))?;
+        // The ball on the tee before the swing.
+        c.draw_series(std::iter::once(Circle::new(
+            (ball[1], ball[2]),
+            3,
+            BLUE.filled(),
+        )))?;
         let label = match trace.outcome.hit {
             Some(h) => format!("lands y = {:.2}", h.landing[1]),
             None => "miss".into(),
