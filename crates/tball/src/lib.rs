@@ -12,9 +12,10 @@
 //! What it is not: a dynamics simulator. No joint torques, no tracking error, no bat–tee or
 //! bat–ground collisions, no ball spin in flight, no air drag, and only one impact per swing.
 //! Absolute costs and landing points therefore differ from the paper's (whose contact parameters
-//! were never published); the shapes of the learning curves are what is comparable. Near a
-//! clean hit this model agreed with a rapier3d simulation within about 1 cm; for glancing hits
-//! (ball squeezed between bat and tee) full simulators disagree with each other by decimetres.
+//! were never published); the shapes of the learning curves are what is comparable. Earlier
+//! builds of this task (project notes, not re-checked here) found an analytic model like this one
+//! within about 1 cm of a rapier3d simulation near clean hits, and decimetres apart for glancing
+//! hits where the ball is squeezed between bat and tee.
 //!
 //! Geometry, contact parameters and the cost are all keys of [`TballConfig`] (`[task.tball]` in a
 //! run config). The cost per step is `acceleration_weight·Σ_d ä_d²/N` (Eq. 4); the terminal cost
