@@ -334,9 +334,8 @@ impl Dmp {
         let svd = phi.clone().svd(true, true);
         let mut w = vec![0.0; dims * b];
         for d in 0..dims {
-            let rhs = DVector::from_fn(n, |i, _| {
-                target.pos[i * dims + d] - aff.base_pos[d * n + i]
-            });
+            let rhs =
+                DVector::from_fn(n, |i, _| target.pos[i * dims + d] - aff.base_pos[d * n + i]);
             let sol = svd
                 .solve(&rhs, 1e-12)
                 .expect("SVD was computed with both U and V");
@@ -397,13 +396,12 @@ impl AffineDmp {
     #[inline]
     fn eval_all(&self, base: &[f64], phi: &[f64], d: usize, weights: &[f64], out: &mut [f64]) {
         let (n, b) = (self.steps, self.basis);
-        out.copy_from_slice(&base[d * n..(d + 1) * n]);
-        for k in 0..b {
-            let w = weights[d * b + k];
-            for (o, p) in out.iter_mut().zip(&phi[k * n..(k + 1) * n]) {
-                *o += p * w;
-            }
-        }
+        affine_rows(
+            &base[d * n..(d + 1) * n],
+            &phi[..b * n],
+            &weights[d * b..(d + 1) * b],
+            out,
+        );
     }
 
     #[inline]
@@ -452,6 +450,20 @@ impl AffineDmp {
         let mut t = Trajectory::zeros(self.steps, self.dims, self.dt);
         self.rollout_into(weights, &mut t);
         t
+    }
+}
+
+/// out = base + Σ_k w_k·φ_k over rows of N values; compiled for several instruction sets and
+/// chosen at run time (element-wise IEEE operations in a fixed order: every variant gives the
+/// same bits).
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+fn affine_rows(base: &[f64], phi: &[f64], weights: &[f64], out: &mut [f64]) {
+    let n = base.len();
+    out.copy_from_slice(base);
+    for (k, &w) in weights.iter().enumerate() {
+        for (o, p) in out.iter_mut().zip(&phi[k * n..(k + 1) * n]) {
+            *o += p * w;
+        }
     }
 }
 

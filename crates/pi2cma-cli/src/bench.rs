@@ -47,7 +47,7 @@ fn measure(label: &str, groups: usize, inner: usize, mut f: impl FnMut()) -> Mea
 
 /// One full via-point update: ask (sampling), 16 rollouts (the evaluation rollout and 15
 /// exploration rollouts, N = 101, P = 2) and tell, with the A1 settings.
-pub fn viapoint_update(weighting: WeightingName) -> Measurement {
+pub fn viapoint_update(weighting: WeightingName, groups: usize) -> Measurement {
     let mut cfg = RunConfig::default_config();
     cfg.optimizer.rollouts = 16;
     cfg.optimizer.weighting = weighting;
@@ -57,7 +57,7 @@ pub fn viapoint_update(weighting: WeightingName) -> Measurement {
     let mut costs = opt.cost_batch();
     let label =
         format!("via-point full update (16 rollouts + update, N = 101, P = 2), {weighting:?}");
-    measure(&label, 200, 500, || {
+    measure(&label, groups, 500, || {
         let batch = opt.ask();
         costs.clear();
         for k in 0..batch.rollouts {
@@ -107,22 +107,34 @@ pub fn large_update(weighting: Weighting, groups: usize) -> Measurement {
     })
 }
 
-/// Runs the benchmarks whose name contains `filter` ("" for all).
+/// Runs the benchmarks whose name (via-point/per-time-step, via-point/episodic,
+/// large/per-time-step, large/episodic) contains `filter` ("" for all).
 pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
     let per_step = Weighting::PerTimeStep {
         temporal: TemporalAveraging::RemainingSteps,
     };
-    let mut out = Vec::new();
-    if "via-point".contains(filter) {
-        out.push(viapoint_update(WeightingName::PerTimeStep));
-        out.push(viapoint_update(WeightingName::Episodic));
-    }
-    if "large".contains(filter) {
-        out.push(large_update(per_step, if quick { 3 } else { 11 }));
-        out.push(large_update(
-            Weighting::Episodic,
-            if quick { 11 } else { 101 },
-        ));
-    }
-    out
+    let groups = if quick { 4 } else { 200 };
+    let cases: [(&str, Box<dyn Fn() -> Measurement>); 4] = [
+        (
+            "via-point/per-time-step",
+            Box::new(move || viapoint_update(WeightingName::PerTimeStep, groups)),
+        ),
+        (
+            "via-point/episodic",
+            Box::new(move || viapoint_update(WeightingName::Episodic, groups)),
+        ),
+        (
+            "large/per-time-step",
+            Box::new(move || large_update(per_step, if quick { 3 } else { 11 })),
+        ),
+        (
+            "large/episodic",
+            Box::new(move || large_update(Weighting::Episodic, if quick { 11 } else { 101 })),
+        ),
+    ];
+    cases
+        .iter()
+        .filter(|(name, _)| name.contains(filter))
+        .map(|(_, run)| run())
+        .collect()
 }

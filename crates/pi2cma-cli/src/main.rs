@@ -63,7 +63,8 @@ enum Command {
         /// Fewer repetitions of the slow large-policy case.
         #[arg(long)]
         quick: bool,
-        /// Only the cases named "via-point" or "large".
+        /// Only the cases whose name contains this (via-point/per-time-step, via-point/episodic,
+        /// large/per-time-step, large/episodic).
         #[arg(long, default_value = "")]
         only: String,
     },

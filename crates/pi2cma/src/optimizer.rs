@@ -152,9 +152,7 @@ impl Optimizer {
         self.ask();
         let batch = self.batch.as_ref().expect("ask() fills the batch");
         let (new, weights) = self.rule.update(&self.distribution, &batch.values, costs)?;
-        let k = costs.rollouts();
-        let mut totals = vec![0.0; k];
-        costs.totals_into(&mut totals);
+        let totals = &weights.totals;
         let eval_cost = totals[0];
         let explore = &totals[1..];
         let mean = explore.iter().sum::<f64>() / explore.len().max(1) as f64;

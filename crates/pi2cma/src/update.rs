@@ -137,6 +137,8 @@ pub struct UpdateRule {
 /// What one call of [`UpdateRule::update`] returns besides the new distribution.
 #[derive(Debug, Clone, PartialEq)]
 pub struct UpdateWeights {
+    /// Per rollout (K entries): the total cost S_0.
+    pub totals: Vec<f64>,
     /// Per rollout (K entries): the probability with which it entered the mean update, averaged
     /// over time steps in per-time-step mode; 0 for an evaluation rollout left out of the update.
     pub per_rollout: Vec<f64>,
@@ -273,7 +275,15 @@ impl UpdateRule {
                 got_steps: costs.steps(),
             });
         }
-        costs.validate_filled()?;
+        if let Some(k) = costs.missing().next() {
+            return Err(CostError::Missing { rollout: k });
+        }
+        // One pass over the costs: NaN and ±∞ survive summation, so finite totals prove every
+        // value finite; only otherwise look for the culprit to name it.
+        costs.totals_into(&mut self.totals);
+        if !self.totals.iter().all(|t| t.is_finite()) {
+            costs.validate_filled()?;
+        }
         assert_eq!(samples.len(), k_all * p, "sample batch has the wrong shape");
         assert_eq!(old.dim(), p, "distribution has the wrong dimension");
         let first = self.hp.first_updating_rollout();
@@ -290,16 +300,19 @@ impl UpdateRule {
         };
         let unbounded = adaptive.is_some_and(|b| b.min == 0.0 && b.max == f64::INFINITY);
         self.mean_weights.fill(0.0);
-        self.basis_weights.fill(0.0);
+        if self.basis_temporal.is_some() {
+            self.basis_weights.fill(0.0);
+        }
         self.cov_acc.fill(0.0);
-        self.lowrank_acc.fill(0.0);
+        if self.kernel == CovarianceKernel::LowRank {
+            self.lowrank_acc.fill(0.0);
+        }
         if self.kernel == CovarianceKernel::LowRank && adaptive.is_some() {
             self.compute_gram(m);
         }
 
         match self.hp.weighting {
             Weighting::Episodic => {
-                costs.totals_into(&mut self.totals);
                 self.cost_to_go.copy_from_slice(&self.totals[first..]);
                 self.hp
                     .mapping
@@ -375,7 +388,10 @@ impl UpdateRule {
         per_rollout[first..].copy_from_slice(&self.mean_weights);
         Ok((
             Distribution { mean, covariance },
-            UpdateWeights { per_rollout },
+            UpdateWeights {
+                per_rollout,
+                totals: self.totals.clone(),
+            },
         ))
     }
 
@@ -383,61 +399,56 @@ impl UpdateRule {
     fn step_probabilities(&mut self, costs: &CostBatch, first: usize) {
         let n = self.steps;
         let m = self.probs.len();
-        // S_{i,k} = φ_k + Σ_{j≥i} q_{j,k}: a suffix sum along each rollout, computed for all
-        // rollouts step by step so that the K addition chains run side by side.
-        for (r, k) in (first..self.hp.rollouts).enumerate() {
-            self.cost_to_go[r] = costs.terminal(k);
-        }
-        for i in (0..n).rev() {
-            for (r, k) in (first..self.hp.rollouts).enumerate() {
-                self.cost_to_go[r] += costs.per_step(k)[i];
-                self.step_costs[r * n + i] = self.cost_to_go[r];
+        // S_{i,k} = φ_k + Σ_{j≥i} q_{j,k}: a suffix sum along each rollout. Four rollouts at a
+        // time, so that four independent addition chains share the pipeline.
+        let rows: Vec<usize> = (first..self.hp.rollouts).collect();
+        for (block, ks) in rows.chunks(4).enumerate() {
+            let r0 = block * 4;
+            if let [k0, k1, k2, k3] = *ks {
+                let q = [
+                    costs.per_step(k0),
+                    costs.per_step(k1),
+                    costs.per_step(k2),
+                    costs.per_step(k3),
+                ];
+                let mut acc = [
+                    costs.terminal(k0),
+                    costs.terminal(k1),
+                    costs.terminal(k2),
+                    costs.terminal(k3),
+                ];
+                let (s0, rest) = self.step_costs[r0 * n..(r0 + 4) * n].split_at_mut(n);
+                let (s1, rest) = rest.split_at_mut(n);
+                let (s2, s3) = rest.split_at_mut(n);
+                for i in (0..n).rev() {
+                    for l in 0..4 {
+                        acc[l] += q[l][i];
+                    }
+                    s0[i] = acc[0];
+                    s1[i] = acc[1];
+                    s2[i] = acc[2];
+                    s3[i] = acc[3];
+                }
+            } else {
+                for (l, &k) in ks.iter().enumerate() {
+                    let q = costs.per_step(k);
+                    let row = &mut self.step_costs[(r0 + l) * n..(r0 + l + 1) * n];
+                    let mut acc = costs.terminal(k);
+                    for i in (0..n).rev() {
+                        acc += q[i];
+                        row[i] = acc;
+                    }
+                }
             }
         }
         match self.hp.mapping {
-            CostMapping::Exponential { eliteness } => {
-                let (lo, hi) = self.step_scratch.split_at_mut(n);
-                let hi = &mut hi[..n];
-                lo.copy_from_slice(&self.step_costs[..n]);
-                hi.copy_from_slice(&self.step_costs[..n]);
-                for r in 1..m {
-                    let row = &self.step_costs[r * n..(r + 1) * n];
-                    for i in 0..n {
-                        lo[i] = lo[i].min(row[i]);
-                        hi[i] = hi[i].max(row[i]);
-                    }
-                }
-                // hi becomes the scale −h/(max − min); 0 when all costs of a step are equal,
-                // which makes every exponent 0 and the weights uniform.
-                for i in 0..n {
-                    let range = hi[i] - lo[i];
-                    hi[i] = if range > 0.0 { -eliteness / range } else { 0.0 };
-                }
-                for r in 0..m {
-                    let (s, pr) = (
-                        &self.step_costs[r * n..(r + 1) * n],
-                        &mut self.step_probs[r * n..(r + 1) * n],
-                    );
-                    for i in 0..n {
-                        pr[i] = exp_nonpositive((s[i] - lo[i]) * hi[i]);
-                    }
-                }
-                let z = &mut self.step_scratch[..n];
-                z.copy_from_slice(&self.step_probs[..n]);
-                for r in 1..m {
-                    for (z, e) in z.iter_mut().zip(&self.step_probs[r * n..(r + 1) * n]) {
-                        *z += e;
-                    }
-                }
-                for zi in z.iter_mut() {
-                    *zi = 1.0 / *zi;
-                }
-                for r in 0..m {
-                    for (pr, inv) in self.step_probs[r * n..(r + 1) * n].iter_mut().zip(&*z) {
-                        *pr *= inv;
-                    }
-                }
-            }
+            CostMapping::Exponential { eliteness } => exponential_rows(
+                &self.step_costs[..m * n],
+                n,
+                eliteness,
+                &mut self.step_probs[..m * n],
+                &mut self.step_scratch[..2 * n],
+            ),
             CostMapping::Elites { .. } => {
                 for i in 0..n {
                     for r in 0..m {
@@ -467,19 +478,7 @@ impl UpdateRule {
         a.fill(0.0);
         b.fill(0.0);
         c.fill(0.0);
-        for r in 0..m {
-            let (x, y) = (self.eps[2 * r], self.eps[2 * r + 1]);
-            let (xx, xy, yy) = (x * x, x * y, y * y);
-            let pr = &self.step_probs[r * n..(r + 1) * n];
-            for i in 0..n {
-                a[i] += pr[i] * xx;
-                b[i] += pr[i] * xy;
-                c[i] += pr[i] * yy;
-            }
-        }
-        for i in 0..n {
-            (a[i], b[i], c[i]) = boundcovar2_interpolated(a[i], b[i], c[i], bounds);
-        }
+        closed2_rows(&self.eps, &self.step_probs[..m * n], bounds, a, b, c);
         let w = &self.temporal;
         self.cov_acc[(0, 0)] = dot(w, a);
         self.cov_acc[(0, 1)] = dot(w, b);
@@ -625,6 +624,85 @@ impl UpdateRule {
                 s
             }
         }
+    }
+}
+
+/// The per-time-step PI² probabilities of K rollouts (rows of N cost-to-go values in `costs`)
+/// into `probs`, same layout. Compiled for several instruction sets and chosen at run time: the
+/// exponentials dominate a per-time-step update. Only element-wise IEEE operations in a fixed
+/// order, so every variant gives the same bits.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+fn exponential_rows(
+    costs: &[f64],
+    n: usize,
+    eliteness: f64,
+    probs: &mut [f64],
+    scratch: &mut [f64],
+) {
+    let m = costs.len() / n;
+    let (lo, hi) = scratch.split_at_mut(n);
+    lo.copy_from_slice(&costs[..n]);
+    hi.copy_from_slice(&costs[..n]);
+    for r in 1..m {
+        let row = &costs[r * n..(r + 1) * n];
+        for i in 0..n {
+            lo[i] = lo[i].min(row[i]);
+            hi[i] = hi[i].max(row[i]);
+        }
+    }
+    // hi becomes the scale −h/(max − min); 0 when all costs of a step are equal, which makes
+    // every exponent 0 and the weights uniform.
+    for i in 0..n {
+        let range = hi[i] - lo[i];
+        hi[i] = if range > 0.0 { -eliteness / range } else { 0.0 };
+    }
+    for r in 0..m {
+        let (s, pr) = (&costs[r * n..(r + 1) * n], &mut probs[r * n..(r + 1) * n]);
+        for i in 0..n {
+            pr[i] = exp_nonpositive((s[i] - lo[i]) * hi[i]);
+        }
+    }
+    // lo is free again: it becomes 1/Σ_k E_ik.
+    lo.copy_from_slice(&probs[..n]);
+    for r in 1..m {
+        for (z, e) in lo.iter_mut().zip(&probs[r * n..(r + 1) * n]) {
+            *z += e;
+        }
+    }
+    for z in lo.iter_mut() {
+        *z = 1.0 / *z;
+    }
+    for r in 0..m {
+        for (pr, inv) in probs[r * n..(r + 1) * n].iter_mut().zip(&*lo) {
+            *pr *= inv;
+        }
+    }
+}
+
+/// Per-step 2×2 covariances Σ_i = Σ_k P_ik ε_k ε_kᵀ, bounded, as rows (a, b, c) over the steps.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+fn closed2_rows(
+    eps: &[f64],
+    probs: &[f64],
+    bounds: EigenvalueBounds,
+    a: &mut [f64],
+    b: &mut [f64],
+    c: &mut [f64],
+) {
+    let n = a.len();
+    let m = probs.len() / n;
+    for r in 0..m {
+        let (x, y) = (eps[2 * r], eps[2 * r + 1]);
+        let (xx, xy, yy) = (x * x, x * y, y * y);
+        let pr = &probs[r * n..(r + 1) * n];
+        for i in 0..n {
+            a[i] += pr[i] * xx;
+            b[i] += pr[i] * xy;
+            c[i] += pr[i] * yy;
+        }
+    }
+    for i in 0..n {
+        (a[i], b[i], c[i]) = boundcovar2_interpolated(a[i], b[i], c[i], bounds);
     }
 }
 
