@@ -167,6 +167,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             match m.kind {
                 Control::START if started.is_none() => {
                     started = Some(Instant::now());
+                    last_progress = Instant::now();
                     publish(&optimizer, &task.settings(), 0)?;
                 }
                 Control::SET_TASK => {
@@ -249,7 +250,10 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             )?;
         }
         publish(&optimizer, &task.settings(), 0)?;
-        if last_progress.elapsed() >= PROGRESS_INTERVAL {
+        // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
+        // their progress too).
+        let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);
+        if tenth || last_progress.elapsed() >= PROGRESS_INTERVAL {
             last_progress = Instant::now();
             report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
         }

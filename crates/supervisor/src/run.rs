@@ -676,10 +676,17 @@ impl Supervisor {
                 self.rate = p.updates as f64 / (p.elapsed_ns as f64 * 1e-9);
             }
             self.progress = Some(p);
-            let due = self
-                .last_shown
-                .is_none_or(|t| t.elapsed() >= Duration::from_secs(1));
-            if !self.quiet && due && p.flags & Progress::FINAL == 0 {
+            // At most one line a second, plus one at every tenth of a bounded run.
+            let tenth = self
+                .cfg
+                .run
+                .updates
+                .is_some_and(|n| p.updates % (n / 10).max(1) == 0);
+            let due = tenth
+                || self
+                    .last_shown
+                    .is_none_or(|t| t.elapsed() >= Duration::from_secs(1));
+            if !self.quiet && due {
                 self.last_shown = Some(Instant::now());
                 say(&self.progress_line());
             }

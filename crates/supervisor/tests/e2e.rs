@@ -331,6 +331,37 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
 }
 
 #[test]
+fn exhausted_restart_limit_stops_the_run_with_the_reason() {
+    let scratch = Scratch::new("limit");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+        ("max_workers = 16", "max_workers = 16\nrestart_limit = 0"),
+    ]);
+    let cfg = write_config(&scratch, "limit.toml", &text);
+    let mut run = Run::start(&scratch, 150, &[cfg.to_str().unwrap(), "--quiet"]);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let pids = pids_in(&status);
+    let (_, victim) = pids.iter().find(|(n, _)| n == "worker-2").unwrap();
+    let killed = Command::new("kill")
+        .args(["-9", &victim.to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let exit = run.wait(Duration::from_secs(20));
+    assert_eq!(exit.code(), Some(1), "{}", run.text());
+    let out = run.text();
+    assert!(
+        out.contains("worker-2 died") && out.contains("restart limit"),
+        "{out}"
+    );
+    for (name, pid) in pids {
+        assert!(!alive(pid), "{name} (pid {pid}) survived");
+    }
+    assert_nothing_left(&run);
+}
+
+#[test]
 fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     let scratch = Scratch::new("scale");
     let text = config(&[
