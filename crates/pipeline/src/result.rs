@@ -15,7 +15,11 @@ pub struct RunResult {
     pub updates: u64,
     /// Whether the configured number of updates was reached (false: stopped early).
     pub complete: bool,
+    /// From the start to the end of the last update.
     pub elapsed_s: f64,
+    /// Of which the first update (includes connecting every port: a one-time cost).
+    #[serde(default)]
+    pub first_update_s: f64,
     /// Total cost of the evaluation rollout of the first and of the last update.
     pub first_eval_cost: f64,
     pub last_eval_cost: f64,
@@ -59,6 +63,12 @@ pub fn from_bits(bits: &[String]) -> anyhow::Result<Vec<f64>> {
 }
 
 impl RunResult {
+    /// Seconds per update after the first (steady state); `None` for fewer than 2 updates.
+    pub fn steady_s_per_update(&self) -> Option<f64> {
+        (self.updates >= 2)
+            .then(|| (self.elapsed_s - self.first_update_s) / (self.updates - 1) as f64)
+    }
+
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
         let text = toml::to_string(self).context("cannot encode result")?;
         let tmp = path.with_extension("tmp");

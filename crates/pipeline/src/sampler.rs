@@ -72,6 +72,10 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut current: Option<Current> = None;
     let mut next_chunk: u64 = 0;
     let mut finished = false;
+    // PI2CMA_TRACE=1: one line per distribution, request and chunk (µs since start).
+    let trace = std::env::var_os("PI2CMA_TRACE").is_some();
+    let t0 = std::time::Instant::now();
+    let us = || t0.elapsed().as_micros();
 
     wait_loop(&doorbell, || {
         // Lost workers: their unfinished rollouts go back to the queue.
@@ -116,6 +120,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 settings_len: h.settings_len,
             });
             pending = (0..k_total as u32).collect();
+            if trace {
+                eprintln!("{} dist {} idle {:?}", us(), h.update, idle);
+            }
         }
         if finished {
             pending.clear();
@@ -125,6 +132,14 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             let r = *msg.payload();
             if r.run_id != ctx.run_id {
                 continue;
+            }
+            if trace {
+                eprintln!(
+                    "{} ready w{} chunk {}",
+                    us(),
+                    r.worker,
+                    r.completed_chunk as i64
+                );
             }
             match workers.get_mut(&r.worker) {
                 Some(w) if r.incarnation < w.incarnation => {} // from a lost predecessor
@@ -210,6 +225,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 w.bell.notify_with_custom_event_id(wire::WAKE),
                 "notify worker",
             )?;
+            if trace {
+                eprintln!("{} chunk {chunk} -> w{id}: {:?}", us(), rollouts);
+            }
             w.assignment = Some(Assignment {
                 chunk,
                 update: cur.update,

@@ -78,6 +78,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut started: Option<Instant> = None;
     let mut last_progress = Instant::now();
     let mut first_eval = f64::NAN;
+    let mut first_done: Option<Instant> = None;
     let mut last_eval = f64::NAN;
     let mut recorded: Vec<RecordedChange> = Vec::new();
     let mut runtime: Vec<TaskChange> = Vec::new();
@@ -219,6 +220,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         batch.clear();
         if u == 0 {
             first_eval = summary.eval_cost;
+            first_done = Some(Instant::now());
         }
         last_eval = summary.eval_cost;
         let next = optimizer.update_index();
@@ -277,6 +279,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         updates: optimizer.update_index(),
         complete,
         elapsed_s: elapsed.as_secs_f64(),
+        first_update_s: first_done
+            .zip(started)
+            .map_or(0.0, |(f, s)| (f - s).as_secs_f64()),
         first_eval_cost: first_eval,
         last_eval_cost: last_eval,
         lambda: optimizer.lambda(),
