@@ -45,6 +45,7 @@ impl Drop for Scratch {
 struct Run {
     child: Child,
     output: Arc<Mutex<Vec<String>>>,
+    readers: Vec<std::thread::JoinHandle<()>>,
     run_id: String,
     runs: PathBuf,
 }
@@ -66,20 +67,22 @@ impl Run {
             .spawn()
             .unwrap();
         let output = Arc::new(Mutex::new(Vec::new()));
+        let mut readers = Vec::new();
         for stream in [
             Box::new(child.stdout.take().unwrap()) as Box<dyn std::io::Read + Send>,
             Box::new(child.stderr.take().unwrap()),
         ] {
             let out = output.clone();
-            std::thread::spawn(move || {
+            readers.push(std::thread::spawn(move || {
                 for line in BufReader::new(stream).lines().map_while(Result::ok) {
                     out.lock().unwrap().push(line);
                 }
-            });
+            }));
         }
         Self {
             child,
             output,
+            readers,
             run_id,
             runs: scratch.runs(),
         }
@@ -93,8 +96,10 @@ impl Run {
         let end = Instant::now() + bound;
         loop {
             if let Some(s) = self.child.try_wait().unwrap() {
-                // Let the output threads drain the pipes.
-                std::thread::sleep(Duration::from_millis(50));
+                // The pipes close with the supervisor (its children have pipes of their own).
+                for r in self.readers.drain(..) {
+                    r.join().unwrap();
+                }
                 return s;
             }
             if Instant::now() > end {
@@ -188,8 +193,21 @@ fn alive(pid: u32) -> bool {
     }
 }
 
-/// Nothing of run `run_id` left: no run directory, no shared memory, no iceoryx2 files.
+/// Nothing of run `run_id` left: no process, no run directory, no shared memory, no iceoryx2
+/// files.
 fn assert_nothing_left(run: &Run) {
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let cmdline = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
+        if String::from_utf8_lossy(&cmdline).contains(&run.run_id) && alive(pid) {
+            panic!(
+                "process {pid} of the run is still running: {}",
+                String::from_utf8_lossy(&cmdline).replace('\0', " ")
+            );
+        }
+    }
     let dir = run.runs.join(&run.run_id);
     assert!(!dir.exists(), "{} left behind", dir.display());
     let root = PathBuf::from(format!("/tmp/p2c-{}", run.run_id));
