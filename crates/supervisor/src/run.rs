@@ -468,40 +468,23 @@ impl Supervisor {
                     self.apply_scale()?;
                 }
             }
-            Phase::StartWorkers => {
-                let workers: Vec<&Proc> = self
-                    .procs
-                    .values()
-                    .filter(|p| matches!(p.role, Role::Worker(_)))
-                    .collect();
-                if workers.len() >= self.target_workers && workers.iter().all(|p| p.ready) {
-                    self.send_control(Control::plain(self.run_id, Control::START), true)?;
-                    self.phase = Phase::Running;
-                    self.phase_deadline = None;
-                    say(&format!(
-                        "all {} processes ready after {} ms; run started",
-                        self.procs.len(),
-                        self.started.elapsed().as_millis()
-                    ));
-                }
-            }
-            Phase::Running => {
-                let now = Instant::now();
-                let due: Vec<u32> = self
-                    .slots
-                    .iter()
-                    .filter(|(_, s)| s.restart_at.is_some_and(|t| t <= now))
-                    .map(|(w, _)| *w)
-                    .collect();
-                for w in due {
-                    let inc = {
-                        let s = self.slots.get_mut(&w).expect("due slot exists");
-                        s.restart_at = None;
-                        s.incarnation += 1;
-                        s.incarnation
-                    };
-                    if let Err(e) = self.spawn(Role::Worker(w), inc) {
-                        self.fail(format!("cannot restart worker-{w}: {e:#}"));
+            Phase::StartWorkers | Phase::Running => {
+                self.restart_due();
+                if self.phase == Phase::StartWorkers {
+                    let workers: Vec<&Proc> = self
+                        .procs
+                        .values()
+                        .filter(|p| matches!(p.role, Role::Worker(_)))
+                        .collect();
+                    if workers.len() >= self.target_workers && workers.iter().all(|p| p.ready) {
+                        self.send_control(Control::plain(self.run_id, Control::START), true)?;
+                        self.phase = Phase::Running;
+                        self.phase_deadline = None;
+                        say(&format!(
+                            "all {} processes ready after {} ms; run started",
+                            self.procs.len(),
+                            self.started.elapsed().as_millis()
+                        ));
                     }
                 }
             }
@@ -530,6 +513,28 @@ impl Supervisor {
             }
         }
         Ok(())
+    }
+
+    /// Restarts the workers whose backoff has passed.
+    fn restart_due(&mut self) {
+        let now = Instant::now();
+        let due: Vec<u32> = self
+            .slots
+            .iter()
+            .filter(|(_, s)| s.restart_at.is_some_and(|t| t <= now))
+            .map(|(w, _)| *w)
+            .collect();
+        for w in due {
+            let inc = {
+                let s = self.slots.get_mut(&w).expect("due slot exists");
+                s.restart_at = None;
+                s.incarnation += 1;
+                s.incarnation
+            };
+            if let Err(e) = self.spawn(Role::Worker(w), inc) {
+                self.fail(format!("cannot restart worker-{w}: {e:#}"));
+            }
+        }
     }
 
     /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
