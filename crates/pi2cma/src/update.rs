@@ -579,8 +579,11 @@ impl UpdateRule {
                     rank += 1;
                 }
                 if rank > 0 {
-                    let f = self.factor.rows(0, rank);
-                    self.lowrank_acc.gemm_tr(1.0, &f, &f, 1.0);
+                    // Rows past `rank` are zero; multiplying them is cheaper than a view, and
+                    // `gemm` (unlike `gemm_tr`) reaches nalgebra's blocked matrix product.
+                    self.factor.rows_mut(rank, m - rank).fill(0.0);
+                    let ft = self.factor.transpose();
+                    self.lowrank_acc.gemm(1.0, &ft, &self.factor, 1.0);
                 }
             }
         }
