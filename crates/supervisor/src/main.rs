@@ -26,7 +26,8 @@ enum Cmd {
         #[arg(long, value_parser = pipeline::parse_run_id)]
         run_id: Option<u64>,
         /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries
-        /// (default: the supervisor's own directory).
+        /// (default: the supervisor's own directory if they are there, else the supervisor's
+        /// own executable, which hosts all three roles).
         #[arg(long)]
         bin_dir: Option<PathBuf>,
         /// Also write the result (final distribution with exact bits) to this file.
@@ -60,6 +61,24 @@ enum Cmd {
     Stop {
         #[arg(long)]
         run: Option<String>,
+    },
+    /// The updater process (what the `updater` binary runs).
+    #[command(hide = true)]
+    Updater {
+        #[command(flatten)]
+        process: pipeline::ProcessArgs,
+    },
+    /// The sampler process (what the `sampler` binary runs).
+    #[command(hide = true)]
+    Sampler {
+        #[command(flatten)]
+        process: pipeline::ProcessArgs,
+    },
+    /// A rollout worker (what the `rollout-worker` binary runs).
+    #[command(hide = true, name = "rollout-worker")]
+    RolloutWorker {
+        #[command(flatten)]
+        worker: pipeline::worker::WorkerArgs,
     },
 }
 
@@ -106,5 +125,14 @@ fn main() -> ExitCode {
         Cmd::Scale { workers, run } => remote(run, format!("scale {workers}")),
         Cmd::Set { name, value, run } => remote(run, format!("set {name} {value:?}")),
         Cmd::Stop { run } => remote(run, "stop".into()),
+        Cmd::Updater { process } => {
+            pipeline::run_main("updater", || pipeline::updater::main(&process))
+        }
+        Cmd::Sampler { process } => {
+            pipeline::run_main("sampler", || pipeline::sampler::main(&process))
+        }
+        Cmd::RolloutWorker { worker } => {
+            pipeline::run_main("rollout-worker", || pipeline::worker::main(&worker))
+        }
     }
 }

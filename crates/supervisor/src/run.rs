@@ -79,6 +79,46 @@ impl Role {
 
 const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
 
+/// How children are started: the `updater`, `sampler` and `rollout-worker` binaries of a
+/// directory, or — when they are not next to the supervisor, as after `cargo run`, which builds
+/// only the binary it runs — the supervisor's own executable, which hosts all three roles.
+#[derive(Debug, Clone)]
+enum Launcher {
+    Binaries(PathBuf),
+    SelfHosted(PathBuf),
+}
+
+impl Launcher {
+    fn find(bin_dir: Option<&Path>) -> anyhow::Result<Self> {
+        if let Some(dir) = bin_dir {
+            for b in BINARIES {
+                let p = dir.join(b);
+                if !p.is_file() {
+                    bail!("missing binary `{b}`: {} does not exist", p.display());
+                }
+            }
+            return Ok(Self::Binaries(dir.to_path_buf()));
+        }
+        let exe = std::env::current_exe()?;
+        let dir = exe
+            .parent()
+            .context("the supervisor executable has no directory")?;
+        Ok(if BINARIES.iter().all(|b| dir.join(b).is_file()) {
+            Self::Binaries(dir.to_path_buf())
+        } else {
+            Self::SelfHosted(exe)
+        })
+    }
+
+    /// The program and its leading arguments for `role`.
+    fn program(&self, role: Role) -> (PathBuf, Option<&'static str>) {
+        match self {
+            Self::Binaries(dir) => (dir.join(role.binary()), None),
+            Self::SelfHosted(exe) => (exe.clone(), Some(role.binary())),
+        }
+    }
+}
+
 struct Proc {
     role: Role,
     incarnation: u32,
@@ -127,7 +167,7 @@ struct Supervisor {
     pipe: PipelineSection,
     run_id: u64,
     run_dir: PathBuf,
-    bin_dir: PathBuf,
+    launcher: Launcher,
     config_file: PathBuf,
     quiet: bool,
     tx: Sender<Event>,
@@ -185,22 +225,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             pipe.max_workers
         );
     }
-    let bin_dir = match &opts.bin_dir {
-        Some(d) => d.clone(),
-        None => std::env::current_exe()?
-            .parent()
-            .context("the supervisor executable has no directory")?
-            .to_path_buf(),
-    };
-    for b in BINARIES {
-        let p = bin_dir.join(b);
-        if !p.is_file() {
-            bail!(
-                "missing binary `{b}`: {} does not exist (build the workspace, or pass --bin-dir)",
-                p.display()
-            );
-        }
-    }
+    let launcher = Launcher::find(opts.bin_dir.as_deref())?;
     let limits = pipeline::limits(&cfg)?;
     let run_id = opts.run_id.unwrap_or_else(draw_run_id);
     let run_dir = control::runs_dir().join(wire::run_id_hex(run_id));
@@ -219,7 +244,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         run_id,
         config_file: run_dir.join("config.toml"),
         run_dir,
-        bin_dir,
+        launcher,
         quiet: opts.quiet,
         tx,
         procs: BTreeMap::new(),
@@ -569,9 +594,10 @@ impl Supervisor {
     }
 
     fn spawn(&mut self, role: Role, incarnation: u32) -> anyhow::Result<()> {
-        let exe = self.bin_dir.join(role.binary());
+        let (exe, role_arg) = self.launcher.program(role);
         let mut cmd = Command::new(&exe);
-        cmd.arg("--config")
+        cmd.args(role_arg)
+            .arg("--config")
             .arg(&self.config_file)
             .arg("--run-dir")
             .arg(&self.run_dir)

@@ -297,6 +297,30 @@ fn a1_is_bit_identical_to_in_process_with_1_3_and_8_workers_running_at_once() {
 }
 
 #[test]
+fn supervisor_alone_hosts_all_roles_as_after_cargo_run() {
+    // `cargo run -p supervisor` builds only the supervisor binary; it then runs the three
+    // roles itself. A copy in a directory of its own has no sibling binaries.
+    let scratch = Scratch::new("alone");
+    let alone = scratch.path("supervisor");
+    std::fs::copy(SUPERVISOR, &alone).unwrap();
+    let result = scratch.path("result.toml");
+    let out = Command::new(&alone)
+        .args(["run", "--quiet", "--result", result.to_str().unwrap()])
+        .args(["--run-id", &run_id(50)])
+        .env("PI2CMA_RUN_DIR", scratch.runs())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("summary: run"), "{text}");
+    assert_bit_identical(session::DEFAULT_CONFIG, &result);
+}
+
+#[test]
 fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
     let scratch = Scratch::new("kill");
     let text = config(&[
