@@ -87,6 +87,15 @@ pub struct Tball {
     initial_mean: Vec<f64>,
     arm: Arm,
     contact: ContactModel,
+    /// Reused by `rollout`, so a rollout allocates nothing.
+    buffers: Buffers,
+}
+
+/// Joint positions (by joint, N values each) and one joint's accelerations (N values).
+#[derive(Debug, Clone, Default)]
+struct Buffers {
+    joints: Vec<f64>,
+    accelerations: Vec<f64>,
 }
 
 fn invalid(name: &str, value: f64, reason: &'static str) -> TaskError {
@@ -190,6 +199,7 @@ impl Tball {
                 bat_effective_mass: c.bat_effective_mass,
             },
             config: c.clone(),
+            buffers: Buffers::default(),
         };
         // Through `set`, so the settings are checked exactly as a schedule's changes are.
         task.set("tee_x", c.tee_x)?;
@@ -231,37 +241,53 @@ impl Tball {
         }
     }
 
-    #[inline]
-    fn joints_at(&self, i: usize, theta: &[f64]) -> [f64; 7] {
-        std::array::from_fn(|d| self.affine.position(i, d, theta))
-    }
-
     /// Runs the swing θ: immediate costs into `per_step` (N values), and, when `trace` is given,
     /// the bat's path over the whole swing.
     pub fn simulate(
         &self,
         theta: &[f64],
         per_step: &mut [f64],
+        trace: Option<&mut Trace>,
+    ) -> Outcome {
+        self.simulate_with(theta, per_step, trace, &mut Buffers::default())
+    }
+
+    fn simulate_with(
+        &self,
+        theta: &[f64],
+        per_step: &mut [f64],
         mut trace: Option<&mut Trace>,
+        buffers: &mut Buffers,
     ) -> Outcome {
         let n = self.affine.steps();
         let dims = self.affine.dims();
         let weight = self.config.acceleration_weight / n as f64;
-        for (i, q) in per_step.iter_mut().enumerate().take(n) {
-            let mut sum = 0.0;
-            for d in 0..dims {
-                let a = self.affine.acceleration(i, d, theta);
-                sum += a * a;
+        // Whole trajectories per joint: the DMP is affine in θ, so these are a few axpy passes.
+        buffers.accelerations.resize(n, 0.0);
+        buffers.joints.resize(dims * n, 0.0);
+        let per_step = &mut per_step[..n];
+        per_step.fill(0.0);
+        for d in 0..dims {
+            self.affine
+                .accelerations_into(d, theta, &mut buffers.accelerations);
+            for (q, a) in per_step.iter_mut().zip(&buffers.accelerations) {
+                *q += a * a;
             }
-            *q = weight * sum;
+            self.affine
+                .positions_into(d, theta, &mut buffers.joints[d * n..(d + 1) * n]);
         }
+        for q in per_step.iter_mut() {
+            *q *= weight;
+        }
+        let joints = &buffers.joints;
+        let joints_at = |i: usize| -> [f64; 7] { std::array::from_fn(|d| joints[d * n + i]) };
 
         let ball = self.resting_ball();
         let reach = self.config.bat_radius + self.config.ball_radius;
         let dt = self.affine.dt();
         let mut hit = None;
         let mut closest = f64::INFINITY;
-        let mut prev = self.arm.pose(&self.joints_at(0, theta));
+        let mut prev = self.arm.pose(&joints_at(0));
         let mut apart = closest_on_segment(prev.grip, prev.tip, ball).1 > reach;
         if let Some(t) = trace.as_deref_mut() {
             t.time.clear();
@@ -270,7 +296,7 @@ impl Tball {
             t.joints.clear();
         }
         for i in 0..n {
-            let q = self.joints_at(i, theta);
+            let q = joints_at(i);
             let pose = if i == 0 { prev } else { self.arm.pose(&q) };
             if let Some(t) = trace.as_deref_mut() {
                 t.time.push(i as f64 * dt);
@@ -375,7 +401,10 @@ impl Task for Tball {
     }
 
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
-        self.simulate(theta, per_step, None).terminal_cost
+        let mut buffers = std::mem::take(&mut self.buffers);
+        let outcome = self.simulate_with(theta, per_step, None, &mut buffers);
+        self.buffers = buffers;
+        outcome.terminal_cost
     }
 
     fn settings(&self) -> Vec<(&'static str, f64)> {
