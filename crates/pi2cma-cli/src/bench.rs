@@ -114,7 +114,8 @@ pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
         temporal: TemporalAveraging::RemainingSteps,
     };
     let groups = if quick { 4 } else { 200 };
-    let cases: [(&str, Box<dyn Fn() -> Measurement>); 4] = [
+    type Case<'a> = (&'a str, Box<dyn Fn() -> Measurement>);
+    let cases: [Case; 4] = [
         (
             "via-point/per-time-step",
             Box::new(move || viapoint_update(WeightingName::PerTimeStep, groups)),

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nalgebra::{DMatrix, DVector};
 use pi2cma::{Optimizer, UpdateSummary, Weighting};
-use session::{InProcess, Observer, RunConfig, SessionError, UpdateRecord};
+use session::{InProcess, Observer, Observers, RunConfig, SessionError, UpdateRecord};
 use tasks::Task;
 
 /// One session's trajectory through the updates.
@@ -48,14 +48,19 @@ impl Observer for Collector {
     }
 }
 
-/// Runs one session in-process and collects its curve.
-pub fn run_one(config: &RunConfig, seed: u64) -> Result<SessionResult, SessionError> {
+/// Runs one session in-process and collects its curve; `observer` sees every hook too (progress
+/// printing, MCAP recording).
+pub fn run_one(
+    config: &RunConfig,
+    seed: u64,
+    observer: &mut dyn Observer,
+) -> Result<SessionResult, SessionError> {
     let mut exec = InProcess::new(config, seed)?;
     let mut c = Collector {
         summaries: Vec::new(),
         distributions: Vec::new(),
     };
-    exec.run(&mut c, &|| false)?;
+    exec.run(&mut Observers(vec![&mut c, observer]), &|| false)?;
     Ok(SessionResult {
         seed,
         summaries: c.summaries,
@@ -66,8 +71,16 @@ pub fn run_one(config: &RunConfig, seed: u64) -> Result<SessionResult, SessionEr
 /// Runs `sessions` sessions with seeds run.seed, run.seed + 1, ….
 pub fn run_config(config: &RunConfig, sessions: usize) -> Result<ConfigResult, SessionError> {
     let sessions = (0..sessions as u64)
-        .map(|s| run_one(config, config.run.seed + s))
+        .map(|s| run_one(config, config.run.seed + s, &mut session::NoObserver))
         .collect::<Result<Vec<_>, _>>()?;
+    summarize(config, sessions)
+}
+
+/// Groups finished sessions of one config and finds the reference optimum after the change.
+pub fn summarize(
+    config: &RunConfig,
+    sessions: Vec<SessionResult>,
+) -> Result<ConfigResult, SessionError> {
     let change_at = config.schedule().changes().last().map(|c| c.from_update);
     let mut result = ConfigResult {
         name: config.run.name.clone(),

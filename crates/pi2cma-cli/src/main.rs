@@ -38,6 +38,9 @@ enum Command {
         /// Print nothing per update.
         #[arg(long)]
         quiet: bool,
+        /// Do not write the MCAP recording (OUT/run.mcap).
+        #[arg(long)]
+        no_record: bool,
     },
     /// Run S sessions (seeds seed, seed+1, …) of each config; write CSVs, figures and the
     /// re-convergence table.
@@ -52,7 +55,15 @@ enum Command {
         weighting: Option<WeightingArg>,
         #[arg(long, default_value = "runs/experiment")]
         out: PathBuf,
+        /// Also record every session to OUT/mcap/<run>-seed<seed>.mcap.
+        #[arg(long)]
+        record: bool,
     },
+    /// Summarise, export (CSV) and plot MCAP recordings; several files: the experiment's mean
+    /// curves and re-convergence table.
+    Analyze(record::analyze::AnalyzeArgs),
+    /// Rewrite a recording whose writer was killed into a complete, indexed file.
+    Recover(record::recover::RecoverArgs),
     /// Check configs without running them.
     Check {
         #[arg(required = true)]
@@ -148,10 +159,14 @@ fn run(cli: Cli) -> Result<()> {
             seed,
             out,
             quiet,
+            no_record,
         } => {
-            let mut cfg = match &config {
-                Some(p) => load(p)?,
-                None => RunConfig::default_config(),
+            let (mut cfg, text) = match &config {
+                Some(p) => (load(p)?, std::fs::read_to_string(p).unwrap_or_default()),
+                None => (
+                    RunConfig::default_config(),
+                    session::DEFAULT_CONFIG.to_string(),
+                ),
             };
             if let Some(s) = seed {
                 cfg.run.seed = s;
@@ -162,6 +177,7 @@ fn run(cli: Cli) -> Result<()> {
                     cfg.origin.display()
                 );
             }
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             println!(
                 "pi2cma: run {} ({}), seed {}, {} updates, in-process",
                 cfg.run.name,
@@ -169,29 +185,61 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.run.seed,
                 cfg.run.updates.unwrap_or(0)
             );
+            let mcap = out.join("run.mcap");
+            let mut recorder = if no_record {
+                None
+            } else {
+                Some(
+                    record::McapRecorder::create(&mcap)
+                        .with_context(|| format!("creating {}", mcap.display()))?
+                        .with_config_text(text),
+                )
+            };
             let mut progress = Progress {
                 total: cfg.run.updates,
             };
-            let mut exec = session::InProcess::new(&cfg, cfg.run.seed)?;
-            let mut noop = session::NoObserver;
-            let obs: &mut dyn Observer = if quiet { &mut noop } else { &mut progress };
-            exec.run(obs, &|| false)?;
-            let result = experiment::run_config(&cfg, 1)?;
-            let table = write_outputs(&out, &[result])?;
-            let d = exec.optimizer().distribution();
+            let session = {
+                let mut observers: Vec<&mut dyn Observer> = Vec::new();
+                if !quiet {
+                    observers.push(&mut progress);
+                }
+                if let Some(r) = recorder.as_mut() {
+                    observers.push(r);
+                }
+                experiment::run_one(&cfg, cfg.run.seed, &mut session::Observers(observers))?
+            };
+            if let Some(r) = recorder {
+                r.finish()
+                    .with_context(|| format!("recording {}", mcap.display()))?;
+            }
+            let result = experiment::summarize(&cfg, vec![session])?;
+            let table = write_outputs(&out, std::slice::from_ref(&result))?;
             println!("\n{table}");
+            if let Some((mean, _)) = result.sessions[0].distributions.last() {
+                println!("final mean θ = {:?}", mean.as_slice());
+            }
+            if let Some(s) = result.sessions[0].summaries.last() {
+                println!("final λ = {:.4}", s.lambda_next);
+            }
             println!(
-                "final mean θ = {:?}\nfinal λ = {:.4}\nresults in {}/ (updates.csv, mean_curves.csv, fig2.svg, summary.md)",
-                d.mean.as_slice(),
-                exec.optimizer().lambda(),
+                "results in {}/ (updates.csv, mean_curves.csv, fig2.svg, summary.md)",
                 out.display()
             );
+            if !no_record {
+                println!(
+                    "recording: {}\nanalyse it with: pi2cma analyze {} --out {}",
+                    mcap.display(),
+                    mcap.display(),
+                    out.join("analysis").display()
+                );
+            }
         }
         Command::Experiment {
             configs,
             sessions,
             weighting,
             out,
+            record,
         } => {
             if sessions == 0 {
                 bail!("--sessions must be at least 1");
@@ -207,10 +255,26 @@ fn run(cli: Cli) -> Result<()> {
                     );
                 }
                 eprintln!("running {} × {sessions} sessions", cfg.run.name);
-                results.push(
-                    experiment::run_config(&cfg, sessions)
-                        .with_context(|| format!("running {}", path.display()))?,
-                );
+                let mut done = Vec::new();
+                for s in 0..sessions as u64 {
+                    let seed = cfg.run.seed + s;
+                    let result = if record {
+                        let dir = out.join("mcap");
+                        std::fs::create_dir_all(&dir)
+                            .with_context(|| format!("creating {}", dir.display()))?;
+                        let file = dir.join(format!("{}-seed{seed}.mcap", cfg.run.name));
+                        let mut rec = record::McapRecorder::create(&file)
+                            .with_context(|| format!("creating {}", file.display()))?;
+                        let r = experiment::run_one(&cfg, seed, &mut rec);
+                        rec.finish()
+                            .with_context(|| format!("recording {}", file.display()))?;
+                        r
+                    } else {
+                        experiment::run_one(&cfg, seed, &mut session::NoObserver)
+                    };
+                    done.push(result.with_context(|| format!("running {}", path.display()))?);
+                }
+                results.push(experiment::summarize(&cfg, done)?);
             }
             let table = write_outputs(&out, &results)?;
             println!("{table}");
@@ -219,6 +283,8 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
         }
+        Command::Analyze(args) => print!("{}", record::analyze::run(&args)?),
+        Command::Recover(args) => println!("{}", record::recover::run(&args)?.describe()),
         Command::Check { configs } => {
             for path in &configs {
                 load(path)?;

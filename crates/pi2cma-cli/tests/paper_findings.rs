@@ -76,7 +76,10 @@ fn reconvergence_is_slowest_for_low_and_fastest_for_high_lambda_min() {
         .map(|c| run(c).reconvergence_update().unwrap_or(u64::MAX))
         .collect();
     assert!(u[0] > u[1] && u[1] > u[2], "re-convergence updates {u:?}");
-    assert!(u[1] < 40 && u[2] < 40, "λ_min = 20 and 200 must re-converge: {u:?}");
+    assert!(
+        u[1] < 40 && u[2] < 40,
+        "λ_min = 20 and 200 must re-converge: {u:?}"
+    );
 }
 
 #[test]
