@@ -210,7 +210,10 @@ impl CostBatch {
     }
 }
 
-/// Σ v with four accumulators, so the additions pipeline instead of forming one long chain.
+/// Σ v with four accumulators, so the additions pipeline instead of forming one long chain
+/// (compiled for AVX2 too and chosen at run time; the summation order is fixed, so every
+/// variant gives the same bits).
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 pub(crate) fn sum(v: &[f64]) -> f64 {
     let mut acc = [0.0; 4];
     let chunks = v.chunks_exact(4);
