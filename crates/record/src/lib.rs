@@ -13,6 +13,7 @@
 //! [`RunWriter`]. Topic names and schemas are documented in `README-section.md`.
 
 pub mod analyze;
+pub mod assemble;
 mod convert;
 mod error;
 mod reader;

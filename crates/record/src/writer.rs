@@ -86,6 +86,8 @@ pub enum Event {
     Restart,
     Scale,
     Info,
+    /// Something went wrong that is not a process crash (e.g. lost messages).
+    Error,
 }
 
 impl Event {
@@ -97,13 +99,14 @@ impl Event {
             Event::Restart => "restart",
             Event::Scale => "scale",
             Event::Info => "info",
+            Event::Error => "error",
         }
     }
 
     fn level(self) -> proto::foxglove::log::Level {
         use proto::foxglove::log::Level;
         match self {
-            Event::Crash => Level::Error,
+            Event::Crash | Event::Error => Level::Error,
             Event::Restart => Level::Warning,
             _ => Level::Info,
         }
@@ -138,6 +141,7 @@ impl<W: Write + Seek> RunWriter<W> {
         let file = file.into();
         let opts = WriteOptions::new()
             .compression(Some(Compression::Zstd))
+            .compression_level(1)
             .compression_threads(0)
             // Chunks are closed by the flush after every update; this bound only matters for
             // very large updates.

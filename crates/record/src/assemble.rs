@@ -1,0 +1,431 @@
+//! Sans-IO assembly of updates from what the multiprocess pipeline publishes: the distribution of
+//! each update and the K cost trajectories, arriving in any order, with duplicates. The
+//! pipeline's recorder process feeds it from iceoryx2 services and writes what it returns with
+//! [`crate::RunWriter`]; tests feed it directly.
+//!
+//! An update u is complete once its distribution, all K costs and the distribution of u + 1 are
+//! in. The recorder then recomputes the update with the core (`Optimizer::resume` + `tell`),
+//! which yields the samples (a pure function of seed, u, k), the weights and the summary exactly
+//! as the updater computed them, and checks that the result equals the published distribution
+//! of u + 1 bit for bit.
+
+use std::collections::BTreeMap;
+
+use nalgebra::{DMatrix, DVector};
+use pi2cma::{
+    CostBatch, CostError, Distribution, Hyperparameters, Optimizer, ParameterBatch, UpdateRule,
+    UpdateSummary,
+};
+
+use crate::RolloutTiming;
+
+/// A published distribution: the one update `update` samples from.
+#[derive(Debug, Clone)]
+struct Published {
+    distribution: Distribution,
+    seed: u64,
+    settings: Vec<f64>,
+}
+
+#[derive(Debug)]
+struct Pending {
+    costs: CostBatch,
+    timings: Vec<Option<RolloutTiming>>,
+    duplicates: u32,
+}
+
+/// One complete update, ready for [`crate::RunWriter::write_update`].
+#[derive(Debug, Clone)]
+pub struct Assembled {
+    pub update: u64,
+    pub before: Distribution,
+    /// The distribution the pipeline published for update + 1.
+    pub after: Distribution,
+    pub samples: ParameterBatch,
+    pub costs: CostBatch,
+    pub summary: UpdateSummary,
+    /// Task settings in force for this update.
+    pub settings: Vec<(String, f64)>,
+    /// Settings that differ from the previous update's (task changes taking effect here).
+    pub changed: Vec<(String, f64)>,
+    pub timings: Vec<RolloutTiming>,
+    /// Cost messages for rollouts already received (re-executions after a worker loss).
+    pub duplicates: u32,
+    /// Whether the core, given the recorded inputs, computes exactly `after`.
+    pub recomputed_matches: bool,
+}
+
+/// Collects distributions and costs by update and hands out complete updates in order.
+pub struct Assembler {
+    hp: Hyperparameters,
+    dim: usize,
+    steps: usize,
+    basis: Option<Vec<f64>>,
+    setting_names: Vec<String>,
+    distributions: BTreeMap<u64, Published>,
+    pending: BTreeMap<u64, Pending>,
+    /// Settings of the last update handed out, to detect task changes.
+    last_settings: Option<Vec<f64>>,
+    /// Updates below this were handed out (or skipped); their messages are stale.
+    next: Option<u64>,
+}
+
+/// What happened to a cost message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CostOutcome {
+    Stored,
+    Duplicate,
+    /// For an update already written or skipped.
+    Stale,
+}
+
+impl Assembler {
+    /// `setting_names`: the task's settings, in the order the distribution header carries them.
+    pub fn new(
+        hp: Hyperparameters,
+        dim: usize,
+        steps: usize,
+        basis: Option<Vec<f64>>,
+        setting_names: Vec<String>,
+    ) -> Self {
+        Self {
+            hp,
+            dim,
+            steps,
+            basis,
+            setting_names,
+            distributions: BTreeMap::new(),
+            pending: BTreeMap::new(),
+            last_settings: None,
+            next: None,
+        }
+    }
+
+    /// The first distribution seen (the recording starts there).
+    pub fn first_update(&self) -> Option<u64> {
+        self.distributions.keys().next().copied()
+    }
+
+    pub fn hyperparameters(&self) -> &Hyperparameters {
+        &self.hp
+    }
+
+    /// A distribution as published: mean (P) and Σ (P×P) column-major, and the task settings.
+    pub fn distribution(
+        &mut self,
+        update: u64,
+        seed: u64,
+        mean: &[f64],
+        covariance_col_major: &[f64],
+        settings: &[f64],
+    ) -> Result<(), String> {
+        let p = self.dim;
+        if mean.len() != p || covariance_col_major.len() != p * p {
+            return Err(format!(
+                "distribution of update {update}: {} mean and {} covariance values for P = {p}",
+                mean.len(),
+                covariance_col_major.len()
+            ));
+        }
+        if self.next.is_some_and(|n| update < n) {
+            return Ok(());
+        }
+        self.next.get_or_insert(update);
+        self.distributions.insert(
+            update,
+            Published {
+                distribution: Distribution {
+                    mean: DVector::from_column_slice(mean),
+                    covariance: DMatrix::from_column_slice(p, p, covariance_col_major),
+                },
+                seed,
+                settings: settings.to_vec(),
+            },
+        );
+        Ok(())
+    }
+
+    /// A cost trajectory of rollout `rollout` of update `update`.
+    pub fn cost(
+        &mut self,
+        update: u64,
+        rollout: usize,
+        per_step: &[f64],
+        terminal: f64,
+        timing: RolloutTiming,
+    ) -> Result<CostOutcome, CostError> {
+        if self.next.is_some_and(|n| update < n) {
+            return Ok(CostOutcome::Stale);
+        }
+        let (k, n) = (self.hp.rollouts, self.steps);
+        let p = self.pending.entry(update).or_insert_with(|| Pending {
+            costs: CostBatch::new(k, n),
+            timings: vec![None; k],
+            duplicates: 0,
+        });
+        match p.costs.insert(rollout, per_step, terminal) {
+            Ok(()) => {
+                p.timings[rollout] = Some(timing);
+                Ok(CostOutcome::Stored)
+            }
+            Err(CostError::Duplicate { .. }) => {
+                p.duplicates += 1;
+                Ok(CostOutcome::Duplicate)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// The next update if it is complete. Call until it returns `None`.
+    pub fn next_complete(&mut self) -> Option<Result<Assembled, String>> {
+        let u = self.next?;
+        let complete = self.distributions.contains_key(&u)
+            && self.distributions.contains_key(&(u + 1))
+            && self.pending.get(&u).is_some_and(|p| p.costs.is_complete());
+        if !complete {
+            return None;
+        }
+        self.next = Some(u + 1);
+        let before = self.distributions.remove(&u)?;
+        let pending = self.pending.remove(&u)?;
+        let after = self.distributions.get(&(u + 1))?.distribution.clone();
+        Some(self.assemble(u, before, pending, after))
+    }
+
+    /// Updates that can never complete because a later distribution exists but an input is
+    /// missing: skips the oldest such update and returns it with what was missing. Call after
+    /// draining all inputs; a recorder that sees this has lost messages.
+    pub fn skip_incomplete(&mut self) -> Option<(u64, String)> {
+        let u = self.next?;
+        let later = self.distributions.keys().any(|&d| d > u + 1);
+        if !later {
+            return None;
+        }
+        let mut what = Vec::new();
+        for d in [u, u + 1] {
+            if !self.distributions.contains_key(&d) {
+                what.push(format!("the distribution of update {d}"));
+            }
+        }
+        let missing: Vec<usize> = match self.pending.get(&u) {
+            Some(p) => p.costs.missing().collect(),
+            None => (0..self.hp.rollouts).collect(),
+        };
+        if !missing.is_empty() {
+            what.push(format!("the costs of rollouts {missing:?}"));
+        }
+        self.distributions.remove(&u);
+        self.pending.remove(&u);
+        self.next = Some(u + 1);
+        Some((u, what.join(" and ")))
+    }
+
+    fn assemble(
+        &mut self,
+        u: u64,
+        before: Published,
+        pending: Pending,
+        after: Distribution,
+    ) -> Result<Assembled, String> {
+        let rule = UpdateRule::new(self.hp.clone(), self.dim, self.steps, self.basis.as_deref())
+            .map_err(|e| format!("update {u}: cannot build the update rule: {e}"))?;
+        let mut opt = Optimizer::resume(rule, before.distribution.clone(), before.seed, u);
+        let samples = opt.ask().clone();
+        let summary = opt
+            .tell(&pending.costs)
+            .map_err(|e| format!("update {u}: {e}"))?;
+        let recomputed = opt.distribution();
+        let same = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        let recomputed_matches = same(recomputed.mean.as_slice(), after.mean.as_slice())
+            && same(
+                recomputed.covariance.as_slice(),
+                after.covariance.as_slice(),
+            );
+        let settings: Vec<(String, f64)> = self
+            .setting_names
+            .iter()
+            .cloned()
+            .zip(before.settings.iter().copied())
+            .collect();
+        let changed = match &self.last_settings {
+            Some(prev) => settings
+                .iter()
+                .zip(prev)
+                .filter(|((_, v), p)| v.to_bits() != p.to_bits())
+                .map(|(s, _)| s.clone())
+                .collect(),
+            None => Vec::new(),
+        };
+        self.last_settings = Some(before.settings.clone());
+        let timings = pending
+            .timings
+            .into_iter()
+            .map(|t| {
+                t.unwrap_or_else(|| RolloutTiming {
+                    worker: "unknown".into(),
+                    start_ns: 0,
+                    end_ns: 0,
+                })
+            })
+            .collect();
+        Ok(Assembled {
+            update: u,
+            before: before.distribution,
+            after,
+            samples,
+            costs: pending.costs,
+            summary,
+            settings,
+            changed,
+            timings,
+            duplicates: pending.duplicates,
+            recomputed_matches,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use session::{run_session, Observer, RunConfig, UpdateRecord};
+
+    struct Capture(
+        Vec<(
+            Distribution,
+            Distribution,
+            ParameterBatch,
+            CostBatch,
+            UpdateSummary,
+        )>,
+    );
+    impl Observer for Capture {
+        fn on_update(&mut self, r: &UpdateRecord<'_>) {
+            self.0.push((
+                r.before.clone(),
+                r.after.clone(),
+                r.samples.clone(),
+                r.costs.clone(),
+                r.summary.clone(),
+            ));
+        }
+    }
+
+    #[test]
+    fn out_of_order_and_duplicate_costs_assemble_to_the_in_process_updates() {
+        let mut cfg = RunConfig::default_config();
+        cfg.run.updates = Some(25);
+        let mut cap = Capture(Vec::new());
+        run_session(&cfg, 4, &mut cap).unwrap();
+        let task = session::build_task(&cfg).unwrap();
+        let names: Vec<String> = task.settings().iter().map(|(n, _)| n.to_string()).collect();
+        let mut a = Assembler::new(
+            cfg.hyperparameters(),
+            task.parameters(),
+            task.steps(),
+            task.basis_activations(),
+            names,
+        );
+        let k = cfg.optimizer.rollouts;
+        let mut out = Vec::new();
+        for (u, (before, _, _, costs, _)) in cap.0.iter().enumerate() {
+            let u = u as u64;
+            let viapoint = if u >= 20 { 0.1 } else { 0.3 };
+            // Costs first, in reverse order, rollout 3 twice (a re-execution).
+            for r in (0..k).rev().chain([3]) {
+                let t = RolloutTiming {
+                    worker: format!("worker-{}", r % 3),
+                    start_ns: 1,
+                    end_ns: 2,
+                };
+                let o = a
+                    .cost(u, r, costs.per_step(r), costs.terminal(r), t)
+                    .unwrap();
+                assert_ne!(o, CostOutcome::Stale);
+            }
+            a.distribution(
+                u,
+                4,
+                before.mean.as_slice(),
+                before.covariance.as_slice(),
+                &[viapoint],
+            )
+            .unwrap();
+            while let Some(x) = a.next_complete() {
+                out.push(x.unwrap());
+            }
+        }
+        let last = &cap.0.last().unwrap().1;
+        a.distribution(
+            25,
+            4,
+            last.mean.as_slice(),
+            last.covariance.as_slice(),
+            &[0.1],
+        )
+        .unwrap();
+        while let Some(x) = a.next_complete() {
+            out.push(x.unwrap());
+        }
+        assert_eq!(out.len(), 25);
+        for (x, (before, after, samples, _, summary)) in out.iter().zip(&cap.0) {
+            assert!(x.recomputed_matches, "update {}", x.update);
+            assert_eq!(&x.before, before);
+            assert_eq!(&x.after, after);
+            assert_eq!(&x.samples, samples);
+            assert_eq!(&x.summary, summary);
+            assert_eq!(x.duplicates, 1);
+            assert_eq!(x.timings[4].worker, "worker-1");
+            assert_eq!(x.changed.is_empty(), x.update != 20, "update {}", x.update);
+        }
+        // Stale messages for written updates are recognised.
+        let c = &cap.0[0].3;
+        let t = RolloutTiming {
+            worker: "w".into(),
+            start_ns: 0,
+            end_ns: 0,
+        };
+        assert_eq!(
+            a.cost(0, 0, c.per_step(0), c.terminal(0), t).unwrap(),
+            CostOutcome::Stale
+        );
+    }
+
+    #[test]
+    fn lost_costs_are_skipped_and_reported() {
+        let cfg = RunConfig::default_config();
+        let hp = cfg.hyperparameters();
+        let mut a = Assembler::new(hp, 2, 3, None, vec![]);
+        let d = [0.0, 0.0];
+        let c = [1.0, 0.0, 0.0, 1.0];
+        for u in 0..3 {
+            a.distribution(u, 1, &d, &c, &[]).unwrap();
+        }
+        a.cost(
+            0,
+            2,
+            &[1.0, 2.0, 3.0],
+            0.0,
+            RolloutTiming {
+                worker: "w".into(),
+                start_ns: 0,
+                end_ns: 0,
+            },
+        )
+        .unwrap();
+        assert!(a.next_complete().is_none());
+        let (u, what) = a.skip_incomplete().unwrap();
+        assert_eq!(u, 0);
+        assert!(
+            what.starts_with("the costs of rollouts [0, 1, 3, 4,"),
+            "{what}"
+        );
+        // Update 1 lacks its costs too, but may still get them: distribution 3 is not in yet.
+        assert!(a.skip_incomplete().is_none());
+        a.distribution(3, 1, &d, &c, &[]).unwrap();
+        let (u, what) = a.skip_incomplete().unwrap();
+        assert_eq!(u, 1);
+        assert!(what.contains("rollouts [0, 1, 2,"), "{what}");
+    }
+}

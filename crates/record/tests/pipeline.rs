@@ -1,0 +1,208 @@
+//! The pipeline's recorder process against a real pipeline run (`supervisor run`): every update
+//! recorded and recomputed bit-identically from the MCAP; a recorder killed with SIGKILL mid-run
+//! leaves a file that `recover` completes with every update it had flushed.
+//!
+//! Needs the supervisor crate's binaries next to this crate's (`cargo test --workspace` or
+//! `cargo build -p supervisor` first). Without them the tests fail under CI (`CI` set) and are
+//! skipped with a message otherwise.
+
+#![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use record::read_recording;
+use record::recompute::verify;
+use record::recover::recover;
+
+fn bin_dir() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_BIN_EXE_recorder"))
+        .parent()?
+        .to_path_buf();
+    let all = ["supervisor", "updater", "sampler", "rollout-worker"]
+        .iter()
+        .all(|b| dir.join(b).is_file());
+    if all {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "the supervisor's binaries are missing from {}",
+        dir.display()
+    );
+    eprintln!(
+        "SKIPPED: the supervisor's binaries are not in {} (run `cargo build -p supervisor`)",
+        dir.display()
+    );
+    None
+}
+
+struct Run {
+    dir: PathBuf,
+    run_id: String,
+    config: PathBuf,
+}
+
+fn setup(name: &str, updates: u64, delay_ms: f64) -> Run {
+    let dir = std::env::temp_dir().join(format!("record-pipeline-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = session::DEFAULT_CONFIG
+        .replace("updates = 40", &format!("updates = {updates}"))
+        .replace(
+            "viapoint_weight = 1000.0",
+            &format!("viapoint_weight = 1000.0\nrollout_delay_ms = {delay_ms}"),
+        );
+    let config = dir.join("config.toml");
+    std::fs::write(&config, text).unwrap();
+    let salt = if name == "kill" { 1 } else { 2 };
+    Run {
+        run_id: format!("{:08x}{:08x}", std::process::id(), 0xdead_0000u32 + salt),
+        dir,
+        config,
+    }
+}
+
+fn start_recorder(bin: &Path, run: &Run, out: &Path) -> Child {
+    let child = Command::new(bin.join("recorder"))
+        .arg("--config")
+        .arg(&run.config)
+        .arg("--run-dir")
+        .arg(&run.dir)
+        .arg("--run-id")
+        .arg(&run.run_id)
+        .arg("--out")
+        .arg(out)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(run.dir.join("recorder.log")).unwrap())
+        .spawn()
+        .unwrap();
+    // Subscribed once it has created the file and announced itself; give it that moment.
+    let t = Instant::now();
+    while !out.exists() && t.elapsed() < Duration::from_secs(20) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    child
+}
+
+fn start_supervisor(bin: &Path, run: &Run) -> Child {
+    Command::new(bin.join("supervisor"))
+        .arg("run")
+        .arg(&run.config)
+        .arg("--run-id")
+        .arg(&run.run_id)
+        .arg("--bin-dir")
+        .arg(bin)
+        .env("PI2CMA_RUN_DIR", run.dir.join("runs"))
+        .stdout(std::fs::File::create(run.dir.join("supervisor.log")).unwrap())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+/// Kills the process when a failed assertion unwinds past it.
+struct Guard(Child);
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+fn wait_bounded(child: &mut Child, secs: u64) -> std::process::ExitStatus {
+    let t = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if t.elapsed() > Duration::from_secs(secs) {
+            let _ = child.kill();
+            panic!("process {} did not finish within {secs} s", child.id());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_pipeline_run_is_recorded_and_every_update_recomputes() {
+    let Some(bin) = bin_dir() else { return };
+    // 1 ms rollouts keep the run slow enough for an unoptimised recorder to keep up.
+    let run = setup("full", 40, 1.0);
+    let out = run.dir.join("run.mcap");
+    let mut rec = Guard(start_recorder(&bin, &run, &out));
+    let mut sup = Guard(start_supervisor(&bin, &run));
+    assert!(wait_bounded(&mut sup.0, 120).success());
+    assert!(wait_bounded(&mut rec.0, 30).success());
+    let r = read_recording(&out).unwrap();
+    assert!(r.indexed && r.truncated.is_none());
+    assert_eq!(r.run_info().unwrap().executor, "pipeline");
+    let indices: Vec<u64> = r.updates.iter().map(|u| u.update).collect();
+    assert_eq!(indices, (0..40).collect::<Vec<_>>());
+    let v = verify(&r).unwrap();
+    assert!(v.mismatches.is_empty(), "{v:?}");
+    // Per rollout: a real worker and its timing.
+    assert_eq!(r.rollouts.len(), 40 * 15);
+    assert!(r.rollouts.iter().all(|x| x.worker.starts_with("worker-")));
+    assert!(r
+        .rollouts
+        .iter()
+        .all(|x| x.end_ns >= x.start_ns + 1_000_000));
+    assert_eq!(r.task_changes.len(), 1);
+    assert_eq!(r.task_changes[0].update, 20);
+    let errors: Vec<&str> = r
+        .logs
+        .iter()
+        .filter(|l| l.event == "error")
+        .map(|l| l.message.as_str())
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
+    assert!(r
+        .logs
+        .iter()
+        .any(|l| l.event == "start" && l.name == "updater"));
+    assert!(r
+        .logs
+        .iter()
+        .any(|l| l.event == "exit" && l.name == "recorder"));
+}
+
+#[test]
+fn a_killed_pipeline_recorder_is_recovered_with_every_flushed_update() {
+    let Some(bin) = bin_dir() else { return };
+    let run = setup("kill", 200, 1.0);
+    let out = run.dir.join("run.mcap");
+    let mut rec = Guard(start_recorder(&bin, &run, &out));
+    let mut sup = Guard(start_supervisor(&bin, &run));
+    // Wait until at least 5 updates are in the file, then SIGKILL the recorder.
+    let t = Instant::now();
+    let seen = loop {
+        let n = read_recording(&out).map(|r| r.updates.len()).unwrap_or(0);
+        if n >= 5 {
+            break n;
+        }
+        assert!(t.elapsed() < Duration::from_secs(60), "no updates recorded");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    rec.0.kill().unwrap();
+    rec.0.wait().unwrap();
+    let damaged = read_recording(&out).unwrap();
+    assert!(!damaged.indexed);
+    let fixed = run.dir.join("fixed.mcap");
+    let report = recover(&out, &fixed).unwrap();
+    let r = read_recording(&fixed).unwrap();
+    assert!(r.indexed, "{report:?}");
+    let indices: Vec<u64> = r.updates.iter().map(|u| u.update).collect();
+    assert!(indices.len() >= seen, "{} < {seen}", indices.len());
+    assert_eq!(indices, (0..indices.len() as u64).collect::<Vec<_>>());
+    assert!(verify(&r).unwrap().mismatches.is_empty());
+    // An orderly stop of the rest of the run (the supervisor cleans up its shared memory).
+    let _ = Command::new("kill")
+        .args(["-INT", &sup.0.id().to_string()])
+        .status();
+    wait_bounded(&mut sup.0, 60);
+}
