@@ -1,13 +1,21 @@
 //! Benchmark of the T-ball task: time per rollout (cost only, and with a full trace for figures)
 //! and time per in-process update (K rollouts + the PI²-CMA update). Prints figures; not a test.
 //!
+//! With `--supervisor PATH` (the pipeline's `supervisor` binary, built with
+//! `cargo build --release -p supervisor --bins`) it also times the multiprocess pipeline: time
+//! per update with 1 and 2 rollout workers, for the task as it is and with every rollout made to
+//! block for 5 ms (a stand-in for a slower simulator or a robot), and compares the pipeline's
+//! final distribution with the in-process run bit for bit.
+//!
 //! ```text
-//! cargo run --release -p tball --example tball-bench -- [--config config/tball.toml]
+//! cargo run --release -p tball --example tball-bench -- [--config config/tball.toml] \
+//!     [--supervisor target/release/supervisor] [--pipeline-updates 300]
 //! ```
 
 use std::error::Error;
 use std::hint::black_box;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::time::Instant;
 
 use pi2cma::ParameterBatch;
@@ -17,11 +25,21 @@ use tball::Tball;
 
 fn main() -> Result<(), Box<dyn Error>> {
     let mut config = PathBuf::from("config/tball.toml");
+    let mut supervisor = None;
+    let mut pipeline_updates = 300u64;
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
         match (flag.as_str(), it.next()) {
             ("--config", Some(v)) => config = v.into(),
-            _ => return Err(format!("usage: tball-bench [--config FILE] (got {flag})").into()),
+            ("--supervisor", Some(v)) => supervisor = Some(PathBuf::from(v)),
+            ("--pipeline-updates", Some(v)) => pipeline_updates = v.parse()?,
+            _ => {
+                return Err(format!(
+                    "usage: tball-bench [--config FILE] [--supervisor PATH] \
+                     [--pipeline-updates N] (got {flag})"
+                )
+                .into())
+            }
         }
     }
     let cfg = RunConfig::load(&config)?;
@@ -91,6 +109,9 @@ fn main() -> Result<(), Box<dyn Error>> {
             fastest * 1e6
         );
     }
+    if let Some(supervisor) = supervisor {
+        pipeline(&supervisor, &config, pipeline_updates)?;
+    }
     Ok(())
 }
 
@@ -102,4 +123,124 @@ fn repeat(mut f: impl FnMut() -> f64) -> (f64, f64) {
 fn median_and_min(mut v: Vec<f64>) -> (f64, f64) {
     v.sort_by(f64::total_cmp);
     (v[v.len() / 2], v[0])
+}
+
+/// The config text with `updates` in [run] set to `updates` and every rollout blocking
+/// `delay_ms`.
+fn pipeline_variant(text: &str, updates: u64, delay_ms: f64) -> String {
+    let mut out = String::new();
+    for line in text.lines() {
+        if line.starts_with("updates = ") {
+            out.push_str(&format!("updates = {updates}"));
+        } else if line.starts_with("rollout_delay_ms = ") {
+            continue;
+        } else {
+            out.push_str(line);
+        }
+        out.push('\n');
+        if line.trim() == "[task.tball]" {
+            out.push_str(&format!("rollout_delay_ms = {delay_ms}\n"));
+        }
+    }
+    out
+}
+
+/// One pipeline run: (time per update after the first, final mean as exact bits).
+fn pipeline_run(
+    supervisor: &Path,
+    config: &Path,
+    workers: usize,
+    result: &Path,
+) -> Result<(f64, Vec<u64>), Box<dyn Error>> {
+    let out = Command::new(supervisor)
+        .arg("run")
+        .arg(config)
+        .args(["--quiet", "--workers", &workers.to_string(), "--result"])
+        .arg(result)
+        .output()?;
+    if !out.status.success() {
+        return Err(format!(
+            "supervisor failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+        .into());
+    }
+    let r: toml::Table = std::fs::read_to_string(result)?.parse()?;
+    let number = |key: &str| r.get(key).and_then(toml::Value::as_float);
+    let (Some(elapsed), Some(first), Some(done)) = (
+        number("elapsed_s"),
+        number("first_update_s"),
+        r.get("updates").and_then(toml::Value::as_integer),
+    ) else {
+        return Err(format!(
+            "{}: missing elapsed_s, first_update_s or updates",
+            result.display()
+        )
+        .into());
+    };
+    let bits = r
+        .get("mean_bits")
+        .and_then(toml::Value::as_array)
+        .ok_or("result without mean_bits")?
+        .iter()
+        .map(|v| {
+            v.as_str()
+                .and_then(|b| u64::from_str_radix(b.trim_start_matches("0x"), 16).ok())
+                .ok_or("mean_bits: not a hex string")
+        })
+        .collect::<Result<Vec<u64>, _>>()?;
+    // The first update includes connecting every process: a one-time cost, left out.
+    Ok(((elapsed - first) / (done - 1).max(1) as f64, bits))
+}
+
+/// Times the pipeline with 1 and 2 workers and compares its results with the in-process run.
+fn pipeline(supervisor: &Path, config: &Path, updates: u64) -> Result<(), Box<dyn Error>> {
+    let text = std::fs::read_to_string(config)?;
+    let dir = std::env::temp_dir().join(format!("tball-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    println!();
+    println!(
+        "pipeline ({}), {updates} updates per run, median of 3 runs, first update left out:",
+        supervisor.display()
+    );
+    println!(
+        "{:<22} {:>12} {:>12} {:>9}  final mean bit-identical",
+        "rollouts", "1 worker", "2 workers", "speed-up"
+    );
+    for (label, delay_ms) in [("as simulated", 0.0), ("blocking 5 ms each", 5.0)] {
+        let variant = pipeline_variant(&text, updates, delay_ms);
+        let path = dir.join(format!("delay-{delay_ms}.toml"));
+        std::fs::write(&path, &variant)?;
+        let mut per_update = [0.0; 2];
+        let mut finals = Vec::new();
+        for (slot, workers) in [1usize, 2].into_iter().enumerate() {
+            let mut times = Vec::new();
+            for rep in 0..3 {
+                let result = dir.join(format!("result-{delay_ms}-{workers}-{rep}.toml"));
+                let (time, bits) = pipeline_run(supervisor, &path, workers, &result)?;
+                times.push(time);
+                finals.push(bits);
+            }
+            per_update[slot] = median_and_min(times).0;
+        }
+        let cfg = RunConfig::parse(&variant, &path)?;
+        let (_, in_process) = session::run_session(&cfg, cfg.run.seed, &mut NoObserver)?;
+        let in_process: Vec<u64> = in_process.mean.iter().map(|v| v.to_bits()).collect();
+        let runs_agree = finals.windows(2).all(|w| w[0] == w[1]);
+        let largest_difference = finals[0]
+            .iter()
+            .zip(&in_process)
+            .map(|(a, b)| (f64::from_bits(*a) - f64::from_bits(*b)).abs())
+            .fold(0.0, f64::max);
+        println!(
+            "{label:<22} {:>9.2} ms {:>9.2} ms {:>8.2}×  across runs: {runs_agree}; \
+             with in-process: {} (largest |Δ| {largest_difference:.2e})",
+            per_update[0] * 1e3,
+            per_update[1] * 1e3,
+            per_update[0] / per_update[1],
+            finals[0] == in_process,
+        );
+    }
+    std::fs::remove_dir_all(&dir)?;
+    Ok(())
 }
