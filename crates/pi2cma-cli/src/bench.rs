@@ -69,7 +69,7 @@ pub fn viapoint_update(weighting: WeightingName, groups: usize) -> Measurement {
 }
 
 /// Update only, for a large policy: P = 350 (7 × 50), K = 50, N = 1000, PI²-CMA bounds.
-pub fn large_update(weighting: Weighting, groups: usize) -> Measurement {
+pub fn large_update(weighting: Weighting, groups: usize, threads: usize) -> Measurement {
     let (p, k, n) = (350usize, 50usize, 1000usize);
     let hp = Hyperparameters {
         rollouts: k,
@@ -83,7 +83,9 @@ pub fn large_update(weighting: Weighting, groups: usize) -> Measurement {
         weighting,
         evaluation_in_update: true,
     };
-    let mut rule = UpdateRule::new(hp, p, n, None).expect("valid hyperparameters");
+    let mut rule = UpdateRule::new(hp, p, n, None)
+        .expect("valid hyperparameters")
+        .with_threads(threads);
     let old = Distribution::isotropic(DVector::zeros(p), 1.0).expect("valid distribution");
     let batch = ParameterBatch::sample(&old, 7, 0, k);
     let mut costs = CostBatch::new(k, n);
@@ -100,7 +102,9 @@ pub fn large_update(weighting: Weighting, groups: usize) -> Measurement {
             .insert(kk, &q, row.iter().sum::<f64>().abs())
             .expect("finite");
     }
-    let label = format!("large update only (P = 350, K = 50, N = 1000), {weighting:?}");
+    let label = format!(
+        "large update only (P = 350, K = 50, N = 1000), {weighting:?}, {threads} thread(s)"
+    );
     measure(&label, groups, 1, || {
         rule.update(&old, &batch.values, &costs)
             .expect("valid costs");
@@ -115,7 +119,7 @@ pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
     };
     let groups = if quick { 4 } else { 200 };
     type Case<'a> = (&'a str, Box<dyn Fn() -> Measurement>);
-    let cases: [Case; 4] = [
+    let cases: [Case; 5] = [
         (
             "via-point/per-time-step",
             Box::new(move || viapoint_update(WeightingName::PerTimeStep, groups)),
@@ -126,11 +130,15 @@ pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
         ),
         (
             "large/per-time-step",
-            Box::new(move || large_update(per_step, if quick { 3 } else { 11 })),
+            Box::new(move || large_update(per_step, if quick { 3 } else { 11 }, 1)),
+        ),
+        (
+            "large/per-time-step/2-threads",
+            Box::new(move || large_update(per_step, if quick { 3 } else { 11 }, 2)),
         ),
         (
             "large/episodic",
-            Box::new(move || large_update(Weighting::Episodic, if quick { 11 } else { 101 })),
+            Box::new(move || large_update(Weighting::Episodic, if quick { 11 } else { 101 }, 1)),
         ),
     ];
     cases

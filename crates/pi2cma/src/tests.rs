@@ -396,3 +396,54 @@ fn basis_activation_averaging() {
     // Without activations the option is refused, not silently ignored.
     assert!(UpdateRule::new(mk(TemporalAveraging::BasisActivation), p, n, None).is_err());
 }
+
+#[test]
+fn threaded_low_rank_update_is_bit_identical_and_matches_algorithm_1() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+    let (k, n, p) = (6, 130, 15);
+    let theta = DVector::from_fn(p, |_, _| rng.random_range(-1.0..1.0));
+    let samples: Vec<DVector<f64>> = (0..k)
+        .map(|kk| {
+            if kk == 0 {
+                theta.clone()
+            } else {
+                DVector::from_fn(p, |_, _| rng.random_range(-3.0..3.0))
+            }
+        })
+        .collect();
+    let q: Vec<Vec<f64>> = (0..k)
+        .map(|_| (0..n).map(|_| rng.random_range(0.0..1.0)).collect())
+        .collect();
+    let phi: Vec<f64> = (0..k).map(|_| rng.random_range(0.0..2.0)).collect();
+    let bounds = EigenvalueBounds::new(0.3, 3.0).unwrap();
+    let flat: Vec<f64> = samples.iter().flat_map(|s| s.iter().cloned()).collect();
+    let mut costs = CostBatch::new(k, n);
+    for kk in 0..k {
+        costs.insert(kk, &q[kk], phi[kk]).unwrap();
+    }
+    let old = Distribution::isotropic(theta.clone(), 1.0).unwrap();
+    let run = |threads| {
+        let rule = UpdateRule::new(
+            hp(
+                k,
+                CostMapping::Exponential { eliteness: 10.0 },
+                Exploration::Adaptive { bounds },
+                PER_STEP,
+            ),
+            p,
+            n,
+            None,
+        )
+        .unwrap();
+        rule.with_threads(threads)
+            .update(&old, &flat, &costs)
+            .unwrap()
+            .0
+    };
+    let (one, two, three) = (run(1), run(2), run(3));
+    assert_eq!(one, two);
+    assert_eq!(one, three);
+    let (mean, cov) = literal_algorithm_1(&theta, &samples, &q, &phi, 10.0, bounds);
+    assert!((&one.mean - &mean).amax() < 1e-12);
+    assert!((&one.covariance - &cov).amax() < 1e-10 * (1.0 + cov.amax()));
+}

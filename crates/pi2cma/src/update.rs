@@ -112,6 +112,8 @@ pub struct UpdateRule {
     /// Row-major N × P, each column normalised: (N − i)·ψ_j(t_i)/Σ_i(…). Only for BasisActivation.
     basis_temporal: Option<Vec<f64>>,
     kernel: CovarianceKernel,
+    /// Threads for the per-time-step low-rank kernel (1: none are started).
+    threads: usize,
     // Scratch, sized once.
     eps: Vec<f64>,
     cost_to_go: Vec<f64>,
@@ -227,6 +229,7 @@ impl UpdateRule {
             temporal,
             basis_temporal,
             kernel,
+            threads: 1,
             eps: vec![0.0; m * dim],
             cost_to_go: vec![0.0; m],
             totals: vec![0.0; k],
@@ -248,6 +251,14 @@ impl UpdateRule {
 
     pub fn hyperparameters(&self) -> &Hyperparameters {
         &self.hp
+    }
+
+    /// Lets the per-time-step update of a large policy (P > K) compute its per-step
+    /// eigen-decompositions on `threads` threads. The result is bit-identical for any count: the
+    /// steps are summed in fixed blocks, in block order. The default, 1, starts no thread.
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads.max(1);
+        self
     }
 
     pub fn dim(&self) -> usize {
@@ -344,6 +355,8 @@ impl UpdateRule {
                 if let Some(bounds) = adaptive.filter(|_| !unbounded) {
                     if self.kernel == CovarianceKernel::Closed2 {
                         self.closed2_per_step(bounds);
+                    } else if self.kernel == CovarianceKernel::LowRank {
+                        self.lowrank_per_step(bounds);
                     } else {
                         for i in 0..n {
                             for r in 0..m {
@@ -553,39 +566,48 @@ impl UpdateRule {
                 for (s, pr) in self.sqrt_probs.iter_mut().zip(&self.probs) {
                     *s = pr.sqrt();
                 }
-                for a in 0..m {
-                    let da = self.sqrt_probs[a];
-                    for b in 0..=a {
-                        let v = da * self.sqrt_probs[b] * self.gram[(a, b)];
-                        self.small[(a, b)] = v;
-                        self.small[(b, a)] = v;
-                    }
-                }
-                let eig = self.small.clone().symmetric_eigen();
-                let mut rank = 0;
-                for (j, &mu) in eig.eigenvalues.iter().enumerate() {
-                    if !(mu > 0.0) {
-                        continue;
-                    }
-                    let c = (bounds.clip(mu) - bounds.min) / mu;
-                    if c == 0.0 {
-                        continue;
-                    }
-                    let scale = (w * c).sqrt();
-                    let v = eig.eigenvectors.column(j);
-                    for a in 0..m {
-                        self.factor[(rank, a)] = self.sqrt_probs[a] * v[a] * scale;
-                    }
-                    rank += 1;
-                }
-                if rank > 0 {
-                    // Rows past `rank` are zero; multiplying them is cheaper than a view, and
-                    // `gemm` (unlike `gemm_tr`) reaches nalgebra's blocked matrix product.
-                    self.factor.rows_mut(rank, m - rank).fill(0.0);
-                    let ft = self.factor.transpose();
-                    self.lowrank_acc.gemm(1.0, &ft, &self.factor, 1.0);
-                }
+                lowrank_step(
+                    &self.sqrt_probs,
+                    w,
+                    &self.gram,
+                    bounds,
+                    &mut self.small,
+                    &mut self.factor,
+                    &mut self.lowrank_acc,
+                );
             }
+        }
+    }
+
+    /// The per-time-step low-rank accumulation, in fixed blocks of steps whose partial sums are
+    /// added in block order: the bits do not depend on how many threads computed the blocks.
+    fn lowrank_per_step(&mut self, bounds: EigenvalueBounds) {
+        let (n, m) = (self.steps, self.probs.len());
+        let blocks: Vec<std::ops::Range<usize>> = (0..n)
+            .step_by(STEP_BLOCK)
+            .map(|s| s..(s + STEP_BLOCK).min(n))
+            .collect();
+        let (probs, temporal, gram) = (&self.step_probs, &self.temporal, &self.gram);
+        let block = |b: &std::ops::Range<usize>| {
+            lowrank_block(b.clone(), n, m, probs, temporal, gram, bounds)
+        };
+        let partials: Vec<DMatrix<f64>> = if self.threads > 1 && blocks.len() > 1 {
+            let per_thread = blocks.len().div_ceil(self.threads);
+            std::thread::scope(|scope| {
+                let handles: Vec<_> = blocks
+                    .chunks(per_thread)
+                    .map(|group| scope.spawn(move || group.iter().map(block).collect::<Vec<_>>()))
+                    .collect();
+                handles
+                    .into_iter()
+                    .flat_map(|h| h.join().expect("update worker thread panicked"))
+                    .collect()
+            })
+        } else {
+            blocks.iter().map(block).collect()
+        };
+        for p in partials {
+            self.lowrank_acc += p;
         }
     }
 
@@ -706,6 +728,87 @@ fn closed2_rows(
     }
     for i in 0..n {
         (a[i], b[i], c[i]) = boundcovar2_interpolated(a[i], b[i], c[i], bounds);
+    }
+}
+
+/// Steps per block of the per-time-step low-rank accumulation.
+const STEP_BLOCK: usize = 50;
+
+/// Σ_{i ∈ steps} w_i·M_i for one block of steps (see [`lowrank_step`]).
+fn lowrank_block(
+    steps: std::ops::Range<usize>,
+    n: usize,
+    m: usize,
+    step_probs: &[f64],
+    temporal: &[f64],
+    gram: &DMatrix<f64>,
+    bounds: EigenvalueBounds,
+) -> DMatrix<f64> {
+    let mut acc = DMatrix::zeros(m, m);
+    let mut small = DMatrix::zeros(m, m);
+    let mut factor = DMatrix::zeros(m, m);
+    let mut sqrt_p = vec![0.0; m];
+    for i in steps {
+        for (r, s) in sqrt_p.iter_mut().enumerate() {
+            *s = step_probs[r * n + i].sqrt();
+        }
+        lowrank_step(
+            &sqrt_p,
+            temporal[i],
+            gram,
+            bounds,
+            &mut small,
+            &mut factor,
+            &mut acc,
+        );
+    }
+    acc
+}
+
+/// Adds w·M to `acc`, where boundcovar(Σ_k p_k ε_k ε_kᵀ) = λ_min·I + X·M·Xᵀ. With D = diag(p),
+/// G = D^½·(XᵀX)·D^½ has the eigenpairs (μ_j, v_j) of the non-zero part of Σ, and
+/// M = D^½·V·diag(c)·Vᵀ·D^½ with c_j = (clip(μ_j) − λ_min)/μ_j.
+fn lowrank_step(
+    sqrt_p: &[f64],
+    w: f64,
+    gram: &DMatrix<f64>,
+    bounds: EigenvalueBounds,
+    small: &mut DMatrix<f64>,
+    factor: &mut DMatrix<f64>,
+    acc: &mut DMatrix<f64>,
+) {
+    let m = sqrt_p.len();
+    for a in 0..m {
+        let da = sqrt_p[a];
+        for b in 0..=a {
+            let v = da * sqrt_p[b] * gram[(a, b)];
+            small[(a, b)] = v;
+            small[(b, a)] = v;
+        }
+    }
+    let eig = small.clone().symmetric_eigen();
+    let mut rank = 0;
+    for (j, &mu) in eig.eigenvalues.iter().enumerate() {
+        if !(mu > 0.0) {
+            continue;
+        }
+        let c = (bounds.clip(mu) - bounds.min) / mu;
+        if c == 0.0 {
+            continue;
+        }
+        let scale = (w * c).sqrt();
+        let v = eig.eigenvectors.column(j);
+        for a in 0..m {
+            factor[(rank, a)] = sqrt_p[a] * v[a] * scale;
+        }
+        rank += 1;
+    }
+    if rank > 0 {
+        // Rows past `rank` are zero; multiplying them is cheaper than a view, and `gemm`
+        // (unlike `gemm_tr`) reaches nalgebra's blocked matrix product.
+        factor.rows_mut(rank, m - rank).fill(0.0);
+        let ft = factor.transpose();
+        acc.gemm(1.0, &ft, &*factor, 1.0);
     }
 }
 
