@@ -66,9 +66,12 @@ pub fn largest_eigenvalue(m: &DMatrix<f64>) -> f64 {
             let (l, _) = eigen2(m[(0, 0)], m[(0, 1)], m[(1, 1)]);
             l[0].max(l[1])
         }
-        _ => symmetric_eigen(m)
-            .0
-            .into_iter()
+        // Eigenvalues only: no eigenvectors to accumulate.
+        _ => m
+            .clone()
+            .symmetric_eigenvalues()
+            .iter()
+            .cloned()
             .fold(f64::NEG_INFINITY, f64::max),
     }
 }
