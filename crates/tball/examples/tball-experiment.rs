@@ -148,7 +148,8 @@ fn main() -> Res<()> {
     let elapsed = start.elapsed();
     write_csv(&args.out, &sessions)?;
     let change = cfg.schedule.first().map(|c| c.from_update as usize);
-    print_summary(&sessions, change);
+    let summary = print_summary(&sessions, change);
+    std::fs::write(args.out.join("summary.txt"), summary)?;
     println!(
         "{} sessions × {} updates in {:.2} s",
         sessions.len(),
@@ -209,17 +210,31 @@ fn in_target(r: &UpdateRow) -> bool {
     r.landing_y.is_some() && r.eval_terminal == 0.0
 }
 
-fn print_summary(sessions: &[Vec<UpdateRow>], change: Option<usize>) {
-    println!(
+fn print_summary(sessions: &[Vec<UpdateRow>], change: Option<usize>) -> String {
+    let mut out = String::new();
+    // Writing to a String cannot fail.
+    let _ = summary_table(&mut out, sessions, change);
+    print!("{out}");
+    out
+}
+
+fn summary_table(
+    out: &mut String,
+    sessions: &[Vec<UpdateRow>],
+    change: Option<usize>,
+) -> std::fmt::Result {
+    writeln!(
+        out,
         "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} {:>9} {:>9}",
         "session", "first_hit", "cost@1", "cost@20", "cost@21", "λpeak@", "cost@40", "target@40"
-    );
+    )?;
     let n = sessions[0].len();
     let at = |rows: &[UpdateRow], u: usize| rows.get(u - 1).map_or(f64::NAN, |r| r.eval_cost);
     let mut firsts = Vec::new();
     let mut peaks = Vec::new();
     for (s, rows) in sessions.iter().enumerate() {
-        let first = rows.iter().position(in_target).map(|u| u + 1);
+        let before_change = &rows[..change.unwrap_or(rows.len()).min(rows.len())];
+        let first = before_change.iter().position(in_target).map(|u| u + 1);
         let peak = change.filter(|&c| c < n).map(|c| {
             let (i, _) = rows[c..]
                 .iter()
@@ -235,7 +250,8 @@ fn print_summary(sessions: &[Vec<UpdateRow>], change: Option<usize>) {
         });
         firsts.extend(first.map(|f| f as f64));
         peaks.extend(peak.map(|p| p as f64));
-        println!(
+        writeln!(
+            out,
             "{:>7} {:>10} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>9.3} {:>9}",
             s,
             first.map_or("never".into(), |f| f.to_string()),
@@ -245,9 +261,10 @@ fn print_summary(sessions: &[Vec<UpdateRow>], change: Option<usize>) {
             peak.map_or("-".into(), |p| p.to_string()),
             at(rows, n),
             rows.last().is_some_and(in_target),
-        );
+        )?;
     }
-    println!(
+    writeln!(
+        out,
         "{:>7} {:>10.1} {:>9.3} {:>9.3} {:>9.3} {:>10.1} {:>9.3} {:>9.2}",
         "mean",
         mean(firsts.iter().copied()),
@@ -261,13 +278,15 @@ fn print_summary(sessions: &[Vec<UpdateRow>], change: Option<usize>) {
                 .iter()
                 .map(|r| f64::from(u8::from(r.last().is_some_and(in_target))))
         ),
-    );
+    )?;
     if firsts.len() < sessions.len() {
-        println!(
-            "({} sessions never landed in the target)",
+        writeln!(
+            out,
+            "(first_hit: first update in the target before the change; {} sessions never were)",
             sessions.len() - firsts.len()
-        );
+        )?;
     }
+    Ok(())
 }
 
 /// Cost of the evaluation rollout (mean over sessions, with the mean ± std of the exploration
