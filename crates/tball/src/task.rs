@@ -241,8 +241,9 @@ impl Tball {
         }
     }
 
-    /// Runs the swing θ: immediate costs into `per_step` (N values), and, when `trace` is given,
-    /// the bat's path over the whole swing.
+    /// Runs the swing θ (P values): immediate costs into `per_step` (at least N values), and,
+    /// when `trace` is given, the bat's path over the whole swing. Panics if θ or `per_step` is
+    /// shorter, as every [`Task::rollout`] may: executors check the lengths first.
     pub fn simulate(
         &self,
         theta: &[f64],
@@ -288,6 +289,8 @@ impl Tball {
         let mut hit = None;
         let mut closest = f64::INFINITY;
         let mut prev = self.arm.pose(&joints_at(0));
+        // Only a bat surface arriving at the ball counts as a hit: one that starts inside the
+        // ball, or touches it while moving away, must first separate from it again.
         let mut apart = closest_on_segment(prev.grip, prev.tip, ball).1 > reach;
         if let Some(t) = trace.as_deref_mut() {
             t.time.clear();
