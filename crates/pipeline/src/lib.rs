@@ -19,7 +19,6 @@ use std::time::Duration;
 use anyhow::{anyhow, Context as _};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 use session::RunConfig;
 use wire::{Limits, Service};
 
@@ -115,35 +114,32 @@ pub enum Flow {
     Stop,
 }
 
-/// Calls `on_wake` once, then every time the doorbell rings, until it returns [`Flow::Stop`] or a
-/// termination signal arrives. Notifications are consumed before `on_wake` drains its
-/// subscribers, so a sample published while draining rings again rather than being missed.
+/// Longest a process sleeps without looking at its subscribers and at termination requests.
+pub const TICK: Duration = Duration::from_millis(100);
+
+/// Calls `on_wake` once, then every time the doorbell rings (and at least every [`TICK`]),
+/// until it returns [`Flow::Stop`] or SIGINT/SIGTERM arrives.
+///
+/// This blocks in `Listener::timed_wait`, not in a `WaitSet`: iceoryx2 0.10's event listener
+/// keeps a "notified" flag beside its socket, and under concurrent notifiers the flag can stay
+/// set while the socket is empty; later notifiers then skip the socket write. `timed_wait`
+/// checks the flag before blocking, an epoll-based `WaitSet` does not and slept forever
+/// (measured: a 1-worker run hung after ~7000 updates). The tick is a second safety net: a
+/// lost wake-up costs at most [`TICK`], and an idle process wakes 10 times a second.
 pub fn wait_loop(
+    node: &Node<Service>,
     doorbell: &Listener<Service>,
     mut on_wake: impl FnMut() -> anyhow::Result<Flow>,
 ) -> anyhow::Result<Exit> {
-    let waitset = iox(
-        WaitSetBuilder::new().create::<Service>(),
-        "cannot create waitset",
-    )?;
-    let _guard = iox(
-        waitset.attach_notification(doorbell),
-        "cannot attach doorbell",
-    )?;
     loop {
-        iox(doorbell.try_wait(|_| {}), "doorbell")?;
         if on_wake()? == Flow::Stop {
             return Ok(Exit::Done);
         }
-        match iox(
-            waitset.wait_and_process_once(|_| CallbackProgression::Continue),
-            "waitset",
-        )? {
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
-                return Ok(Exit::Signal)
-            }
-            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+        if node.wait(Duration::ZERO).is_err() {
+            return Ok(Exit::Signal);
         }
+        // An error here is a signal interrupting the wait; the check above sees it next.
+        let _ = doorbell.timed_wait(|_| {}, TICK);
     }
 }
 

@@ -159,7 +159,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         Ok(())
     };
 
-    let exit = wait_loop(&doorbell, || {
+    let exit = wait_loop(&ctx.node, &doorbell, || {
         while let Some(msg) = iox(control.receive(), "receive control")? {
             let m = *msg.payload();
             if m.run_id != ctx.run_id {
