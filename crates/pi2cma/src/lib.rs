@@ -15,6 +15,7 @@ mod cost;
 mod distribution;
 mod error;
 mod optimizer;
+mod symeig;
 mod update;
 mod weighting;
 

@@ -10,6 +10,7 @@ use crate::boundcovar::{boundcovar, boundcovar2, boundcovar2_interpolated, Eigen
 use crate::cost::CostBatch;
 use crate::distribution::Distribution;
 use crate::error::{CostError, ParameterError};
+use crate::symeig::symmetric_eigen;
 use crate::weighting::{exp_nonpositive, CostMapping};
 
 /// How Σ changes from one update to the next.
@@ -786,9 +787,10 @@ fn lowrank_step(
             small[(b, a)] = v;
         }
     }
-    let eig = small.clone().symmetric_eigen();
+    let (mut mu, mut scratch) = (vec![0.0; m], vec![0.0; m]);
+    symmetric_eigen(m, small.as_mut_slice(), &mut mu, &mut scratch);
     let mut rank = 0;
-    for (j, &mu) in eig.eigenvalues.iter().enumerate() {
+    for (j, &mu) in mu.iter().enumerate() {
         if !(mu > 0.0) {
             continue;
         }
@@ -797,7 +799,7 @@ fn lowrank_step(
             continue;
         }
         let scale = (w * c).sqrt();
-        let v = eig.eigenvectors.column(j);
+        let v = small.column(j);
         for a in 0..m {
             factor[(rank, a)] = sqrt_p[a] * v[a] * scale;
         }
