@@ -133,12 +133,17 @@ fn scaling(dir: &Path, updates: u64) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// utime + stime of a process, in clock ticks.
-fn cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let rest = stat.rsplit_once(')')?.1;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
+/// CPU time of a process (all threads) in ns, from /proc/<pid>/schedstat.
+fn cpu_ns(pid: u32) -> Option<u64> {
+    let mut total = 0;
+    for t in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .ok()?
+        .flatten()
+    {
+        let s = std::fs::read_to_string(t.path().join("schedstat")).ok()?;
+        total += s.split_whitespace().next()?.parse::<u64>().ok()?;
+    }
+    Some(total)
 }
 
 fn peak_rss_kib(pid: u32) -> Option<u64> {
@@ -199,32 +204,23 @@ fn idle(dir: &Path, seconds: f64) -> anyhow::Result<()> {
         }
     }
     std::thread::sleep(Duration::from_millis(500));
-    let before: Vec<u64> = pids
-        .iter()
-        .map(|(_, p)| cpu_ticks(*p).unwrap_or(0))
-        .collect();
+    let before: Vec<u64> = pids.iter().map(|(_, p)| cpu_ns(*p).unwrap_or(0)).collect();
     let t0 = Instant::now();
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let wall = t0.elapsed().as_secs_f64();
-    let after: Vec<u64> = pids
-        .iter()
-        .map(|(_, p)| cpu_ticks(*p).unwrap_or(0))
-        .collect();
-    // SAFETY: sysconf has no preconditions.
-    #[allow(unsafe_code)]
-    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+    let after: Vec<u64> = pids.iter().map(|(_, p)| cpu_ns(*p).unwrap_or(0)).collect();
     println!("## Idle group: 3 workers whose rollouts block 1 s (a robot), {seconds} s window");
     println!("process       CPU %   peak RSS");
     let mut total = 0.0;
     for (i, (name, pid)) in pids.iter().enumerate() {
-        let cpu = (after[i] - before[i]) as f64 / hz / wall * 100.0;
+        let cpu = after[i].saturating_sub(before[i]) as f64 * 1e-9 / wall * 100.0;
         total += cpu;
         println!(
-            "{name:<12} {cpu:>6.2}  {:>6.1} MiB",
+            "{name:<12} {cpu:>6.3}  {:>6.1} MiB",
             peak_rss_kib(*pid).unwrap_or(0) as f64 / 1024.0
         );
     }
-    println!("all          {total:>6.2}  (clock tick 1/{hz} s)");
+    println!("all          {total:>6.3}  (% of one core)");
     let _ = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status();
