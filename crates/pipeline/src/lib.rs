@@ -19,6 +19,7 @@ use std::time::Duration;
 use anyhow::{anyhow, Context as _};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
+use iceoryx2_bb_posix::signal::SignalHandler;
 use session::RunConfig;
 use wire::{Limits, Service};
 
@@ -127,7 +128,6 @@ pub const TICK: Duration = Duration::from_millis(100);
 /// (measured: a 1-worker run hung after ~7000 updates). The tick is a second safety net: a
 /// lost wake-up costs at most [`TICK`], and an idle process wakes 10 times a second.
 pub fn wait_loop(
-    node: &Node<Service>,
     doorbell: &Listener<Service>,
     mut on_wake: impl FnMut() -> anyhow::Result<Flow>,
 ) -> anyhow::Result<Exit> {
@@ -135,7 +135,8 @@ pub fn wait_loop(
         if on_wake()? == Flow::Stop {
             return Ok(Exit::Done);
         }
-        if node.wait(Duration::ZERO).is_err() {
+        // Not node.wait(0): that is a nanosleep, which sleeps for the timer slack (~50 µs).
+        if SignalHandler::termination_requested() {
             return Ok(Exit::Signal);
         }
         // An error here is a signal interrupting the wait; the check above sees it next.

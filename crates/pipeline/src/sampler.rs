@@ -77,7 +77,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let us = || t0.elapsed().as_micros();
 
-    wait_loop(&ctx.node, &doorbell, || {
+    wait_loop(&doorbell, || {
         // Lost workers: their unfinished rollouts go back to the queue.
         while let Some(msg) = iox(control.receive(), "receive control")? {
             let m = *msg.payload();

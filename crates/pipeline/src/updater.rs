@@ -79,6 +79,10 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut last_progress = Instant::now();
     let mut first_eval = f64::NAN;
     let mut first_done: Option<Instant> = None;
+    // PI2CMA_TRACE=1: report updates slower than 20 ms (stalls) at the end.
+    let trace = std::env::var_os("PI2CMA_TRACE").is_some();
+    let mut update_start = Instant::now();
+    let mut slow: Vec<(u64, Duration)> = Vec::new();
     let mut last_eval = f64::NAN;
     let mut recorded: Vec<RecordedChange> = Vec::new();
     let mut runtime: Vec<TaskChange> = Vec::new();
@@ -159,7 +163,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         Ok(())
     };
 
-    let exit = wait_loop(&ctx.node, &doorbell, || {
+    let exit = wait_loop(&doorbell, || {
         while let Some(msg) = iox(control.receive(), "receive control")? {
             let m = *msg.payload();
             if m.run_id != ctx.run_id {
@@ -214,6 +218,10 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         if !batch.is_complete() {
             return Ok(Flow::Continue);
         }
+        if trace && update_start.elapsed() > Duration::from_millis(20) {
+            slow.push((u, update_start.elapsed()));
+        }
+        update_start = Instant::now();
         let summary = optimizer
             .tell(&batch)
             .map_err(|e| anyhow!("update {u}: {e}"))?;
@@ -262,6 +270,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         Ok(Flow::Continue)
     })?;
 
+    if trace {
+        eprintln!("{} updates slower than 20 ms: {slow:?}", slow.len());
+    }
     let elapsed = started.map(|t| t.elapsed()).unwrap_or_default();
     if exit == Exit::Signal {
         report(

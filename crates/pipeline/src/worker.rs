@@ -103,7 +103,7 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
     let mut chunk = (u64::MAX, 0u32);
     let mut last_notify = Instant::now();
     let mut unannounced = false;
-    wait_loop(&ctx.node, &doorbell, || {
+    wait_loop(&doorbell, || {
         while let Some(item) = iox(inbox.receive(), "receive work")? {
             let h = *item.user_header();
             if h.run_id != ctx.run_id {
