@@ -27,7 +27,10 @@
 //! Every receiving process owns one event service, its doorbell: `wake/updater`,
 //! `wake/sampler`, `wake/supervisor`, `wake/worker/<w>`. A sender publishes its samples, then
 //! notifies the receiver's doorbell once (event id [`WAKE`]); the receiver waits on its doorbell
-//! (never spins), consumes all notifications, then drains its subscribers.
+//! (never spins), consumes all notifications, then drains its subscribers. Wait with the
+//! listener's own `timed_wait`/`blocking_wait`, not by attaching it to a `WaitSet`: with
+//! iceoryx2 0.10 a WaitSet-attached listener can miss a wake-up under concurrent notifiers (see
+//! `pipeline::wait_loop`); a short timeout as a safety net costs nothing measurable.
 //!
 //! # Protocol of one update u
 //!
