@@ -5,7 +5,9 @@
 //! slow one. Rollouts of a lost worker go back to the pending queue.
 
 use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
 
+use iceoryx2::node::NodeView;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
@@ -14,6 +16,9 @@ use pi2cma::{Distribution, ParameterBatch};
 use wire::{Control, DistributionHeader, Ready, Service, WorkHeader, MAX_SETTINGS};
 
 use crate::{announce_ready, iox, wait_loop, Context, Flow, ProcessArgs};
+
+/// How often the sampler looks for dead worker nodes.
+const DEAD_SCAN: Duration = Duration::from_secs(1);
 
 type Inbox = (Publisher<Service, [f64], WorkHeader>, Notifier<Service>);
 
@@ -72,25 +77,51 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut current: Option<Current> = None;
     let mut next_chunk: u64 = 0;
     let mut finished = false;
+    let mut last_scan = Instant::now();
     // PI2CMA_TRACE=1: one line per distribution, request and chunk (µs since start).
     let trace = std::env::var_os("PI2CMA_TRACE").is_some();
     let t0 = std::time::Instant::now();
     let us = || t0.elapsed().as_micros();
 
     wait_loop(&doorbell, || {
-        // Lost workers: their unfinished rollouts go back to the queue.
+        // Lost workers: their unfinished rollouts go back to the queue. The supervisor reports
+        // the ones it manages; dead worker nodes (e.g. a crashed worker of another language
+        // that nobody restarts) are found by scanning the run's nodes once a second.
+        let mut lost: Vec<(u32, u32)> = Vec::new();
         while let Some(msg) = iox(control.receive(), "receive control")? {
             let m = *msg.payload();
-            if m.run_id != ctx.run_id || m.kind != Control::WORKER_LOST {
-                continue;
+            if m.run_id == ctx.run_id && m.kind == Control::WORKER_LOST {
+                lost.push((m.worker, m.incarnation));
             }
+        }
+        if last_scan.elapsed() >= DEAD_SCAN {
+            last_scan = Instant::now();
+            let _ = Node::<Service>::list(ctx.node.config(), |state| {
+                if let NodeState::Dead(view) = state {
+                    if let Some(w) = view
+                        .details()
+                        .as_ref()
+                        .and_then(|d| wire::parse_worker_node_name(d.name().as_str()))
+                    {
+                        lost.push(w);
+                    }
+                    let _ = view.try_remove_stale_resources();
+                }
+                CallbackProgression::Continue
+            });
+        }
+        for (worker, incarnation) in lost {
             if workers
-                .get(&m.worker)
-                .is_some_and(|w| w.incarnation == m.incarnation)
+                .get(&worker)
+                .is_some_and(|w| w.incarnation == incarnation)
             {
-                let w = workers.remove(&m.worker).expect("checked above");
+                let w = workers.remove(&worker).expect("checked above");
+                if trace {
+                    let n = w.assignment.as_ref().map_or(0, |a| a.rollouts.len());
+                    eprintln!("{} lost w{worker}.{incarnation}, holding {n}", us());
+                }
                 requeue(w.assignment, &current, &mut pending);
-                idle.retain(|i| *i != m.worker);
+                idle.retain(|i| *i != worker);
             }
         }
         // The newest distribution starts a new update.

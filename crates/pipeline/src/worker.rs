@@ -28,7 +28,7 @@ const NOTIFY_INTERVAL: Duration = Duration::from_millis(1);
 
 pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
     let (w, incarnation) = (args.worker, args.incarnation);
-    let ctx = Context::new(&args.process, &format!("worker-{w}"))?;
+    let ctx = Context::new(&args.process, &wire::worker_node_name(w, incarnation))?;
     if w as usize >= ctx.limits.max_workers {
         bail!(
             "worker slot {w} is beyond pipeline.max_workers = {}",

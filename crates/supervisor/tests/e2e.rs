@@ -56,12 +56,17 @@ fn run_id(n: u64) -> String {
 
 impl Run {
     fn start(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
+        Self::start_with_env(scratch, id, args, &[])
+    }
+
+    fn start_with_env(scratch: &Scratch, id: u64, args: &[&str], env: &[(&str, &str)]) -> Self {
         let run_id = run_id(id);
         let mut child = Command::new(SUPERVISOR)
             .arg("run")
             .args(args)
             .args(["--run-id", &run_id])
             .env("PI2CMA_RUN_DIR", scratch.runs())
+            .envs(env.iter().copied())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -400,6 +405,57 @@ fn exhausted_restart_limit_stops_the_run_with_the_reason() {
     for (name, pid) in pids {
         assert!(!alive(pid), "{name} (pid {pid}) survived");
     }
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
+    // A worker the supervisor does not manage (as one written in another language would be):
+    // when it is SIGKILLed nobody reports it, the sampler finds its dead node.
+    let scratch = Scratch::new("foreign");
+    let text = config(&[
+        ("updates = 40", "updates = 100"),
+        ("viapoint_weight = 1000.0", DELAYED),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "foreign.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_with_env(
+        &scratch,
+        250,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+        &[("PI2CMA_TRACE", "1")],
+    );
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let run_dir = run.runs.join(&run.run_id);
+    let mut foreign = Command::new(env!("CARGO_BIN_EXE_rollout-worker"))
+        .arg("--config")
+        .arg(run_dir.join("config.toml"))
+        .arg("--run-dir")
+        .arg(&run_dir)
+        .args(["--run-id", &run.run_id, "--worker", "5"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // The sampler's trace shows when the foreign worker got a chunk; kill it while it works.
+    let end = Instant::now() + Duration::from_secs(30);
+    while !run.text().contains("-> w5:") {
+        assert!(Instant::now() < end, "w5 never got work:\n{}", run.text());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    foreign.kill().unwrap();
+    foreign.wait().unwrap();
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    assert!(run.text().contains("lost w5.0"), "{}", run.text());
+    assert_eq!(RunResult::read(&result).unwrap().updates, 100);
+    assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
 }
 

@@ -48,14 +48,17 @@
 //!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
 //!
 //! A worker that dies (or is scaled away) is reported by the supervisor on `control`
-//! ([`Control::WORKER_LOST`]); the sampler hands its unfinished rollouts to the others. Because a
+//! ([`Control::WORKER_LOST`]), announces a higher incarnation when restarted, or is found by the
+//! sampler among the run's dead nodes (node name [`worker_node_name`]); the sampler hands its
+//! unfinished rollouts to the others. Because a
 //! rollout's parameters depend only on (seed, u, k), the result is bit-identical whatever the
 //! worker count, completion order or crashes.
 //!
-//! A foreign worker joins as worker `w` by: creating a node with the run's config, subscribing to
-//! `work/<w>`, listening on `wake/worker/<w>`, publishing on `costs` and `ready` and notifying
-//! `wake/updater` and `wake/sampler`, then sending [`Ready`] with [`Ready::NO_CHUNK`]. Every
-//! service must be opened with the settings of the functions below (see [`Limits`]).
+//! A foreign worker joins as worker `w` by: creating a node named [`worker_node_name`] with the
+//! run's config, subscribing to `work/<w>`, listening on `wake/worker/<w>`, publishing on
+//! `costs` and `ready` and notifying `wake/updater` and `wake/sampler`, then sending [`Ready`]
+//! with [`Ready::NO_CHUNK`]. Every service must be opened with the settings of the functions
+//! below (see [`Limits`]).
 
 use iceoryx2::port::event_id::EventId;
 use iceoryx2::prelude::*;
@@ -308,6 +311,18 @@ impl Limits {
     fn cost_buffer(&self) -> usize {
         2 * self.rollouts + self.max_workers + 4
     }
+}
+
+/// The node name of worker `w`, incarnation `incarnation`: `worker-<w>.<incarnation>`. The
+/// sampler finds crashed workers by these names among the run's dead nodes.
+pub fn worker_node_name(worker: u32, incarnation: u32) -> String {
+    format!("worker-{worker}.{incarnation}")
+}
+
+/// The inverse of [`worker_node_name`].
+pub fn parse_worker_node_name(name: &str) -> Option<(u32, u32)> {
+    let (w, i) = name.strip_prefix("worker-")?.split_once('.')?;
+    Some((w.parse().ok()?, i.parse().ok()?))
 }
 
 /// A run id: shown as 16 hex digits.
@@ -575,6 +590,16 @@ mod tests {
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 24 + MAX_NAME + 8);
         assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
+    }
+
+    #[test]
+    fn worker_node_names_round_trip() {
+        assert_eq!(
+            parse_worker_node_name(&worker_node_name(3, 7)),
+            Some((3, 7))
+        );
+        assert_eq!(parse_worker_node_name("sampler"), None);
+        assert_eq!(parse_worker_node_name("worker-3"), None);
     }
 
     #[test]
