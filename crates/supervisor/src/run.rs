@@ -236,7 +236,10 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             wire::run_id_hex(run_id)
         );
     }
+    // A second attempt covers another run removing the (then empty) runs directory between
+    // our creating it and creating our run directory in it.
     std::fs::create_dir_all(&run_dir)
+        .or_else(|_| std::fs::create_dir_all(&run_dir))
         .with_context(|| format!("cannot create {}", run_dir.display()))?;
     let (tx, rx) = mpsc::channel();
     let mut sup = Supervisor {
@@ -957,6 +960,10 @@ impl Supervisor {
                 .with_context(|| format!("cannot copy the result to {}", dest.display()))?;
         }
         let _ = std::fs::remove_dir_all(&self.run_dir);
+        // The runs directory too, if this was the last run in it (remove_dir keeps non-empty ones).
+        if let Some(base) = self.run_dir.parent() {
+            let _ = std::fs::remove_dir(base);
+        }
         let _ = std::fs::remove_dir_all(wire::iceoryx_root(self.run_id));
         remove_prefixed(&wire::file_prefix(self.run_id));
         if let Some(r) = result {
