@@ -76,5 +76,133 @@ fn main() {
             bytes / updates
         );
     }
+    pipeline_cases(&dir, &filter);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The multiprocess pipeline (`supervisor run`, 3 workers) with and without the recorder
+/// process; needs the supervisor's binaries next to `recorder` (`cargo build --release -p
+/// supervisor`). Throughput is the updater's own measure (result file `elapsed_s`).
+fn pipeline_cases(dir: &Path, filter: &[String]) {
+    use std::process::{Command, Stdio};
+    let bin = Path::new(env!("CARGO_BIN_EXE_recorder"))
+        .parent()
+        .unwrap()
+        .to_path_buf();
+    if !bin.join("supervisor").is_file() {
+        println!(
+            "\npipeline: skipped, no supervisor binary in {}",
+            bin.display()
+        );
+        return;
+    }
+    println!("\n| pipeline case | updates | without (updates/s) | with recorder (updates/s) | recording cost | recorded | bytes/update |");
+    println!("|---|---|---|---|---|---|---|");
+    let cases = [
+        ("pipeline A1, 3 workers", 2000u64, 0.0),
+        ("pipeline A1, 3 workers, 1 ms rollouts", 150, 1.0),
+    ];
+    let mut id = 0u32;
+    for (name, updates, delay) in cases {
+        if !filter.iter().all(|f| name.contains(f.as_str())) {
+            continue;
+        }
+        let cfg = dir.join("pipe.toml");
+        let text = session::DEFAULT_CONFIG
+            .replace("updates = 40", &format!("updates = {updates}"))
+            .replace(
+                "viapoint_weight = 1000.0",
+                &format!("viapoint_weight = 1000.0\nrollout_delay_ms = {delay}"),
+            );
+        std::fs::write(&cfg, text).unwrap();
+        let mut best = [f64::INFINITY; 2];
+        let mut hung = 0;
+        let (mut recorded, mut bytes) = (0, 0);
+        for _ in 0..3 {
+            for with in [false, true] {
+                id += 1;
+                let run_id = format!("{:08x}{id:08x}", std::process::id());
+                let out = dir.join("pipe.mcap");
+                let _ = std::fs::remove_file(&out);
+                let mut rec = with.then(|| {
+                    let c = Command::new(bin.join("recorder"))
+                        .args(["--config"])
+                        .arg(&cfg)
+                        .arg("--run-dir")
+                        .arg(dir)
+                        .args(["--run-id", &run_id, "--out"])
+                        .arg(&out)
+                        .stderr(Stdio::null())
+                        .spawn()
+                        .unwrap();
+                    while !out.exists() {
+                        std::thread::sleep(std::time::Duration::from_millis(10));
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(300));
+                    c
+                });
+                let result = dir.join("result.toml");
+                let _ = std::fs::remove_file(&result);
+                let mut sup = Command::new(bin.join("supervisor"))
+                    .arg("run")
+                    .arg(&cfg)
+                    .args(["--quiet", "--run-id", &run_id, "--bin-dir"])
+                    .arg(&bin)
+                    .arg("--result")
+                    .arg(&result)
+                    .env("PI2CMA_RUN_DIR", dir.join("runs"))
+                    .stdout(Stdio::null())
+                    .spawn()
+                    .unwrap();
+                let t = std::time::Instant::now();
+                let mut stalled = false;
+                while sup.try_wait().unwrap().is_none() {
+                    if t.elapsed() > std::time::Duration::from_secs(60) {
+                        // Stop it in order (SIGINT) so that it cleans up its run.
+                        let _ = Command::new("kill")
+                            .args(["-INT", &sup.id().to_string()])
+                            .status();
+                        let _ = sup.wait();
+                        hung += 1;
+                        stalled = true;
+                        println!("  ({name}: run {run_id} stalled for 60 s and was stopped)");
+                        break;
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(20));
+                }
+                if let Some(mut c) = rec.take() {
+                    if stalled {
+                        let _ = Command::new("kill")
+                            .args(["-INT", &c.id().to_string()])
+                            .status();
+                    }
+                    c.wait().unwrap();
+                    recorded = record::read_recording(&out).unwrap().updates.len();
+                    bytes = std::fs::metadata(&out).unwrap().len() / updates;
+                }
+                let Ok(text) = std::fs::read_to_string(&result) else {
+                    continue;
+                };
+                let r: toml::Table = toml::from_str(&text).unwrap();
+                if r.get("complete").and_then(|c| c.as_bool()) != Some(true) {
+                    continue;
+                }
+                let elapsed = r["elapsed_s"].as_float().unwrap();
+                let i = usize::from(with);
+                best[i] = best[i].min(elapsed);
+            }
+        }
+        let n = updates as f64;
+        println!(
+            "| {name} | {updates} | {:.0} | {:.0} | {:+.1}% | {recorded} of {updates} | {bytes} |{}",
+            n / best[0],
+            n / best[1],
+            100.0 * (best[1] / best[0] - 1.0),
+            if hung > 0 {
+                format!(" ({hung} of 6 runs stalled)")
+            } else {
+                String::new()
+            }
+        );
+    }
 }

@@ -8,11 +8,14 @@
 //! it must be subscribed before the updater publishes the distribution of update 0: start it
 //! first and wait for its `lifecycle` message (role [`ROLE_RECORDER`]) before sending START.
 //!
-//! Each update is recomputed with the core from the recorded inputs before it is written (the
-//! samples are re-drawn from (seed, update, k)); a mismatch with the distribution the updater
-//! published is logged as an error event on `/log`. After every update the file is flushed: a
-//! SIGKILL loses at most the update in flight, and `mcap-tool recover` completes the file.
-//! SIGINT/SIGTERM finish the file (summary and indexes) and exit 0.
+//! Two threads: the main thread only drains the subscribers into memory (a copy per message,
+//! microseconds), so the services' small buffers never overflow because of the recorder; the
+//! writer thread assembles the updates, recomputes each with the core from the recorded inputs
+//! (the samples are re-drawn from (seed, update, k)), logs a mismatch with the distribution the
+//! updater published as an `error` event on `/log`, writes it, and flushes the file. A SIGKILL
+//! loses the update being written and any the writer had not reached yet (none while it keeps
+//! up); `mcap-tool recover` completes the file. SIGINT/SIGTERM finish the file (summary and
+//! indexes) after writing everything received, and exit 0.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -24,7 +27,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 use pipeline::{announce_ready, iox, Context};
 use record::assemble::{Assembler, CostOutcome};
 use record::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
-use wire::{Control, DistributionHeader, Lifecycle};
+use wire::{Control, CostHeader, DistributionHeader, Lifecycle};
 
 /// The `lifecycle` role this process announces (the wire contract's roles are 1–3).
 const ROLE_RECORDER: u32 = 4;
@@ -44,6 +47,16 @@ fn main() -> ExitCode {
     pipeline::run_main("recorder", || run(&cli))
 }
 
+/// What the receiving thread hands to the writing thread, in arrival order.
+enum Msg {
+    Distribution(DistributionHeader, Vec<f64>),
+    Cost(CostHeader, Vec<f64>, u64),
+    Control(Control),
+    Lifecycle(Lifecycle),
+    /// No more messages; `true` if a signal ended the run.
+    End(bool),
+}
+
 fn role_name(l: &Lifecycle) -> String {
     match l.role {
         wire::role::UPDATER => "updater".into(),
@@ -56,15 +69,8 @@ fn role_name(l: &Lifecycle) -> String {
 
 fn run(cli: &Cli) -> anyhow::Result<()> {
     let ctx = Context::new(&cli.process, "recorder")?;
-    let cfg = &ctx.config;
     let text = std::fs::read_to_string(&cli.process.config)
         .with_context(|| format!("{}: cannot read", cli.process.config.display()))?;
-    let task = session::build_task(cfg)?;
-    let names: Vec<String> = task.settings().iter().map(|(n, _)| n.to_string()).collect();
-    let basis = task.basis_activations();
-    let (p, steps) = (ctx.limits.dim, ctx.limits.steps);
-    let hp = cfg.hyperparameters();
-    let mut assembler = Assembler::new(hp.clone(), p, steps, basis.clone(), names.clone());
     let out = cli
         .out
         .clone()
@@ -115,24 +121,30 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
         )?);
     }
 
-    let mut writer = RunWriter::create(&out)?;
+    let writer = RunWriter::create(&out)?;
+    let (tx, rx) = std::sync::mpsc::channel::<Msg>();
+    let state = WriterState::new(&ctx, text, writer)?;
+    let writing = std::thread::Builder::new()
+        .name("writer".into())
+        .spawn(move || state.run(rx))
+        .context("cannot start the writer thread")?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
     eprintln!("recording to {}", out.display());
 
-    let pid = std::process::id();
-    let mut started = false;
-    let mut final_update: Option<u64> = None;
-    let mut current_update = 0u64;
-    let mut written = 0u64;
-    let mut mismatches = 0u64;
-    let stopped_by_signal;
-    loop {
+    let p = ctx.limits.dim;
+    let send = |m: Msg| {
+        tx.send(m)
+            .map_err(|_| anyhow::anyhow!("the writer thread has stopped"))
+    };
+    let mut result = Ok(());
+    let signal = loop {
         for b in &bells {
             iox(b.try_wait(|_| {}), "doorbell")?;
         }
         // Distributions before costs: every cost of update u was published before the
         // distribution of u + 1, so after this order of draining, a seen distribution's
         // predecessor costs are all in hand.
+        let mut last = false;
         while let Some(s) = iox(dist_sub.receive(), "receive distribution")? {
             let h: DistributionHeader = *s.user_header();
             if h.run_id != ctx.run_id {
@@ -140,90 +152,218 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
             }
             let payload = s.payload();
             if payload.len() < p + p * p {
-                anyhow::bail!(
+                result = Err(anyhow::anyhow!(
                     "distribution of update {}: {} values, expected {}",
                     h.update,
                     payload.len(),
                     p + p * p
-                );
+                ));
+                break;
             }
-            let (mean, cov) = (&payload[..p], &payload[p..p + p * p]);
-            let settings = &h.settings[..(h.settings_len as usize).min(h.settings.len())];
-            if !started {
-                started = true;
-                let initial = pi2cma::Distribution {
-                    mean: nalgebra::DVector::from_column_slice(mean),
-                    covariance: nalgebra::DMatrix::from_column_slice(p, p, cov),
-                };
-                let task_settings: Vec<(&str, f64)> = names
-                    .iter()
-                    .map(String::as_str)
-                    .zip(settings.iter().copied())
-                    .collect();
-                writer.write_start(&RunStart {
-                    name: &cfg.run.name,
-                    seed: h.seed,
-                    update: h.update,
-                    steps,
-                    hyperparameters: &hp,
-                    initial: &initial,
-                    basis_activations: basis.as_deref(),
-                    config_toml: &text,
-                    executor: "pipeline",
-                    task_settings: &task_settings,
-                })?;
-                writer.write_event(
-                    h.update,
-                    Event::Start,
-                    "recorder",
-                    pid,
-                    &format!("recording run {} from update {}", ctx.run_id, h.update),
-                )?;
-            }
-            current_update = current_update.max(h.update);
-            assembler
-                .distribution(h.update, h.seed, mean, cov, settings)
-                .map_err(anyhow::Error::msg)?;
-            if h.flags & DistributionHeader::FINAL != 0 {
-                final_update = Some(h.update);
-            }
+            last |= h.flags & DistributionHeader::FINAL != 0;
+            send(Msg::Distribution(h, payload[..p + p * p].to_vec()))?;
         }
         while let Some(s) = iox(costs_sub.receive(), "receive costs")? {
             let h = *s.user_header();
-            if h.run_id != ctx.run_id {
-                continue;
-            }
-            let end_ns = now_ns();
-            let timing = RolloutTiming {
-                worker: format!("worker-{}", h.worker),
-                start_ns: end_ns.saturating_sub(h.duration_ns),
-                end_ns,
-            };
-            match assembler.cost(
-                h.update,
-                h.rollout as usize,
-                s.payload(),
-                h.terminal,
-                timing,
-            ) {
-                Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
-                Err(e) => writer.write_event(
-                    h.update,
-                    Event::Error,
-                    &format!("worker-{}", h.worker),
-                    0,
-                    &format!("cost of update {} rejected: {e}", h.update),
-                )?,
+            if h.run_id == ctx.run_id {
+                send(Msg::Cost(h, s.payload().to_vec(), now_ns()))?;
             }
         }
         while let Some(s) = iox(control_sub.receive(), "receive control")? {
-            let c: Control = *s.payload();
-            if c.run_id != ctx.run_id {
-                continue;
+            if s.payload().run_id == ctx.run_id {
+                send(Msg::Control(*s.payload()))?;
             }
-            match c.kind {
-                Control::WORKER_LOST => writer.write_event(
-                    current_update,
+        }
+        while let Some(s) = iox(lifecycle_sub.receive(), "receive lifecycle")? {
+            if s.payload().run_id == ctx.run_id {
+                send(Msg::Lifecycle(*s.payload()))?;
+            }
+        }
+        if last || result.is_err() {
+            break false;
+        }
+        match iox(
+            waitset.wait_and_process_once(|_| CallbackProgression::Continue),
+            "waitset",
+        )? {
+            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => break true,
+            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+        }
+    };
+    let _ = tx.send(Msg::End(signal));
+    let written = writing
+        .join()
+        .map_err(|_| anyhow::anyhow!("the writer thread panicked"))??;
+    eprintln!("recorded {written} updates to {}", out.display());
+    result
+}
+
+/// The writing thread: assembles updates, recomputes and writes them.
+struct WriterState {
+    writer: RunWriter<std::io::BufWriter<std::fs::File>>,
+    assembler: Assembler,
+    config: session::RunConfig,
+    text: String,
+    names: Vec<String>,
+    basis: Option<Vec<f64>>,
+    steps: usize,
+    dim: usize,
+    run_id: u64,
+    pid: u32,
+    started: bool,
+    final_update: Option<u64>,
+    current_update: u64,
+    written: u64,
+    mismatches: u64,
+}
+
+impl WriterState {
+    fn new(
+        ctx: &Context,
+        text: String,
+        writer: RunWriter<std::io::BufWriter<std::fs::File>>,
+    ) -> anyhow::Result<Self> {
+        let cfg = ctx.config.clone();
+        let task = session::build_task(&cfg)?;
+        let names: Vec<String> = task.settings().iter().map(|(n, _)| n.to_string()).collect();
+        let basis = task.basis_activations();
+        let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
+        let assembler = Assembler::new(
+            cfg.hyperparameters(),
+            dim,
+            steps,
+            basis.clone(),
+            names.clone(),
+        );
+        Ok(Self {
+            writer,
+            assembler,
+            config: cfg,
+            text,
+            names,
+            basis,
+            steps,
+            dim,
+            run_id: ctx.run_id,
+            pid: std::process::id(),
+            started: false,
+            final_update: None,
+            current_update: 0,
+            written: 0,
+            mismatches: 0,
+        })
+    }
+
+    fn run(mut self, rx: std::sync::mpsc::Receiver<Msg>) -> anyhow::Result<u64> {
+        let mut signal = true;
+        while let Ok(m) = rx.recv() {
+            match m {
+                Msg::End(s) => {
+                    signal = s;
+                    break;
+                }
+                m => self.handle(m)?,
+            }
+            self.write_complete()?;
+            if self
+                .final_update
+                .is_some_and(|f| self.assembler.first_update().is_none_or(|n| n >= f))
+            {
+                signal = false;
+                break;
+            }
+        }
+        let pid = self.pid;
+        let (written, mismatches) = (self.written, self.mismatches);
+        self.writer.write_event(
+            self.current_update,
+            Event::Exit,
+            "recorder",
+            pid,
+            &format!(
+                "recorder exits ({}): {written} updates written, {mismatches} recomputation \
+                 mismatches",
+                if signal { "signal" } else { "run complete" }
+            ),
+        )?;
+        self.writer.finish()?;
+        Ok(written)
+    }
+
+    fn handle(&mut self, m: Msg) -> anyhow::Result<()> {
+        let pid = self.pid;
+        match m {
+            Msg::Distribution(h, payload) => {
+                let p = self.dim;
+                let (mean, cov) = (&payload[..p], &payload[p..p + p * p]);
+                let settings = &h.settings[..(h.settings_len as usize).min(h.settings.len())];
+                if !self.started {
+                    self.started = true;
+                    let initial = pi2cma::Distribution {
+                        mean: nalgebra::DVector::from_column_slice(mean),
+                        covariance: nalgebra::DMatrix::from_column_slice(p, p, cov),
+                    };
+                    let task_settings: Vec<(&str, f64)> = self
+                        .names
+                        .iter()
+                        .map(String::as_str)
+                        .zip(settings.iter().copied())
+                        .collect();
+                    self.writer.write_start(&RunStart {
+                        name: &self.config.run.name,
+                        seed: h.seed,
+                        update: h.update,
+                        steps: self.steps,
+                        hyperparameters: self.assembler.hyperparameters(),
+                        initial: &initial,
+                        basis_activations: self.basis.as_deref(),
+                        config_toml: &self.text,
+                        executor: "pipeline",
+                        task_settings: &task_settings,
+                    })?;
+                    self.writer.write_event(
+                        h.update,
+                        Event::Start,
+                        "recorder",
+                        pid,
+                        &format!(
+                            "recording run {} from update {}",
+                            wire::run_id_hex(self.run_id),
+                            h.update
+                        ),
+                    )?;
+                }
+                self.current_update = self.current_update.max(h.update);
+                self.assembler
+                    .distribution(h.update, h.seed, mean, cov, settings)
+                    .map_err(anyhow::Error::msg)?;
+                if h.flags & DistributionHeader::FINAL != 0 {
+                    self.final_update = Some(h.update);
+                }
+            }
+            Msg::Cost(h, costs, end_ns) => {
+                let timing = RolloutTiming {
+                    worker: format!("worker-{}", h.worker),
+                    start_ns: end_ns.saturating_sub(h.duration_ns),
+                    end_ns,
+                };
+                match self
+                    .assembler
+                    .cost(h.update, h.rollout as usize, &costs, h.terminal, timing)
+                {
+                    Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
+                    Err(e) => self.writer.write_event(
+                        h.update,
+                        Event::Error,
+                        &format!("worker-{}", h.worker),
+                        0,
+                        &format!("cost of update {} rejected: {e}", h.update),
+                    )?,
+                }
+            }
+            Msg::Control(c) => match c.kind {
+                Control::WORKER_LOST => self.writer.write_event(
+                    self.current_update,
                     Event::Crash,
                     &format!("worker-{}", c.worker),
                     0,
@@ -233,8 +373,8 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                         c.worker, c.incarnation
                     ),
                 )?,
-                Control::SET_TASK => writer.write_event(
-                    current_update,
+                Control::SET_TASK => self.writer.write_event(
+                    self.current_update,
                     Event::Info,
                     "supervisor",
                     0,
@@ -245,41 +385,50 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                         c.value
                     ),
                 )?,
-                Control::START => {
-                    writer.write_event(current_update, Event::Info, "supervisor", 0, "start")?
-                }
+                Control::START => self.writer.write_event(
+                    self.current_update,
+                    Event::Info,
+                    "supervisor",
+                    0,
+                    "start",
+                )?,
                 _ => {}
-            }
-        }
-        while let Some(s) = iox(lifecycle_sub.receive(), "receive lifecycle")? {
-            let l: Lifecycle = *s.payload();
-            if l.run_id != ctx.run_id || l.pid == pid {
-                continue;
-            }
-            let (event, what) = if l.incarnation > 0 {
-                (Event::Restart, "restarted")
-            } else if l.role == wire::role::WORKER && written > 0 {
-                (Event::Scale, "joined the running run")
-            } else {
-                (Event::Start, "ready")
-            };
-            writer.write_event(
-                current_update,
-                event,
-                &role_name(&l),
-                l.pid,
-                &format!(
-                    "{} (pid {}, incarnation {}) {what}",
-                    role_name(&l),
+            },
+            Msg::Lifecycle(l) => {
+                if l.pid == pid {
+                    return Ok(());
+                }
+                let (event, what) = if l.incarnation > 0 {
+                    (Event::Restart, "restarted")
+                } else if l.role == wire::role::WORKER && self.written > 0 {
+                    (Event::Scale, "joined the running run")
+                } else {
+                    (Event::Start, "ready")
+                };
+                self.writer.write_event(
+                    self.current_update,
+                    event,
+                    &role_name(&l),
                     l.pid,
-                    l.incarnation
-                ),
-            )?;
+                    &format!(
+                        "{} (pid {}, incarnation {}) {what}",
+                        role_name(&l),
+                        l.pid,
+                        l.incarnation
+                    ),
+                )?;
+            }
+            Msg::End(_) => {}
         }
-        while let Some(a) = assembler.next_complete() {
+        Ok(())
+    }
+
+    fn write_complete(&mut self) -> anyhow::Result<()> {
+        let pid = self.pid;
+        while let Some(a) = self.assembler.next_complete() {
             let a = a.map_err(anyhow::Error::msg)?;
             for (name, value) in &a.changed {
-                writer.write_task_change(a.update, name, *value)?;
+                self.writer.write_task_change(a.update, name, *value)?;
             }
             let settings: Vec<(&str, f64)> =
                 a.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
@@ -290,8 +439,8 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                 .filter(|t| *t > 0)
                 .min();
             let end = a.timings.iter().map(|t| t.end_ns).max();
-            writer.write_update(&UpdateData {
-                hyperparameters: assembler.hyperparameters(),
+            self.writer.write_update(&UpdateData {
+                hyperparameters: self.assembler.hyperparameters(),
                 before: &a.before,
                 after: &a.after,
                 samples: &a.samples,
@@ -303,10 +452,10 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                 rollouts: &a.timings,
                 default_worker: "unknown",
             })?;
-            written += 1;
+            self.written += 1;
             if !a.recomputed_matches {
-                mismatches += 1;
-                writer.write_event(
+                self.mismatches += 1;
+                self.writer.write_event(
                     a.update,
                     Event::Error,
                     "recorder",
@@ -320,7 +469,7 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                 )?;
             }
             if a.duplicates > 0 {
-                writer.write_event(
+                self.writer.write_event(
                     a.update,
                     Event::Info,
                     "recorder",
@@ -333,50 +482,19 @@ fn run(cli: &Cli) -> anyhow::Result<()> {
                 )?;
             }
         }
-        while let Some((u, what)) = assembler.skip_incomplete() {
-            writer.write_event(
+        while let Some((u, what)) = self.assembler.skip_incomplete() {
+            self.writer.write_event(
                 u,
                 Event::Error,
                 "recorder",
                 pid,
                 &format!(
-                    "update {u} not recorded: {what} never reached the recorder (it fell \
-                     behind and the services' safe overflow dropped them)"
+                    "update {u} not recorded: {what} never reached the recorder (the services' \
+                     safe overflow dropped them)"
                 ),
             )?;
-            writer.flush()?;
+            self.writer.flush()?;
         }
-        if final_update.is_some_and(|f| assembler.first_update().is_none_or(|n| n >= f)) {
-            stopped_by_signal = false;
-            break;
-        }
-        match iox(
-            waitset.wait_and_process_once(|_| CallbackProgression::Continue),
-            "waitset",
-        )? {
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
-                stopped_by_signal = true;
-                break;
-            }
-            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
-        }
+        Ok(())
     }
-    writer.write_event(
-        current_update,
-        Event::Exit,
-        "recorder",
-        pid,
-        &format!(
-            "recorder exits ({}): {written} updates written, {mismatches} recomputation \
-             mismatches",
-            if stopped_by_signal {
-                "signal"
-            } else {
-                "run complete"
-            }
-        ),
-    )?;
-    writer.finish()?;
-    eprintln!("recorded {written} updates to {}", out.display());
-    Ok(())
 }
