@@ -1,0 +1,65 @@
+//! `analyze` end to end: three sessions of one run recorded, then summary, CSV, figures, mean
+//! curves and re-convergence table.
+
+#![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
+
+use record::analyze::{run, AnalyzeArgs};
+use record::McapRecorder;
+use session::{run_session, RunConfig};
+
+#[test]
+fn analyze_writes_csv_figures_and_the_experiment_table() {
+    let dir = std::env::temp_dir().join(format!("record-analyze-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cfg = RunConfig::default_config();
+    cfg.run.updates = Some(30);
+    let mut files = Vec::new();
+    for seed in 1..=3 {
+        let f = dir.join(format!("A1-s{seed}.mcap"));
+        let mut rec = McapRecorder::create(&f).unwrap();
+        run_session(&cfg, seed, &mut rec).unwrap();
+        rec.finish().unwrap();
+        files.push(f);
+    }
+    let out = dir.join("analysis");
+    let text = run(&AnalyzeArgs {
+        files: files.clone(),
+        out: Some(out.clone()),
+        no_csv: false,
+        no_plots: false,
+        verify: true,
+        tolerance: 0.05,
+    })
+    .unwrap();
+    assert_eq!(
+        text.matches("0 mismatches (bit-identical)").count(),
+        3,
+        "{text}"
+    );
+    assert!(text.contains("| A1 | 0 | 3 |"), "{text}");
+    assert!(text.contains("| A1 | 20 (task change) | 3 |"), "{text}");
+    for s in 1..=3 {
+        let sub = out.join(format!("A1-s{s}"));
+        let summary = std::fs::read_to_string(sub.join("summary.csv")).unwrap();
+        assert_eq!(summary.lines().count(), 31);
+        let rollouts = std::fs::read_to_string(sub.join("update_rollouts.csv")).unwrap();
+        assert_eq!(rollouts.lines().count(), 1 + 30 * 15);
+        // P = 2 means, N = 101 step costs per row.
+        let header = rollouts.lines().next().unwrap();
+        assert!(header.ends_with("cost_step_100") && header.contains("theta_1,"));
+        for fig in ["learning_curve.svg", "distribution.svg", "worker_time.svg"] {
+            let svg = std::fs::read_to_string(sub.join(fig)).unwrap();
+            assert!(
+                svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"),
+                "{fig}"
+            );
+        }
+    }
+    let mean = std::fs::read_to_string(out.join("mean_curves.csv")).unwrap();
+    assert_eq!(mean.lines().count(), 31);
+    assert!(mean.lines().nth(1).unwrap().starts_with("A1,0,3,"));
+    let reconv = std::fs::read_to_string(out.join("reconvergence.csv")).unwrap();
+    assert_eq!(reconv.lines().count(), 1 + 3 * 2);
+    assert!(out.join("mean_curves.svg").is_file());
+}
