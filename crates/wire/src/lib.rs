@@ -194,6 +194,9 @@ pub mod role {
     pub const UPDATER: u32 = 1;
     pub const SAMPLER: u32 = 2;
     pub const WORKER: u32 = 3;
+    /// The MCAP recorder (crate `record`): the spare subscriber of the run's services, started
+    /// first and stopped last by the supervisor.
+    pub const RECORDER: u32 = 4;
 }
 
 /// A process announces it is ready (all its ports are open and connected).
