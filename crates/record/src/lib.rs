@@ -16,6 +16,7 @@ pub mod analyze;
 pub mod assemble;
 mod convert;
 mod error;
+pub mod pipeline_recorder;
 mod reader;
 pub mod recompute;
 mod recorder;
