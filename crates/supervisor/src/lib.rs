@@ -1,7 +1,8 @@
-//! The supervisor of a pipeline run: starts the updater, the sampler and N rollout workers in
-//! order with readiness handshakes, restarts failed workers (with backoff and a limit per time
-//! window), scales workers at runtime, forwards task changes, shuts everything down in reverse
-//! order on a signal or `stop`, and leaves nothing of the run behind.
+//! The supervisor of a pipeline run: starts the MCAP recorder (crate `record`), the updater, the
+//! sampler and N rollout workers in order with readiness handshakes, restarts failed workers
+//! (with backoff and a limit per time window), scales workers at runtime, forwards task changes,
+//! shuts everything down in reverse order on a signal or `stop` (the recorder last, never
+//! restarted), and leaves nothing of the run behind.
 //!
 //! Control commands (`status`, `scale`, `set`, `stop`) reach a running supervisor through a Unix
 //! socket in its run directory `<runs>/<run id>/control.sock`, where `<runs>` is
@@ -14,7 +15,7 @@ mod control;
 mod run;
 
 pub use control::{client, runs_dir};
-pub use run::{run, RunOptions};
+pub use run::{default_recording, run, RunOptions};
 
 /// Exit code of a run stopped by SIGINT/SIGTERM.
 pub const EXIT_INTERRUPTED: u8 = 130;

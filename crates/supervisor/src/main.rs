@@ -25,9 +25,9 @@ enum Cmd {
         /// Fix the run id (16 hex digits) instead of drawing one.
         #[arg(long, value_parser = pipeline::parse_run_id)]
         run_id: Option<u64>,
-        /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries
-        /// (default: the supervisor's own directory if they are there, else the supervisor's
-        /// own executable, which hosts all three roles).
+        /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries, and
+        /// optionally `recorder` (default: the supervisor's own directory if they are there;
+        /// whatever is missing, the supervisor's own executable hosts).
         #[arg(long)]
         bin_dir: Option<PathBuf>,
         /// Also write the result (final distribution with exact bits) to this file.
@@ -36,6 +36,13 @@ enum Cmd {
         /// Print no progress lines.
         #[arg(long)]
         quiet: bool,
+        /// Write the run's MCAP recording here (default: runs/<run name>-<run id>.mcap in the
+        /// current directory).
+        #[arg(long, value_name = "FILE")]
+        record: Option<PathBuf>,
+        /// Run without the recorder (no MCAP file).
+        #[arg(long, conflicts_with = "record")]
+        no_record: bool,
     },
     /// Shows workers, update rate, current cost and λ of a running run.
     Status {
@@ -74,6 +81,12 @@ enum Cmd {
         #[command(flatten)]
         process: pipeline::ProcessArgs,
     },
+    /// The MCAP recorder (what crate `record`'s `recorder` binary runs).
+    #[command(hide = true)]
+    Recorder {
+        #[command(flatten)]
+        args: record::pipeline_recorder::RecorderArgs,
+    },
     /// A rollout worker (what the `rollout-worker` binary runs).
     #[command(hide = true, name = "rollout-worker")]
     RolloutWorker {
@@ -104,6 +117,8 @@ fn main() -> ExitCode {
             bin_dir,
             result,
             quiet,
+            record,
+            no_record,
         } => {
             let opts = supervisor::RunOptions {
                 config,
@@ -112,6 +127,8 @@ fn main() -> ExitCode {
                 bin_dir,
                 result,
                 quiet,
+                record,
+                no_record,
             };
             match supervisor::run(&opts) {
                 Ok(code) => ExitCode::from(code),
@@ -131,6 +148,9 @@ fn main() -> ExitCode {
         Cmd::Sampler { process } => {
             pipeline::run_main("sampler", || pipeline::sampler::main(&process))
         }
+        Cmd::Recorder { args } => pipeline::run_main("recorder", || {
+            record::pipeline_recorder::run_recorder(&args)
+        }),
         Cmd::RolloutWorker { worker } => {
             pipeline::run_main("rollout-worker", || pipeline::worker::main(&worker))
         }

@@ -43,6 +43,26 @@ pub struct RunOptions {
     pub result: Option<PathBuf>,
     /// No progress lines.
     pub quiet: bool,
+    /// Where the recorder writes the run's MCAP; default [`default_recording`].
+    pub record: Option<PathBuf>,
+    /// Run without the recorder.
+    pub no_record: bool,
+}
+
+/// Where a run's recording goes without `--record`: `runs/<run name>-<run id>.mcap` in the
+/// current directory — outside the run directory, which is removed when the run ends.
+pub fn default_recording(run_name: &str, run_id: u64) -> PathBuf {
+    let name: String = run_name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    PathBuf::from("runs").join(format!("{name}-{}.mcap", wire::run_id_hex(run_id)))
 }
 
 /// Messages into the supervisor's event loop.
@@ -55,6 +75,7 @@ pub enum Event {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Role {
+    Recorder,
     Updater,
     Sampler,
     Worker(u32),
@@ -63,6 +84,7 @@ enum Role {
 impl Role {
     fn name(self) -> String {
         match self {
+            Role::Recorder => "recorder".into(),
             Role::Updater => "updater".into(),
             Role::Sampler => "sampler".into(),
             Role::Worker(w) => format!("worker-{w}"),
@@ -70,6 +92,7 @@ impl Role {
     }
     fn binary(self) -> &'static str {
         match self {
+            Role::Recorder => "recorder",
             Role::Updater => "updater",
             Role::Sampler => "sampler",
             Role::Worker(_) => "rollout-worker",
@@ -81,10 +104,12 @@ const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
 
 /// How children are started: the `updater`, `sampler` and `rollout-worker` binaries of a
 /// directory, or — when they are not next to the supervisor, as after `cargo run`, which builds
-/// only the binary it runs — the supervisor's own executable, which hosts all three roles.
+/// only the binary it runs — the supervisor's own executable, which hosts all four roles. The
+/// recorder (crate `record`'s `recorder` binary) is taken from the directory when it is there,
+/// else hosted by the supervisor's executable too.
 #[derive(Debug, Clone)]
 enum Launcher {
-    Binaries(PathBuf),
+    Binaries { dir: PathBuf, exe: PathBuf },
     SelfHosted(PathBuf),
 }
 
@@ -97,14 +122,20 @@ impl Launcher {
                     bail!("missing binary `{b}`: {} does not exist", p.display());
                 }
             }
-            return Ok(Self::Binaries(dir.to_path_buf()));
+            return Ok(Self::Binaries {
+                dir: dir.to_path_buf(),
+                exe: std::env::current_exe()?,
+            });
         }
         let exe = std::env::current_exe()?;
         let dir = exe
             .parent()
             .context("the supervisor executable has no directory")?;
         Ok(if BINARIES.iter().all(|b| dir.join(b).is_file()) {
-            Self::Binaries(dir.to_path_buf())
+            Self::Binaries {
+                dir: dir.to_path_buf(),
+                exe: exe.clone(),
+            }
         } else {
             Self::SelfHosted(exe)
         })
@@ -113,7 +144,14 @@ impl Launcher {
     /// The program and its leading arguments for `role`.
     fn program(&self, role: Role) -> (PathBuf, Option<&'static str>) {
         match self {
-            Self::Binaries(dir) => (dir.join(role.binary()), None),
+            Self::Binaries { dir, exe } => {
+                let bin = dir.join(role.binary());
+                if role == Role::Recorder && !bin.is_file() {
+                    (exe.clone(), Some(role.binary()))
+                } else {
+                    (bin, None)
+                }
+            }
             Self::SelfHosted(exe) => (exe.clone(), Some(role.binary())),
         }
     }
@@ -145,6 +183,7 @@ enum Outcome {
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Phase {
+    StartRecorder,
     StartUpdater,
     StartSampler,
     StartWorkers,
@@ -162,8 +201,22 @@ struct Ports {
     _node: Node<Service>,
 }
 
+/// The run's recording and what became of its recorder.
+struct Recording {
+    /// As given or defaulted (printed as is).
+    path: PathBuf,
+    /// The path is [`default_recording`] (no `--record`).
+    defaulted: bool,
+    /// `None` while the recorder runs or exited cleanly; else why the file is incomplete.
+    lost: Option<String>,
+    /// When the recorder gets SIGTERM at the end of a complete run if it has not exited by
+    /// itself after the final distribution.
+    term_at: Option<Instant>,
+}
+
 struct Supervisor {
     cfg: RunConfig,
+    recording: Option<Recording>,
     pipe: PipelineSection,
     run_id: u64,
     run_dir: PathBuf,
@@ -229,6 +282,28 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     let limits = pipeline::limits(&cfg)?;
     let run_id = opts.run_id.unwrap_or_else(draw_run_id);
     let run_dir = control::runs_dir().join(wire::run_id_hex(run_id));
+    let recording = if opts.no_record {
+        None
+    } else {
+        let path = opts
+            .record
+            .clone()
+            .unwrap_or_else(|| default_recording(&cfg.run.name, run_id));
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).with_context(|| {
+                format!(
+                    "cannot create {} for the recording (or run with --no-record)",
+                    parent.display()
+                )
+            })?;
+        }
+        Some(Recording {
+            path,
+            defaulted: opts.record.is_none(),
+            lost: None,
+            term_at: None,
+        })
+    };
     if run_dir.exists() {
         bail!(
             "run directory {} exists: run {} is active or was killed (remove the directory)",
@@ -253,7 +328,12 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         procs: BTreeMap::new(),
         slots: BTreeMap::new(),
         target_workers,
-        phase: Phase::StartUpdater,
+        phase: if recording.is_some() {
+            Phase::StartRecorder
+        } else {
+            Phase::StartUpdater
+        },
+        recording,
         phase_deadline: None,
         outcome: None,
         killed: false,
@@ -321,9 +401,13 @@ impl Supervisor {
         .context("cannot install the SIGINT/SIGTERM handler")?;
         control::serve(&self.run_dir, self.tx.clone())?;
         say(&format!(
-            "run {} ({}): starting updater, sampler and {} workers",
+            "run {} ({}): starting {}updater, sampler and {} workers",
             wire::run_id_hex(self.run_id),
             self.cfg.run.name,
+            match &self.recording {
+                Some(r) => format!("recorder (to {}), ", r.path.display()),
+                None => String::new(),
+            },
             self.target_workers
         ));
         let loop_result = self.event_loop(&rx);
@@ -372,6 +456,9 @@ impl Supervisor {
     fn deadlines(&self) -> Vec<Instant> {
         let mut d: Vec<Instant> = self.slots.values().filter_map(|s| s.restart_at).collect();
         d.extend(self.phase_deadline);
+        if self.phase == Phase::Stopping {
+            d.extend(self.recording.as_ref().and_then(|r| r.term_at));
+        }
         d
     }
 
@@ -404,7 +491,10 @@ impl Supervisor {
             return;
         }
         match self.phase {
-            Phase::StartUpdater | Phase::StartSampler | Phase::StartWorkers => {
+            Phase::StartRecorder
+            | Phase::StartUpdater
+            | Phase::StartSampler
+            | Phase::StartWorkers => {
                 let waiting: Vec<String> = self
                     .procs
                     .values()
@@ -479,6 +569,16 @@ impl Supervisor {
     fn advance(&mut self) -> anyhow::Result<()> {
         let startup = Duration::from_millis(self.pipe.startup_timeout_ms);
         match self.phase {
+            Phase::StartRecorder => {
+                if self.role_pid(Role::Recorder).is_none() {
+                    self.spawn(Role::Recorder, 0)?;
+                    self.phase_deadline = Some(Instant::now() + startup);
+                } else if self.role_ready(Role::Recorder) {
+                    // Subscribed to every service: nothing the updater publishes is missed.
+                    self.phase = Phase::StartUpdater;
+                    return self.advance();
+                }
+            }
             Phase::StartUpdater => {
                 if self.role_pid(Role::Updater).is_none() {
                     self.spawn(Role::Updater, 0)?;
@@ -517,7 +617,8 @@ impl Supervisor {
                 }
             }
             Phase::Stopping => {
-                // Reverse start order: workers, then the sampler, then the updater.
+                // Reverse start order: workers, then the sampler, then the updater, then the
+                // recorder.
                 let workers: Vec<u32> = self
                     .procs
                     .iter()
@@ -528,8 +629,25 @@ impl Supervisor {
                     workers
                 } else if let Some(pid) = self.role_pid(Role::Sampler) {
                     vec![pid]
+                } else if let Some(pid) = self.role_pid(Role::Updater) {
+                    vec![pid]
+                } else if let Some(pid) = self.role_pid(Role::Recorder) {
+                    // After a complete run it exits by itself once it has written the final
+                    // update; SIGTERM (which finishes the file with everything received)
+                    // only if it has not done so within half the shutdown timeout.
+                    let complete = self.outcome == Some(Outcome::Complete);
+                    let half = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
+                    let rec = self.recording.as_mut().expect("a recorder has a recording");
+                    let due = *rec.term_at.get_or_insert_with(|| {
+                        Instant::now() + if complete { half } else { Duration::ZERO }
+                    });
+                    if Instant::now() >= due {
+                        vec![pid]
+                    } else {
+                        vec![]
+                    }
                 } else {
-                    self.role_pid(Role::Updater).into_iter().collect()
+                    vec![]
                 };
                 for pid in stage {
                     let p = self.procs.get_mut(&pid).expect("pid from procs");
@@ -606,6 +724,9 @@ impl Supervisor {
             .arg(&self.run_dir)
             .arg("--run-id")
             .arg(wire::run_id_hex(self.run_id));
+        if let (Role::Recorder, Some(rec)) = (role, &self.recording) {
+            cmd.arg("--out").arg(std::path::absolute(&rec.path)?);
+        }
         if let Role::Worker(w) = role {
             cmd.arg("--worker")
                 .arg(w.to_string())
@@ -804,7 +925,7 @@ impl Supervisor {
                 }
                 let was = self.target_workers;
                 self.target_workers = n;
-                if self.phase != Phase::StartUpdater && self.phase != Phase::StartSampler {
+                if matches!(self.phase, Phase::StartWorkers | Phase::Running) {
                     self.apply_scale().map_err(|e| format!("{e:#}"))?;
                 }
                 say(&format!("scaling from {was} to {n} workers"));
@@ -842,6 +963,14 @@ impl Supervisor {
             self.pipe.max_workers,
             self.total_restarts
         );
+        s += &match &self.recording {
+            Some(r) if r.lost.is_some() => format!(
+                "recording: {} (recorder died; recover the file after the run)\n",
+                r.path.display()
+            ),
+            Some(r) => format!("recording: {}\n", r.path.display()),
+            None => "recording: off (--no-record)\n".to_string(),
+        };
         for (pid, p) in &self.procs {
             s += &format!(
                 "  {} pid {pid} incarnation {}{}{}\n",
@@ -948,6 +1077,32 @@ impl Supervisor {
                 }
                 self.fail(format!("sampler exited ({cause})"));
             }
+            Role::Recorder => {
+                let starting = self.phase == Phase::StartRecorder;
+                let Some(rec) = self.recording.as_mut() else {
+                    return;
+                };
+                let path = rec.path.display().to_string();
+                if starting {
+                    self.fail(format!(
+                        "recorder exited before it was ready ({cause}); run with --no-record to \
+                         run without a recording"
+                    ));
+                } else if !status.success() {
+                    // Never restarted: a new recorder would truncate the file.
+                    rec.lost = Some(cause.clone());
+                    let go_on = if self.phase == Phase::Stopping {
+                        ""
+                    } else {
+                        "; the run continues without recording"
+                    };
+                    say(&format!(
+                        "WARNING: recorder (pid {pid}) died ({cause}){go_on}. {path} holds every \
+                         update flushed so far but is not finished: `pi2cma recover {path}` (or \
+                         `mcap-tool recover {path}`) completes it"
+                    ));
+                }
+            }
         }
     }
 
@@ -1000,6 +1155,30 @@ impl Supervisor {
             Some(Outcome::Interrupted) => say("interrupted"),
             Some(Outcome::Failed(reason)) => say(&format!("failed: {reason}")),
             None => {}
+        }
+        if let Some(rec) = self.recording.as_ref().filter(|r| r.path.exists()) {
+            let path = rec.path.display();
+            let place = if rec.defaulted {
+                " (the default place: runs/<run name>-<run id>.mcap in the current directory; \
+                 --record FILE to choose)"
+            } else {
+                ""
+            };
+            match &rec.lost {
+                None => {
+                    say(&format!("recording: {path}{place}"));
+                    say(&format!("  analyse it with: pi2cma analyze {path}"));
+                }
+                Some(cause) => {
+                    say(&format!(
+                        "recording: {path}{place} is NOT finished (the recorder died: {cause})"
+                    ));
+                    say(&format!(
+                        "  complete it with: pi2cma recover {path}   (or: mcap-tool recover {path})"
+                    ));
+                    say(&format!("  then analyse it with: pi2cma analyze {path}"));
+                }
+            }
         }
         Ok(())
     }

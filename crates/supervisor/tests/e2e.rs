@@ -2,7 +2,9 @@
 //! `sampler` and `rollout-worker` binaries of this crate), and compare its result bit for bit with
 //! the in-process runner. Every wait is bounded, so a hang fails the test instead of blocking CI.
 //! Each test uses its own runs directory (`PI2CMA_RUN_DIR`) and run id, so tests run in parallel
-//! without seeing each other — which is itself a check of run isolation.
+//! without seeing each other — which is itself a check of run isolation. Each supervisor runs in
+//! its scratch directory, so the recordings (`runs/<run name>-<run id>.mcap` by default) land
+//! there.
 
 // Test helpers outside #[test] functions; a failed unwrap is a failed test.
 #![allow(clippy::unwrap_used)]
@@ -31,8 +33,14 @@ impl Scratch {
     fn path(&self, file: &str) -> PathBuf {
         self.0.join(file)
     }
+    /// `PI2CMA_RUN_DIR` (run directories), not the recordings' `runs/`.
     fn runs(&self) -> PathBuf {
-        self.0.join("runs")
+        self.0.join("live")
+    }
+    /// Where a run of `name` and `id` records without `--record` (relative to the scratch
+    /// directory, the supervisor's working directory).
+    fn recording(&self, name: &str, id: u64) -> PathBuf {
+        self.0.join(format!("runs/{name}-{}.mcap", run_id(id)))
     }
 }
 
@@ -65,6 +73,7 @@ impl Run {
             .arg("run")
             .args(args)
             .args(["--run-id", &run_id])
+            .current_dir(&scratch.0)
             .env("PI2CMA_RUN_DIR", scratch.runs())
             .envs(env.iter().copied())
             .stdout(Stdio::piped())
@@ -264,6 +273,53 @@ fn assert_bit_identical(config_text: &str, result: &Path) {
     );
 }
 
+/// Asserts a finished recording holds updates 0..n, every one recomputing bit for bit from its
+/// recorded inputs, and no error events.
+fn assert_recorded(rec: &record::Recording, n: u64) {
+    assert!(
+        rec.indexed && rec.truncated.is_none(),
+        "{:?}",
+        rec.truncated
+    );
+    assert_eq!(rec.run_info().unwrap().executor, "pipeline");
+    let indices: Vec<u64> = rec.updates.iter().map(|u| u.update).collect();
+    assert_eq!(indices, (0..n).collect::<Vec<_>>());
+    let v = record::recompute::verify(rec).unwrap();
+    assert_eq!(v.updates as u64, n);
+    assert!(v.mismatches.is_empty(), "{v:?}");
+    let errors: Vec<&str> = rec
+        .logs
+        .iter()
+        .filter(|l| l.event == "error")
+        .map(|l| l.message.as_str())
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
+}
+
+/// Asserts the recorded distribution after the last update equals the in-process run's of as
+/// many updates, bit for bit.
+fn assert_recording_matches_in_process(config_text: &str, rec: &record::Recording) {
+    let last = rec.updates.last().unwrap();
+    let after = record::distribution_from_proto(last.after.as_ref().unwrap()).unwrap();
+    let mut cfg = RunConfig::parse(config_text, Path::new("test.toml")).unwrap();
+    cfg.run.updates = Some(last.update + 1);
+    if let session::TaskSection::ViaPoint(v) = &mut cfg.task {
+        v.rollout_delay_ms = 0.0;
+    }
+    let (_, d) = session::run_session(&cfg, cfg.run.seed, &mut session::NoObserver).unwrap();
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(after.mean.as_slice()), bits(d.mean.as_slice()));
+    assert_eq!(
+        bits(after.covariance.as_slice()),
+        bits(d.covariance.as_slice())
+    );
+}
+
+/// Whether the recording logged `event` for process `name`.
+fn logged(rec: &record::Recording, event: &str, name: &str) -> bool {
+    rec.logs.iter().any(|l| l.event == event && l.name == name)
+}
+
 const DELAYED: &str = "viapoint_weight = 1000.0\nrollout_delay_ms = 2.0";
 
 #[test]
@@ -312,6 +368,7 @@ fn supervisor_alone_hosts_all_roles_as_after_cargo_run() {
     let out = Command::new(&alone)
         .args(["run", "--quiet", "--result", result.to_str().unwrap()])
         .args(["--run-id", &run_id(50)])
+        .current_dir(&scratch.0)
         .env("PI2CMA_RUN_DIR", scratch.runs())
         .output()
         .unwrap();
@@ -323,6 +380,10 @@ fn supervisor_alone_hosts_all_roles_as_after_cargo_run() {
     );
     assert!(text.contains("summary: run"), "{text}");
     assert_bit_identical(session::DEFAULT_CONFIG, &result);
+    // The recorder role too: the quick start records without crate record's binaries.
+    let rec = record::read_recording(&scratch.recording("A1", 50)).unwrap();
+    assert!(rec.indexed, "{text}");
+    assert_eq!(rec.updates.len(), 40);
 }
 
 #[test]
@@ -374,6 +435,11 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
     let r = RunResult::read(&result).unwrap();
     assert_eq!(r.updates, 200);
     assert_bit_identical(&text, &result);
+    // The recording's health log has the loss and the restart.
+    let rec = record::read_recording(&scratch.recording("A1", 100)).unwrap();
+    assert!(logged(&rec, "crash", "worker-1"), "{:#?}", rec.logs);
+    assert!(logged(&rec, "restart", "worker-1"), "{:#?}", rec.logs);
+    assert_recorded(&rec, 200);
     assert_nothing_left(&run);
 }
 
@@ -490,7 +556,7 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     run.wait_status("progress with 4 workers", |s| updates_in(s) >= at4 + 5);
     let (ok, reply) = run.ctl(&["scale", "--workers", "2"]);
     assert!(ok, "{reply}");
-    let s = run.wait_status("2 workers", |s| pids_in(s).len() == 4);
+    let s = run.wait_status("2 workers", |s| pids_in(s).len() == 5);
     assert!(s.contains("workers: 2 running"), "{s}");
     // Above the limit: refused, run unaffected.
     let (ok, reply) = run.ctl(&["scale", "--workers", "17"]);
@@ -499,6 +565,12 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     assert!(exit.success(), "{}", run.text());
     assert_eq!(RunResult::read(&result).unwrap().updates, 120);
     assert_bit_identical(&text, &result);
+    // The recording's health log has the workers that joined the running run.
+    let rec = record::read_recording(&scratch.recording("A1", 200)).unwrap();
+    for w in ["worker-1", "worker-2", "worker-3"] {
+        assert!(logged(&rec, "scale", w), "{w}: {:#?}", rec.logs);
+    }
+    assert_recorded(&rec, 120);
     assert_nothing_left(&run);
 }
 
@@ -517,7 +589,8 @@ fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
     let mut run = Run::start(&scratch, 300, &[cfg.to_str().unwrap(), "--quiet"]);
     let status = run.wait_status("5 updates", |s| updates_in(s) >= 5);
     let pids = pids_in(&status);
-    assert_eq!(pids.len(), 5, "{status}");
+    // Recorder, updater, sampler, 3 workers.
+    assert_eq!(pids.len(), 6, "{status}");
     let t0 = Instant::now();
     assert_eq!(
         std::process::Command::new("kill")
@@ -655,5 +728,158 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     let out = run.text();
     assert!(out.contains("update 3") && out.contains("NaN"), "{out}");
     assert!(out.contains("updater exited"), "{out}");
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
+    let scratch = Scratch::new("record");
+    let mut run = Run::start(&scratch, 600, &["--quiet"]);
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    // The predictable place, relative to the working directory, and how to analyse it.
+    let shown = format!("runs/A1-{}.mcap", run_id(600));
+    let out = run.text();
+    assert!(
+        out.contains(&format!("recording: {shown} (the default place")),
+        "{out}"
+    );
+    assert!(out.contains(&format!("pi2cma analyze {shown}")), "{out}");
+    let rec = record::read_recording(&scratch.recording("A1", 600)).unwrap();
+    assert_recorded(&rec, 40);
+    assert_recording_matches_in_process(session::DEFAULT_CONFIG, &rec);
+    for name in ["updater", "sampler", "worker-0", "worker-1", "worker-2"] {
+        assert!(logged(&rec, "start", name), "{name}: {:#?}", rec.logs);
+    }
+    assert!(logged(&rec, "exit", "recorder"), "{:#?}", rec.logs);
+    assert_eq!(rec.task_changes.len(), 1);
+    assert_nothing_left(&run);
+
+    // --no-record: no recorder, no file.
+    let mut run = Run::start(&scratch, 601, &["--quiet", "--no-record"]);
+    assert!(
+        run.wait(Duration::from_secs(60)).success(),
+        "{}",
+        run.text()
+    );
+    assert!(!scratch.recording("A1", 601).exists());
+    assert!(!run.text().contains("recording:"), "{}", run.text());
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn sigint_mid_run_leaves_a_finished_recording_with_every_completed_update() {
+    let scratch = Scratch::new("rec-sigint");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "sigint.toml", &text);
+    let mcap = scratch.path("chosen/interrupted.mcap");
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        700,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            mcap.to_str().unwrap(),
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    run.wait_status("5 updates", |s| updates_in(s) >= 5);
+    let interrupted = Command::new("kill")
+        .args(["-INT", &run.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(interrupted.success());
+    let exit = run.wait(Duration::from_secs(15));
+    assert_eq!(exit.code(), Some(130), "{}", run.text());
+    let out = run.text();
+    assert!(
+        out.contains(&format!("recording: {}\n", mcap.display())),
+        "{out}"
+    );
+    assert!(
+        out.contains(&format!("pi2cma analyze {}", mcap.display())),
+        "{out}"
+    );
+    // Every update the updater completed, in a finished (indexed) file.
+    let r = RunResult::read(&result).unwrap();
+    assert!(r.updates >= 5 && !r.complete);
+    let rec = record::read_recording(&mcap).unwrap();
+    assert_recorded(&rec, r.updates);
+    assert_recording_matches_in_process(&text, &rec);
+    assert!(logged(&rec, "exit", "recorder"), "{:#?}", rec.logs);
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_the_file() {
+    let scratch = Scratch::new("rec-kill");
+    let text = config(&[
+        ("updates = 40", "updates = 200"),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "kill.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        800,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
+    let (_, victim) = pids_in(&status)
+        .into_iter()
+        .find(|(n, _)| n == "recorder")
+        .expect("recorder in status");
+    let path = scratch.recording("A1", 800);
+    // What the recorder has flushed so far must survive its SIGKILL.
+    let flushed = record::read_recording(&path).unwrap().updates.len();
+    let killed = Command::new("kill")
+        .args(["-9", &victim.to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    assert_eq!(RunResult::read(&result).unwrap().updates, 200);
+    let out = run.text();
+    let shown = format!("runs/A1-{}.mcap", run_id(800));
+    assert!(
+        out.contains(&format!("WARNING: recorder (pid {victim}) died"))
+            && out.contains("the run continues without recording"),
+        "{out}"
+    );
+    assert!(out.contains(&format!("pi2cma recover {shown}")), "{out}");
+    assert!(out.contains("is NOT finished"), "{out}");
+    // Never restarted: exactly one recorder ran.
+    assert_eq!(out.matches("[recorder] recording to").count(), 1, "{out}");
+    let damaged = record::read_recording(&path).unwrap();
+    assert!(!damaged.indexed);
+    let fixed = scratch.path("fixed.mcap");
+    let report = record::recover::recover(&path, &fixed).unwrap();
+    let rec = record::read_recording(&fixed).unwrap();
+    assert!(rec.indexed, "{report:?}");
+    let indices: Vec<u64> = rec.updates.iter().map(|u| u.update).collect();
+    assert!(
+        indices.len() >= flushed.max(1),
+        "{} < {flushed}",
+        indices.len()
+    );
+    assert_eq!(indices.len(), damaged.updates.len());
+    assert_eq!(indices, (0..indices.len() as u64).collect::<Vec<_>>());
+    assert!(record::recompute::verify(&rec)
+        .unwrap()
+        .mismatches
+        .is_empty());
+    assert_recording_matches_in_process(&text, &rec);
     assert_nothing_left(&run);
 }
