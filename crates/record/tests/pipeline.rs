@@ -95,6 +95,8 @@ fn start_supervisor(bin: &Path, run: &Run) -> Child {
         .arg(&run.run_id)
         .arg("--bin-dir")
         .arg(bin)
+        // This test starts the recorder by hand; the supervisor's own would be a second one.
+        .arg("--no-record")
         .env("PI2CMA_RUN_DIR", run.dir.join("runs"))
         .stdout(std::fs::File::create(run.dir.join("supervisor.log")).unwrap())
         .stderr(Stdio::null())
