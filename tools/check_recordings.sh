@@ -29,8 +29,9 @@ sed 's/^viapoint_weight = 1000.0$/viapoint_weight = 1000.0\nrollout_delay_ms = 1
 recorder=$!
 for _ in $(seq 100); do [ -f "$work/pipeline.mcap" ] && break; sleep 0.1; done
 sleep 0.3
+# --no-record: the recorder started above is the one under test (the services have room for one).
 PI2CMA_RUN_DIR="$work/runs" timeout 120 "$bin/supervisor" run "$work/pipeline.toml" \
-  --run-id "$run_id" --bin-dir "$bin" --quiet
+  --run-id "$run_id" --bin-dir "$bin" --quiet --no-record
 wait "$recorder"
 python3 tools/plot_learning_curve.py --check "$work/pipeline.mcap" -o "$work/pipeline.png"
 

@@ -146,7 +146,8 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
                 let mut sup = Command::new(bin.join("supervisor"))
                     .arg("run")
                     .arg(&cfg)
-                    .args(["--quiet", "--run-id", &run_id, "--bin-dir"])
+                    // The recorder under test is started above (or not at all).
+                    .args(["--quiet", "--no-record", "--run-id", &run_id, "--bin-dir"])
                     .arg(&bin)
                     .arg("--result")
                     .arg(&result)
