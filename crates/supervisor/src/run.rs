@@ -415,6 +415,12 @@ impl Supervisor {
         let _ = bell.join();
         if let Err(e) = loop_result {
             // Bring the group down before reporting.
+            if self.role_pid(Role::Recorder).is_some() {
+                if let Some(rec) = self.recording.as_mut() {
+                    rec.lost
+                        .get_or_insert_with(|| "killed after a supervisor error".into());
+                }
+            }
             self.kill_all();
             self.reap(&rx, Duration::from_secs(2));
             return Err(e);
