@@ -1,10 +1,18 @@
 //! [`McapRecorder`]: the in-process runner's observer that writes the run's MCAP.
+//!
+//! The file is written by a thread of its own, so writing update u overlaps with computing
+//! update u + 1 (on a machine with a spare core, recording then costs the runner almost nothing
+//! while an update takes longer to compute than to write). `on_update(u)` first waits until
+//! update u − 1 is flushed, so at any time at most one update — the one in flight — is not yet
+//! in the file.
 
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::thread::JoinHandle;
 
-use pi2cma::{Hyperparameters, Optimizer};
+use pi2cma::{CostBatch, Distribution, Hyperparameters, Optimizer, ParameterBatch, UpdateSummary};
 use session::{Observer, RunConfig, UpdateRecord};
 use tasks::TaskChange;
 
@@ -14,32 +22,189 @@ use crate::{config_to_toml, RecordError};
 /// Worker name of every rollout of the in-process runner.
 pub const IN_PROCESS: &str = "in-process";
 
-/// Records a run through [`session::Observer`]. Observer hooks cannot fail, so the first error
-/// is kept, recording stops, and [`McapRecorder::finish`] returns it.
+struct StartJob {
+    name: String,
+    seed: u64,
+    update: u64,
+    steps: usize,
+    hp: Hyperparameters,
+    initial: Distribution,
+    basis: Option<Vec<f64>>,
+    config_toml: String,
+    settings: Vec<(String, f64)>,
+}
+
+struct UpdateJob {
+    hp: Hyperparameters,
+    before: Distribution,
+    after: Distribution,
+    samples: ParameterBatch,
+    costs: CostBatch,
+    summary: UpdateSummary,
+    settings: Vec<(String, f64)>,
+    batch_start_ns: u64,
+    batch_end_ns: u64,
+}
+
+enum Job {
+    Start(Box<StartJob>),
+    TaskChange(u64, String, f64),
+    Update(Box<UpdateJob>),
+    Event(u64, Event, String),
+}
+
+/// Records a run through [`session::Observer`]. Observer hooks cannot fail: the first error
+/// stops the recording and is returned by [`McapRecorder::finish`].
 ///
 /// The in-process executor does not time single rollouts: each `/rollout` gets worker
 /// `"in-process"` and no timing, and `/update` carries the update's wall-clock interval (from
 /// the end of the previous hook to this one).
 pub struct McapRecorder {
-    writer: Option<RunWriter<BufWriter<File>>>,
+    jobs: Option<Sender<Job>>,
+    acks: Receiver<Ack>,
+    thread: Option<JoinHandle<Result<(), RecordError>>>,
     path: PathBuf,
     config_text: Option<String>,
     hp: Option<Hyperparameters>,
     error: Option<RecordError>,
+    /// An update handed to the writer whose flush has not been confirmed.
+    in_flight: bool,
     last_ns: u64,
     updates: u64,
     update_index: u64,
 }
 
+/// What the writer reports: every update job is answered by exactly one `Flushed` or
+/// `Skipped`; an error (of any job) is reported once, as `Failed`, before that answer.
+enum Ack {
+    Flushed,
+    /// Not written: the recording has failed.
+    Skipped,
+    Failed(RecordError),
+}
+
+fn write_job(
+    w: &mut RunWriter<BufWriter<File>>,
+    job: Job,
+    progress: bool,
+) -> Result<(), RecordError> {
+    match job {
+        Job::Start(s) => {
+            let settings: Vec<(&str, f64)> =
+                s.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+            w.write_start(&RunStart {
+                name: &s.name,
+                seed: s.seed,
+                update: s.update,
+                steps: s.steps,
+                hyperparameters: &s.hp,
+                initial: &s.initial,
+                basis_activations: s.basis.as_deref(),
+                config_toml: &s.config_toml,
+                executor: IN_PROCESS,
+                task_settings: &settings,
+            })?;
+            w.write_event(
+                s.update,
+                Event::Start,
+                IN_PROCESS,
+                std::process::id(),
+                &format!("run {} started (seed {})", s.name, s.seed),
+            )
+        }
+        Job::TaskChange(u, name, value) => w.write_task_change(u, &name, value),
+        Job::Event(u, event, message) => {
+            w.write_event(u, event, IN_PROCESS, std::process::id(), &message)
+        }
+        Job::Update(j) => {
+            let settings: Vec<(&str, f64)> =
+                j.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+            w.write_update(&UpdateData {
+                hyperparameters: &j.hp,
+                before: &j.before,
+                after: &j.after,
+                samples: &j.samples,
+                costs: &j.costs,
+                summary: &j.summary,
+                task_settings: &settings,
+                batch_start_ns: j.batch_start_ns,
+                batch_end_ns: j.batch_end_ns,
+                rollouts: &[],
+                default_worker: IN_PROCESS,
+            })?;
+            if progress {
+                use std::io::Write;
+                let mut out = std::io::stdout().lock();
+                let _ = writeln!(out, "recorded update {}", j.summary.update);
+                let _ = out.flush();
+            }
+            Ok(())
+        }
+    }
+}
+
+/// Writes jobs until the recorder drops its sender, then finishes the file. After the first
+/// error nothing more is written (update jobs are answered `Skipped`) and the error is returned.
+fn writer_thread(
+    mut w: RunWriter<BufWriter<File>>,
+    jobs: Receiver<Job>,
+    acks: Sender<Ack>,
+    progress: bool,
+) -> Result<(), RecordError> {
+    let mut failed = false;
+    for job in jobs {
+        let is_update = matches!(job, Job::Update(_));
+        if failed {
+            if is_update {
+                let _ = acks.send(Ack::Skipped);
+            }
+            continue;
+        }
+        match write_job(&mut w, job, progress) {
+            Ok(()) if is_update => {
+                let _ = acks.send(Ack::Flushed);
+            }
+            Ok(()) => {}
+            Err(e) => {
+                failed = true;
+                let _ = acks.send(Ack::Failed(e));
+                if is_update {
+                    let _ = acks.send(Ack::Skipped);
+                }
+            }
+        }
+    }
+    if failed {
+        return Ok(());
+    }
+    w.finish().map(|_| ())
+}
+
 impl McapRecorder {
-    /// Creates (truncates) the recording at `path`.
+    /// Creates (truncates) the recording at `path` and starts its writer thread.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
+        Self::create_with_progress(path, false)
+    }
+
+    /// As [`McapRecorder::create`]; with `progress`, the writer prints `recorded update U` on
+    /// stdout once update U is flushed to the file.
+    pub fn create_with_progress(path: &Path, progress: bool) -> Result<Self, RecordError> {
+        let w = RunWriter::create(path)?;
+        let (jobs_tx, jobs_rx) = channel();
+        let (acks_tx, acks_rx) = channel();
+        let thread = std::thread::Builder::new()
+            .name("mcap-writer".into())
+            .spawn(move || writer_thread(w, jobs_rx, acks_tx, progress))
+            .map_err(|e| RecordError::io(path, e))?;
         Ok(Self {
-            writer: Some(RunWriter::create(path)?),
+            jobs: Some(jobs_tx),
+            acks: acks_rx,
+            thread: Some(thread),
             path: path.to_path_buf(),
             config_text: None,
             hp: None,
             error: None,
+            in_flight: false,
             last_ns: now_ns(),
             updates: 0,
             update_index: 0,
@@ -57,47 +222,103 @@ impl McapRecorder {
         &self.path
     }
 
-    /// Updates recorded so far.
+    /// Updates confirmed flushed so far.
     pub fn updates(&self) -> u64 {
         self.updates
     }
 
-    /// The first error, if recording has failed.
+    /// The first error reported by the writer so far, if recording has failed.
     pub fn error(&self) -> Option<&RecordError> {
         self.error.as_ref()
     }
 
     /// Records a health event (e.g. the executor failed) on `/log`.
     pub fn log_event(&mut self, event: Event, message: &str) {
-        let update = self.update_index;
-        self.with_writer(|w| w.write_event(update, event, IN_PROCESS, std::process::id(), message));
+        let u = self.update_index;
+        self.send(Job::Event(u, event, message.to_string()));
     }
 
-    /// Finishes the file (if `on_finish` has not) and returns the first error of the recording.
-    pub fn finish(mut self) -> Result<u64, RecordError> {
-        if let Some(w) = self.writer.take() {
-            if let Err(e) = w.finish() {
+    /// Hands a job to the writer; false if it was not (the recording has failed).
+    fn send(&mut self, job: Job) -> bool {
+        if self.error.is_some() {
+            return false;
+        }
+        let Some(tx) = &self.jobs else {
+            return false;
+        };
+        if tx.send(job).is_err() {
+            // The writer has stopped; finish() returns why.
+            self.jobs = None;
+            return false;
+        }
+        true
+    }
+
+    /// Waits for the writer's answer to the update in flight, and collects its errors so far.
+    fn wait_flushed(&mut self) {
+        while self.in_flight {
+            match self.acks.recv() {
+                Ok(ack) => self.take(ack),
+                // The writer has stopped; close() reports why.
+                Err(_) => self.in_flight = false,
+            }
+        }
+        while let Ok(ack) = self.acks.try_recv() {
+            self.take(ack);
+        }
+    }
+
+    fn take(&mut self, ack: Ack) {
+        match ack {
+            Ack::Flushed => {
+                self.updates += 1;
+                self.in_flight = false;
+            }
+            Ack::Skipped => self.in_flight = false,
+            Ack::Failed(e) => {
                 self.error.get_or_insert(e);
             }
         }
+    }
+
+    fn close(&mut self) -> Result<(), RecordError> {
+        self.wait_flushed();
+        self.jobs = None; // ends the writer's job loop
+        if let Some(t) = self.thread.take() {
+            let joined = t.join();
+            while let Ok(ack) = self.acks.try_recv() {
+                self.take(ack);
+            }
+            match joined {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
+                    self.error.get_or_insert(e);
+                }
+                Err(_) => {
+                    self.error.get_or_insert(RecordError::invalid(
+                        self.path.clone(),
+                        "the writer thread panicked",
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Finishes the file (if `on_finish` has not) and returns the number of updates recorded,
+    /// or the first error of the recording.
+    pub fn finish(mut self) -> Result<u64, RecordError> {
+        self.close()?;
         match self.error.take() {
             Some(e) => Err(e),
             None => Ok(self.updates),
         }
     }
+}
 
-    fn with_writer(
-        &mut self,
-        f: impl FnOnce(&mut RunWriter<BufWriter<File>>) -> Result<(), RecordError>,
-    ) {
-        if self.error.is_some() {
-            return;
-        }
-        if let Some(w) = self.writer.as_mut() {
-            if let Err(e) = f(w) {
-                self.error = Some(e);
-            }
-        }
+impl Drop for McapRecorder {
+    fn drop(&mut self) {
+        let _ = self.close();
     }
 }
 
@@ -115,34 +336,23 @@ impl Observer for McapRecorder {
             Err(_) => (None, Vec::new()),
         };
         self.update_index = optimizer.update_index();
-        let start = RunStart {
-            name: &config.run.name,
+        self.send(Job::Start(Box::new(StartJob {
+            name: config.run.name.clone(),
             seed: optimizer.seed(),
             update: optimizer.update_index(),
             steps: optimizer.steps(),
-            hyperparameters: &hp,
-            initial: optimizer.distribution(),
-            basis_activations: basis.as_deref(),
-            config_toml: &text,
-            executor: IN_PROCESS,
-            task_settings: &settings,
-        };
-        self.with_writer(|w| {
-            w.write_start(&start)?;
-            w.write_event(
-                start.update,
-                Event::Start,
-                IN_PROCESS,
-                std::process::id(),
-                &format!("run {} started (seed {})", start.name, start.seed),
-            )
-        });
+            hp: hp.clone(),
+            initial: optimizer.distribution().clone(),
+            basis,
+            config_toml: text,
+            settings: settings.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
+        })));
         self.hp = Some(hp);
         self.last_ns = now_ns();
     }
 
     fn on_task_change(&mut self, update: u64, change: &TaskChange) {
-        self.with_writer(|w| w.write_task_change(update, &change.name, change.value));
+        self.send(Job::TaskChange(update, change.name.clone(), change.value));
     }
 
     fn on_update(&mut self, r: &UpdateRecord<'_>) {
@@ -155,43 +365,35 @@ impl Observer for McapRecorder {
             ));
             return;
         };
-        let data = UpdateData {
-            hyperparameters: &hp,
-            before: r.before,
-            after: r.after,
-            samples: r.samples,
-            costs: r.costs,
-            summary: r.summary,
-            task_settings: r.task_settings,
+        // Update u − 1 must be in the file before u is handed over: at most one in flight.
+        self.wait_flushed();
+        self.in_flight = self.send(Job::Update(Box::new(UpdateJob {
+            hp,
+            before: r.before.clone(),
+            after: r.after.clone(),
+            samples: r.samples.clone(),
+            costs: r.costs.clone(),
+            summary: r.summary.clone(),
+            settings: r
+                .task_settings
+                .iter()
+                .map(|(n, v)| (n.to_string(), *v))
+                .collect(),
             batch_start_ns: start,
             batch_end_ns: end,
-            rollouts: &[],
-            default_worker: IN_PROCESS,
-        };
-        self.with_writer(|w| w.write_update(&data));
-        if self.error.is_none() {
-            self.updates += 1;
-        }
+        })));
         self.update_index = r.summary.update + 1;
         self.last_ns = now_ns();
     }
 
     fn on_finish(&mut self, optimizer: &Optimizer) {
-        let u = optimizer.update_index();
+        self.wait_flushed();
         let n = self.updates;
-        self.with_writer(|w| {
-            w.write_event(
-                u,
-                Event::Exit,
-                IN_PROCESS,
-                std::process::id(),
-                &format!("run finished after {n} recorded updates"),
-            )
-        });
-        if let Some(w) = self.writer.take() {
-            if let Err(e) = w.finish() {
-                self.error.get_or_insert(e);
-            }
-        }
+        self.send(Job::Event(
+            optimizer.update_index(),
+            Event::Exit,
+            format!("run finished after {n} recorded updates"),
+        ));
+        let _ = self.close();
     }
 }

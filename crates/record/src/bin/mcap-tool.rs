@@ -11,18 +11,7 @@ use clap::{Parser, Subcommand};
 use record::analyze::{self, AnalyzeArgs};
 use record::recover::{self, RecoverArgs};
 use record::{read_recording, McapRecorder};
-use session::{InProcess, Observer, Observers, RunConfig, UpdateRecord};
-
-struct Progress;
-
-impl Observer for Progress {
-    fn on_update(&mut self, r: &UpdateRecord<'_>) {
-        use std::io::Write;
-        let mut out = std::io::stdout().lock();
-        let _ = writeln!(out, "recorded update {}", r.summary.update);
-        let _ = out.flush();
-    }
-}
+use session::{InProcess, RunConfig};
 
 #[derive(Parser)]
 #[command(
@@ -214,7 +203,8 @@ fn record_run(
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let mut recorder = McapRecorder::create(out)?;
+    // With progress, the writer prints `recorded update U` once U is flushed to the file.
+    let mut recorder = McapRecorder::create_with_progress(out, progress)?;
     if let Some(t) = text {
         recorder = recorder.with_config_text(t);
     }
@@ -225,15 +215,7 @@ fn record_run(
             .context("installing the SIGINT/SIGTERM handler")?;
     }
     let mut exec = InProcess::new(&cfg, seed)?;
-    let result = if progress {
-        // The recorder runs first: a printed update has been flushed to the file.
-        let mut p = Progress;
-        exec.run(&mut Observers(vec![&mut recorder, &mut p]), &|| {
-            stop.load(Ordering::SeqCst)
-        })
-    } else {
-        exec.run(&mut recorder, &|| stop.load(Ordering::SeqCst))
-    };
+    let result = exec.run(&mut recorder, &|| stop.load(Ordering::SeqCst));
     if let Err(e) = &result {
         recorder.log_event(record::Event::Crash, &format!("run failed: {e}"));
     }
