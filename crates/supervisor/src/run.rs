@@ -1283,3 +1283,21 @@ fn die_with_parent(cmd: &mut Command) {
         });
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_recording_is_under_runs_named_after_the_run_and_its_id() {
+        assert_eq!(
+            default_recording("A1", 0x00ab_cdef_0123_4567),
+            PathBuf::from("runs/A1-00abcdef01234567.mcap")
+        );
+        // A run name is not a path.
+        assert_eq!(
+            default_recording("a/b c", 1),
+            PathBuf::from("runs/a_b_c-0000000000000001.mcap")
+        );
+    }
+}
