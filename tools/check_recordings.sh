@@ -5,14 +5,22 @@
 # each and check its invariants; the killed file is checked as written (streaming read) and after
 # `mcap-tool recover`. Exits non-zero on any failure.
 #
-# Needs: python3 with tools/requirements.txt installed, cargo. Run from anywhere.
+# Needs: python3 with tools/requirements.txt installed, cargo. Run from anywhere; --release uses
+# the release binaries.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
 target="${CARGO_TARGET_DIR:-$root/target}"
-cargo build --quiet -p record --bins
-cargo build --quiet -p supervisor --bins
-bin="$target/debug"
+# --release: use (and build if needed) the release binaries, e.g. after `cargo test --release`.
+profile=debug
+flags=()
+if [ "${1:-}" = "--release" ]; then
+  profile=release
+  flags=(--release)
+fi
+cargo build --quiet "${flags[@]}" -p record --bins
+cargo build --quiet "${flags[@]}" -p supervisor --bins
+bin="$target/$profile"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 
