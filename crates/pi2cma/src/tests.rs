@@ -180,6 +180,31 @@ fn literal_algorithm_1(
     (theta + num_theta / den, num_sigma / den)
 }
 
+/// A random update problem: θ, K samples (rollout 0 = θ), step costs q (K × N) and terminal φ.
+#[allow(clippy::type_complexity)]
+fn random_problem(
+    rng: &mut impl Rng,
+    k: usize,
+    n: usize,
+    p: usize,
+) -> (DVector<f64>, Vec<DVector<f64>>, Vec<Vec<f64>>, Vec<f64>) {
+    let theta = DVector::from_fn(p, |_, _| rng.random_range(-1.0..1.0));
+    let samples: Vec<DVector<f64>> = (0..k)
+        .map(|kk| {
+            if kk == 0 {
+                theta.clone()
+            } else {
+                DVector::from_fn(p, |_, _| rng.random_range(-3.0..3.0))
+            }
+        })
+        .collect();
+    let q: Vec<Vec<f64>> = (0..k)
+        .map(|_| (0..n).map(|_| rng.random_range(0.0..1.0)).collect())
+        .collect();
+    let phi: Vec<f64> = (0..k).map(|_| rng.random_range(0.0..2.0)).collect();
+    (theta, samples, q, phi)
+}
+
 #[test]
 fn every_covariance_kernel_matches_literal_algorithm_1() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
@@ -187,20 +212,7 @@ fn every_covariance_kernel_matches_literal_algorithm_1() {
     for &p in &[2usize, 3, 6, 12] {
         for trial in 0..20 {
             let (k, n) = (5, 7);
-            let theta = DVector::from_fn(p, |_, _| rng.random_range(-1.0..1.0));
-            let samples: Vec<DVector<f64>> = (0..k)
-                .map(|kk| {
-                    if kk == 0 {
-                        theta.clone()
-                    } else {
-                        DVector::from_fn(p, |_, _| rng.random_range(-3.0..3.0))
-                    }
-                })
-                .collect();
-            let q: Vec<Vec<f64>> = (0..k)
-                .map(|_| (0..n).map(|_| rng.random_range(0.0..1.0)).collect())
-                .collect();
-            let phi: Vec<f64> = (0..k).map(|_| rng.random_range(0.0..2.0)).collect();
+            let (theta, samples, q, phi) = random_problem(&mut rng, k, n, p);
             let bounds = if trial % 3 == 0 {
                 EigenvalueBounds::unbounded()
             } else {
@@ -401,20 +413,7 @@ fn basis_activation_averaging() {
 fn threaded_low_rank_update_is_bit_identical_and_matches_algorithm_1() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
     let (k, n, p) = (6, 130, 15);
-    let theta = DVector::from_fn(p, |_, _| rng.random_range(-1.0..1.0));
-    let samples: Vec<DVector<f64>> = (0..k)
-        .map(|kk| {
-            if kk == 0 {
-                theta.clone()
-            } else {
-                DVector::from_fn(p, |_, _| rng.random_range(-3.0..3.0))
-            }
-        })
-        .collect();
-    let q: Vec<Vec<f64>> = (0..k)
-        .map(|_| (0..n).map(|_| rng.random_range(0.0..1.0)).collect())
-        .collect();
-    let phi: Vec<f64> = (0..k).map(|_| rng.random_range(0.0..2.0)).collect();
+    let (theta, samples, q, phi) = random_problem(&mut rng, k, n, p);
     let bounds = EigenvalueBounds::new(0.3, 3.0).unwrap();
     let flat: Vec<f64> = samples.iter().flat_map(|s| s.iter().cloned()).collect();
     let mut costs = CostBatch::new(k, n);
