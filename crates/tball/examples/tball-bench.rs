@@ -155,7 +155,14 @@ fn pipeline_run(
     let out = Command::new(supervisor)
         .arg("run")
         .arg(config)
-        .args(["--quiet", "--workers", &workers.to_string(), "--result"])
+        // The pipeline alone: recording has its own benchmark (crates/record).
+        .args([
+            "--quiet",
+            "--no-record",
+            "--workers",
+            &workers.to_string(),
+            "--result",
+        ])
         .arg(result)
         .output()?;
     if !out.status.success() {
