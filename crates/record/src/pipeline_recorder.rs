@@ -47,6 +47,9 @@ enum Msg {
     Cost(CostHeader, Vec<f64>, u64),
     Control(Control),
     Lifecycle(Lifecycle),
+    /// The receiving thread has drained every subscriber once: everything published before
+    /// the newest distribution it passed on has been passed on too.
+    Drained,
     /// No more messages; `true` if a signal ended the run.
     End(bool),
 }
@@ -175,6 +178,9 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 send(Msg::Lifecycle(*s.payload()))?;
             }
         }
+        // The writer thread stops by itself after the final update; a marker it no longer
+        // needs is not an error.
+        let _ = tx.send(Msg::Drained);
         if last || result.is_err() {
             break false;
         }
@@ -258,9 +264,14 @@ impl WriterState {
                     signal = s;
                     break;
                 }
-                m => self.handle(m)?,
+                // Only at a drain boundary may a missing input count as lost: within one drain
+                // the distributions are passed on before the costs that precede them.
+                Msg::Drained => self.write_complete(true)?,
+                m => {
+                    self.handle(m)?;
+                    self.write_complete(false)?;
+                }
             }
-            self.write_complete()?;
             if self
                 .final_update
                 .is_some_and(|f| self.assembler.first_update().is_none_or(|n| n >= f))
@@ -414,71 +425,79 @@ impl WriterState {
                     ),
                 )?;
             }
-            Msg::End(_) => {}
+            Msg::End(_) | Msg::Drained => {}
         }
         Ok(())
     }
 
-    fn write_complete(&mut self) -> anyhow::Result<()> {
+    /// Writes every complete update; with `skip_lost`, also gives up (with an `error` event) on
+    /// updates whose inputs can no longer arrive, and writes what that unblocks.
+    fn write_complete(&mut self, skip_lost: bool) -> anyhow::Result<()> {
         let pid = self.pid;
-        while let Some(a) = self.assembler.next_complete() {
-            let a = a.map_err(anyhow::Error::msg)?;
-            for (name, value) in &a.changed {
-                self.writer.write_task_change(a.update, name, *value)?;
-            }
-            let settings: Vec<(&str, f64)> =
-                a.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
-            let start = a
-                .timings
-                .iter()
-                .map(|t| t.start_ns)
-                .filter(|t| *t > 0)
-                .min();
-            let end = a.timings.iter().map(|t| t.end_ns).max();
-            self.writer.write_update(&UpdateData {
-                hyperparameters: self.assembler.hyperparameters(),
-                before: &a.before,
-                after: &a.after,
-                samples: &a.samples,
-                costs: &a.costs,
-                summary: &a.summary,
-                task_settings: &settings,
-                batch_start_ns: start.unwrap_or(0),
-                batch_end_ns: end.unwrap_or(0),
-                rollouts: &a.timings,
-                default_worker: "unknown",
-            })?;
-            self.written += 1;
-            if !a.recomputed_matches {
-                self.mismatches += 1;
-                self.writer.write_event(
-                    a.update,
-                    Event::Error,
-                    "recorder",
-                    pid,
-                    &format!(
+        loop {
+            while let Some(a) = self.assembler.next_complete() {
+                let a = a.map_err(anyhow::Error::msg)?;
+                for (name, value) in &a.changed {
+                    self.writer.write_task_change(a.update, name, *value)?;
+                }
+                let settings: Vec<(&str, f64)> =
+                    a.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+                let start = a
+                    .timings
+                    .iter()
+                    .map(|t| t.start_ns)
+                    .filter(|t| *t > 0)
+                    .min();
+                let end = a.timings.iter().map(|t| t.end_ns).max();
+                self.writer.write_update(&UpdateData {
+                    hyperparameters: self.assembler.hyperparameters(),
+                    before: &a.before,
+                    after: &a.after,
+                    samples: &a.samples,
+                    costs: &a.costs,
+                    summary: &a.summary,
+                    task_settings: &settings,
+                    batch_start_ns: start.unwrap_or(0),
+                    batch_end_ns: end.unwrap_or(0),
+                    rollouts: &a.timings,
+                    default_worker: "unknown",
+                })?;
+                self.written += 1;
+                if !a.recomputed_matches {
+                    self.mismatches += 1;
+                    self.writer.write_event(
+                        a.update,
+                        Event::Error,
+                        "recorder",
+                        pid,
+                        &format!(
                         "update {}: the core, given the recorded inputs, does not reproduce the \
                          published distribution of update {}",
                         a.update,
                         a.update + 1
                     ),
-                )?;
-            }
-            if a.duplicates > 0 {
-                self.writer.write_event(
-                    a.update,
-                    Event::Info,
-                    "recorder",
-                    pid,
-                    &format!(
+                    )?;
+                }
+                if a.duplicates > 0 {
+                    self.writer.write_event(
+                        a.update,
+                        Event::Info,
+                        "recorder",
+                        pid,
+                        &format!(
                         "update {}: {} rollouts executed twice (after a worker loss); the first \
                          result of each was kept",
                         a.update, a.duplicates
                     ),
-                )?;
+                    )?;
+                }
             }
-        }
-        while let Some((u, what)) = self.assembler.skip_incomplete() {
+            if !skip_lost {
+                return Ok(());
+            }
+            let Some((u, what)) = self.assembler.skip_incomplete() else {
+                return Ok(());
+            };
             self.writer.write_event(
                 u,
                 Event::Error,
@@ -486,11 +505,10 @@ impl WriterState {
                 pid,
                 &format!(
                     "update {u} not recorded: {what} never reached the recorder (the services' \
-                     safe overflow dropped them)"
+                 safe overflow dropped them)"
                 ),
             )?;
             self.writer.flush()?;
         }
-        Ok(())
     }
 }

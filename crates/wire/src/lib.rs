@@ -310,9 +310,22 @@ impl Limits {
     fn nodes(&self) -> usize {
         2 * self.max_workers + 8
     }
-    /// Cost samples that can be in flight: one per rollout, plus re-executions after a crash.
+    /// Cost samples a subscriber can hold: one per rollout plus re-executions after a crash, and
+    /// room for the recorder, which must not lose a sample while the scheduler runs the other
+    /// processes of a busy machine: about [`RECORDER_SLACK_UPDATES`] updates' worth, as far as
+    /// [`SEGMENT_BUDGET_BYTES`] allows.
     fn cost_buffer(&self) -> usize {
-        2 * self.rollouts + self.max_workers + 4
+        let needed = 2 * self.rollouts + self.max_workers + 4;
+        let slack = RECORDER_SLACK_UPDATES * self.rollouts;
+        let affordable = SEGMENT_BUDGET_BYTES / (2 * 8 * self.steps.max(1));
+        needed.max(slack.min(affordable))
+    }
+
+    /// Distributions a subscriber can hold: 4, or up to [`RECORDER_SLACK_UPDATES`] for the
+    /// recorder as far as [`SEGMENT_BUDGET_BYTES`] allows.
+    fn distribution_buffer(&self) -> usize {
+        let affordable = SEGMENT_BUDGET_BYTES / (4 * 8 * (self.dim + self.dim * self.dim).max(1));
+        4usize.max(RECORDER_SLACK_UPDATES.min(affordable))
     }
 }
 
@@ -445,14 +458,30 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
         .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
-/// `distribution`: 1 publisher (updater), up to 4 subscribers (sampler, supervisor, spare), a
-/// buffer of 4. Publishers use `initial_max_slice_len(P + P·P)`.
+/// Updates' worth of samples a subscriber's buffer holds, so that the recorder loses nothing
+/// while it is not scheduled (at 7,000 updates/s, 256 updates are 36 ms).
+pub const RECORDER_SLACK_UPDATES: usize = 256;
+
+/// The most shared memory the subscriber buffers of one publisher may take (16 MiB).
+pub const SEGMENT_BUDGET_BYTES: usize = 16 << 20;
+
+/// `distribution`: 1 publisher (updater), up to 4 subscribers (sampler, supervisor, recorder,
+/// spare), a buffer of 4 to 256 (see `Limits::distribution_buffer`). Publishers use
+/// `initial_max_slice_len(P + P·P)`.
 pub fn distribution(
     node: &Node<Service>,
     run_id: u64,
     l: &Limits,
 ) -> Result<SliceService<DistributionHeader>, WireError> {
-    slice_service(node, run_id, "distribution", 2, 4, 4, l.nodes())
+    slice_service(
+        node,
+        run_id,
+        "distribution",
+        2,
+        4,
+        l.distribution_buffer(),
+        l.nodes(),
+    )
 }
 
 /// Length of a distribution payload.
@@ -479,7 +508,8 @@ pub fn work(
     )
 }
 
-/// `costs`: 2·max_workers + 2 publishers, 2 subscribers, a buffer of 2K + max_workers + 4.
+/// `costs`: 2·max_workers + 2 publishers, 2 subscribers (updater, recorder), a buffer of
+/// 2K + max_workers + 4, raised towards 256·K for the recorder (see `Limits::cost_buffer`).
 /// Publishers use `initial_max_slice_len(N)`.
 pub fn costs(
     node: &Node<Service>,
