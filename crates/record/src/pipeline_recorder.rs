@@ -185,7 +185,12 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             break false;
         }
         match iox(
-            waitset.wait_and_process_once(|_| CallbackProgression::Continue),
+            // A bounded wait: iceoryx2 0.10's WaitSet can miss a wake-up when several processes
+            // notify at once; the pipeline's processes use the same 100 ms safety tick.
+            waitset.wait_and_process_once_with_timeout(
+                |_| CallbackProgression::Continue,
+                std::time::Duration::from_millis(100),
+            ),
             "waitset",
         )? {
             WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => break true,
