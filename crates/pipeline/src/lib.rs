@@ -18,6 +18,7 @@ use std::time::Duration;
 
 use anyhow::{anyhow, Context as _};
 use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use iceoryx2_bb_posix::signal::SignalHandler;
 use session::RunConfig;
@@ -69,6 +70,24 @@ impl Context {
 
     pub fn result_path(&self) -> PathBuf {
         result_path(&self.run_dir)
+    }
+
+    /// A listener on the doorbell `wake/<owner>` of this run.
+    pub fn listener(&self, owner: &str) -> anyhow::Result<Listener<Service>> {
+        let bell = wire::doorbell(&self.node, self.run_id, owner, &self.limits)?;
+        iox(
+            bell.listener_builder().create(),
+            &format!("listener on wake/{owner}"),
+        )
+    }
+
+    /// A notifier ringing the doorbell `wake/<owner>` of this run.
+    pub fn notifier(&self, owner: &str) -> anyhow::Result<Notifier<Service>> {
+        let bell = wire::doorbell(&self.node, self.run_id, owner, &self.limits)?;
+        iox(
+            bell.notifier_builder().create(),
+            &format!("notifier of wake/{owner}"),
+        )
     }
 }
 
@@ -169,8 +188,7 @@ pub fn announce_ready(
         }),
         "send lifecycle",
     )?;
-    let bell = wire::doorbell(&ctx.node, ctx.run_id, "supervisor", &ctx.limits)?;
-    let notifier = iox(bell.notifier_builder().create(), "supervisor notifier")?;
+    let notifier = ctx.notifier("supervisor")?;
     iox(notifier.notify_with_custom_event_id(wire::WAKE), "notify")?;
     Ok(Announced {
         _publisher: publisher,

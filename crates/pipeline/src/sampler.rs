@@ -63,12 +63,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             .create(),
         "control subscriber",
     )?;
-    let doorbell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, "sampler", &ctx.limits)?
-            .listener_builder()
-            .create(),
-        "sampler doorbell",
-    )?;
+    let doorbell = ctx.listener("sampler")?;
     let _announced = announce_ready(&ctx, wire::role::SAMPLER, 0, 0)?;
 
     let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
@@ -292,16 +287,6 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
             .create(),
         "work publisher",
     )?;
-    let bell = iox(
-        wire::doorbell(
-            &ctx.node,
-            ctx.run_id,
-            &format!("worker/{worker}"),
-            &ctx.limits,
-        )?
-        .notifier_builder()
-        .create(),
-        "worker notifier",
-    )?;
+    let bell = ctx.notifier(&format!("worker/{worker}"))?;
     Ok((inbox, bell))
 }

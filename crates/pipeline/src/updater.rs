@@ -54,24 +54,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             .create(),
         "progress publisher",
     )?;
-    let doorbell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, "updater", &ctx.limits)?
-            .listener_builder()
-            .create(),
-        "updater doorbell",
-    )?;
-    let sampler_bell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, "sampler", &ctx.limits)?
-            .notifier_builder()
-            .create(),
-        "sampler notifier",
-    )?;
-    let supervisor_bell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, "supervisor", &ctx.limits)?
-            .notifier_builder()
-            .create(),
-        "supervisor notifier",
-    )?;
+    let doorbell = ctx.listener("updater")?;
+    let sampler_bell = ctx.notifier("sampler")?;
+    let supervisor_bell = ctx.notifier("supervisor")?;
     let _announced = announce_ready(&ctx, wire::role::UPDATER, 0, 0)?;
 
     let mut batch = optimizer.cost_batch();

@@ -47,12 +47,7 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
             .create(),
         "work subscriber",
     )?;
-    let doorbell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, &format!("worker/{w}"), &ctx.limits)?
-            .listener_builder()
-            .create(),
-        "worker doorbell",
-    )?;
+    let doorbell = ctx.listener(&format!("worker/{w}"))?;
     let costs = iox(
         wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
             .publisher_builder()
@@ -67,18 +62,8 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
             .create(),
         "ready publisher",
     )?;
-    let updater_bell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, "updater", &ctx.limits)?
-            .notifier_builder()
-            .create(),
-        "updater notifier",
-    )?;
-    let sampler_bell = iox(
-        wire::doorbell(&ctx.node, ctx.run_id, "sampler", &ctx.limits)?
-            .notifier_builder()
-            .create(),
-        "sampler notifier",
-    )?;
+    let updater_bell = ctx.notifier("updater")?;
+    let sampler_bell = ctx.notifier("sampler")?;
     let ask = |completed_chunk: u64| -> anyhow::Result<()> {
         iox(
             ready.send_copy(Ready {

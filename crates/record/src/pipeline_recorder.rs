@@ -101,12 +101,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     )?;
     let mut bells = Vec::new();
     for owner in ["updater", "sampler", "supervisor"] {
-        bells.push(iox(
-            wire::doorbell(&ctx.node, ctx.run_id, owner, &ctx.limits)?
-                .listener_builder()
-                .create(),
-            &format!("second listener on wake/{owner}"),
-        )?);
+        bells.push(ctx.listener(owner)?);
     }
     let waitset = iox(
         WaitSetBuilder::new().create::<wire::Service>(),
