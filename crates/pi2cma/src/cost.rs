@@ -26,26 +26,7 @@ impl CostTrajectory {
 
     /// Checks that every value is finite; a NaN or infinite cost would silently poison the weights.
     pub fn validate(&self, rollout: usize) -> Result<(), CostError> {
-        if !self.terminal.is_finite() {
-            return Err(CostError::NonFinite {
-                rollout,
-                step: None,
-                value: self.terminal,
-            });
-        }
-        if let Some((step, &value)) = self
-            .per_step
-            .iter()
-            .enumerate()
-            .find(|(_, c)| !c.is_finite())
-        {
-            return Err(CostError::NonFinite {
-                rollout,
-                step: Some(step),
-                value,
-            });
-        }
-        Ok(())
+        check_finite(rollout, &self.per_step, self.terminal)
     }
 }
 
@@ -98,20 +79,7 @@ impl CostBatch {
         if self.filled[k] {
             return Err(CostError::Duplicate { rollout: k });
         }
-        if !terminal.is_finite() {
-            return Err(CostError::NonFinite {
-                rollout: k,
-                step: None,
-                value: terminal,
-            });
-        }
-        if let Some((step, &value)) = per_step.iter().enumerate().find(|(_, c)| !c.is_finite()) {
-            return Err(CostError::NonFinite {
-                rollout: k,
-                step: Some(step),
-                value,
-            });
-        }
+        check_finite(k, per_step, terminal)?;
         self.per_step[k * self.steps..(k + 1) * self.steps].copy_from_slice(per_step);
         self.terminal[k] = terminal;
         self.filled[k] = true;
@@ -181,32 +149,32 @@ impl CostBatch {
             return Ok(());
         }
         for k in 0..self.rollouts() {
-            let t = self.terminal[k];
-            if !t.is_finite() {
-                return Err(CostError::NonFinite {
-                    rollout: k,
-                    step: None,
-                    value: t,
-                });
-            }
-            if let Some((step, &value)) = self
-                .per_step(k)
-                .iter()
-                .enumerate()
-                .find(|(_, c)| !c.is_finite())
-            {
-                return Err(CostError::NonFinite {
-                    rollout: k,
-                    step: Some(step),
-                    value,
-                });
-            }
+            check_finite(k, self.per_step(k), self.terminal[k])?;
         }
         Ok(())
     }
 
     pub fn clear(&mut self) {
         self.filled.iter_mut().for_each(|f| *f = false);
+    }
+}
+
+/// The first non-finite cost of rollout `rollout`, terminal cost first, as an error naming it.
+fn check_finite(rollout: usize, per_step: &[f64], terminal: f64) -> Result<(), CostError> {
+    if !terminal.is_finite() {
+        return Err(CostError::NonFinite {
+            rollout,
+            step: None,
+            value: terminal,
+        });
+    }
+    match per_step.iter().position(|c| !c.is_finite()) {
+        Some(step) => Err(CostError::NonFinite {
+            rollout,
+            step: Some(step),
+            value: per_step[step],
+        }),
+        None => Ok(()),
     }
 }
 
