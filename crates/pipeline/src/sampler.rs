@@ -1,8 +1,9 @@
 //! The sampler: turns each published distribution into the update's K parameter vectors (the
-//! core's pure `ParameterBatch::sample`) and hands them out by load. A worker that announces
-//! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts (guided self-scheduling: large chunks while
-//! much work is left, single rollouts at the end), so a fast worker takes more rollouts than a
-//! slow one. Rollouts of a lost worker go back to the pending queue.
+//! core's pure `ParameterBatch::sample`) and hands them out by load. Each worker that announces
+//! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts, pending as at the start of the hand-out:
+//! equal shares at the start of an update, smaller ones while some workers are still busy
+//! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. Rollouts of a
+//! lost worker go back to the pending queue.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -209,14 +210,33 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         let Some(cur) = current.as_ref() else {
             return Ok(Flow::Continue);
         };
+        // The share is fixed for this round: at the start of an update every worker gets
+        // ⌈K / workers⌉ (5 and 5 for K = 10 and 2 workers, where shrinking per hand-out gave
+        // 5, 3, 1, 1: two more round trips through the sampler on the update's critical path).
+        // Rounds that find some workers still busy shrink the share as guided self-scheduling
+        // does.
+        let share = pending.len().div_ceil(workers.len().max(1)).max(1);
+        // Plan the round first: whether it empties the queue goes into every chunk's header
+        // (WorkHeader::QUEUE_EMPTY: its worker then reports Ready without ringing the sampler).
+        let mut round: Vec<(u32, Vec<u32>)> = Vec::new();
         while !pending.is_empty() {
             let Some(id) = idle.pop_front() else { break };
-            let live = workers.len().max(1);
+            if workers.contains_key(&id) {
+                round.push((id, pending.drain(..share.min(pending.len())).collect()));
+            }
+        }
+        let flags = if pending.is_empty() {
+            WorkHeader::QUEUE_EMPTY
+        } else {
+            0
+        };
+        // Every chunk is published before any worker is rung: a rung worker may take this CPU
+        // before the sampler has rung the next one.
+        let mut to_ring: Vec<u32> = Vec::new();
+        for (id, rollouts) in round {
             let Some(w) = workers.get_mut(&id) else {
                 continue;
             };
-            let n = pending.len().div_ceil(live);
-            let rollouts: Vec<u32> = pending.drain(..n.max(1).min(pending.len())).collect();
             let chunk = next_chunk;
             next_chunk += 1;
             let mut delivered = true;
@@ -232,7 +252,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     worker: id,
                     steps: steps as u32,
                     settings_len: cur.settings_len,
-                    _reserved: 0,
+                    flags,
                     settings: cur.settings,
                 };
                 if iox(sample.send(), "send work item")? == 0 {
@@ -240,17 +260,15 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 }
             }
             if !delivered {
-                // Its inbox has no subscriber: the worker is gone.
+                // Its inbox has no subscriber: the worker is gone. Its rollouts go to the next
+                // worker that reports Ready; if the round's other chunks said QUEUE_EMPTY, that
+                // is at the latest the next tick (wait_loop's TICK).
                 workers.remove(&id);
                 for k in rollouts.into_iter().rev() {
                     pending.push_front(k);
                 }
                 continue;
             }
-            iox(
-                w.bell.notify_with_custom_event_id(wire::WAKE),
-                "notify worker",
-            )?;
             if trace {
                 eprintln!("{} chunk {chunk} -> w{id}: {:?}", us(), rollouts);
             }
@@ -259,6 +277,15 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 update: cur.update,
                 rollouts,
             });
+            to_ring.push(id);
+        }
+        for id in to_ring {
+            if let Some(w) = workers.get(&id) {
+                iox(
+                    w.bell.notify_with_custom_event_id(wire::WAKE),
+                    "notify worker",
+                )?;
+            }
         }
         Ok(Flow::Continue)
     })?;

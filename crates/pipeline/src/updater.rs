@@ -245,6 +245,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             )?;
         }
         publish(&optimizer, &task.settings(), 0)?;
+        // Draw this update's parameters now, while the workers run: `tell` needs them, and the
+        // time until the last cost arrives is idle.
+        optimizer.ask();
         // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
         // their progress too).
         let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);

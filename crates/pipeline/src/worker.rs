@@ -6,8 +6,9 @@
 use std::time::{Duration, Instant};
 
 use anyhow::bail;
+use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
-use wire::{CostHeader, Ready};
+use wire::{CostHeader, Ready, WorkHeader};
 
 use crate::{announce_ready, iox, wait_loop, Context, Flow, ProcessArgs};
 
@@ -64,7 +65,7 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
     )?;
     let updater_bell = ctx.notifier("updater")?;
     let sampler_bell = ctx.notifier("sampler")?;
-    let ask = |completed_chunk: u64| -> anyhow::Result<()> {
+    let publish_ready = |completed_chunk: u64| -> anyhow::Result<()> {
         iox(
             ready.send_copy(Ready {
                 run_id: ctx.run_id,
@@ -76,19 +77,28 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
             }),
             "send ready",
         )?;
-        iox(
-            sampler_bell.notify_with_custom_event_id(wire::WAKE),
-            "notify sampler",
-        )?;
         Ok(())
     };
+    let ring = |bell: &Notifier<wire::Service>, what: &str| {
+        iox(bell.notify_with_custom_event_id(wire::WAKE), what).map(|_| ())
+    };
     let _announced = announce_ready(&ctx, wire::role::WORKER, w, incarnation)?;
-    ask(Ready::NO_CHUNK)?;
+    publish_ready(Ready::NO_CHUNK)?;
+    ring(&sampler_bell, "notify sampler")?;
 
     let mut chunk = (u64::MAX, 0u32);
     let mut last_notify = Instant::now();
     let mut unannounced = false;
     wait_loop(&doorbell, || {
+        // The sampler rings the workers one after another, and the kernel tends to run a woken
+        // process on the CPU of the process that woke it (Unix-socket wake-ups are "sync"),
+        // preempting it: the sampler then rings the next worker only after this one has
+        // finished its chunk, while the other CPU idles (seen with `perf sched`: 2 workers
+        // took turns on one CPU). One yield hands the CPU back to the sampler, if it is
+        // waiting for it, to finish ringing; it costs a syscall per chunk otherwise.
+        if iox(inbox.has_samples(), "inbox")? {
+            std::thread::yield_now();
+        }
         while let Some(item) = iox(inbox.receive(), "receive work")? {
             let h = *item.user_header();
             if h.run_id != ctx.run_id {
@@ -133,24 +143,23 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
             }
             chunk.1 += 1;
             let chunk_done = chunk.1 >= h.chunk_len;
+            // Ready before the updater's bell: the distribution the updater then publishes
+            // wakes the sampler, which must find this worker idle (see the wire protocol).
+            if chunk_done {
+                publish_ready(h.chunk)?;
+            }
             let more = iox(inbox.has_samples(), "inbox")?;
             if chunk_done || !more || last_notify.elapsed() >= NOTIFY_INTERVAL {
-                iox(
-                    updater_bell.notify_with_custom_event_id(wire::WAKE),
-                    "notify updater",
-                )?;
+                ring(&updater_bell, "notify updater")?;
                 last_notify = Instant::now();
                 unannounced = false;
             }
-            if chunk_done {
-                ask(h.chunk)?;
+            if chunk_done && h.flags & WorkHeader::QUEUE_EMPTY == 0 {
+                ring(&sampler_bell, "notify sampler")?;
             }
         }
         if unannounced {
-            iox(
-                updater_bell.notify_with_custom_event_id(wire::WAKE),
-                "notify updater",
-            )?;
+            ring(&updater_bell, "notify updater")?;
             unannounced = false;
         }
         Ok(Flow::Continue)

@@ -115,6 +115,9 @@ fn main() -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// Pipeline runs per worker count.
+const REPETITIONS: usize = 5;
+
 /// (median, fastest) of 5 repetitions.
 fn repeat(mut f: impl FnMut() -> f64) -> (f64, f64) {
     median_and_min((0..5).map(|_| f()).collect())
@@ -207,7 +210,8 @@ fn pipeline(supervisor: &Path, config: &Path, updates: u64) -> Result<(), Box<dy
     std::fs::create_dir_all(&dir)?;
     println!();
     println!(
-        "pipeline ({}), {updates} updates per run, median of 3 runs, first update left out:",
+        "pipeline ({}), {updates} updates per run, median of {REPETITIONS} runs (1 and 2 workers \
+         alternating), first update left out:",
         supervisor.display()
     );
     println!(
@@ -218,18 +222,19 @@ fn pipeline(supervisor: &Path, config: &Path, updates: u64) -> Result<(), Box<dy
         let variant = pipeline_variant(&text, updates, delay_ms);
         let path = dir.join(format!("delay-{delay_ms}.toml"));
         std::fs::write(&path, &variant)?;
-        let mut per_update = [0.0; 2];
+        let mut times = [Vec::new(), Vec::new()];
         let mut finals = Vec::new();
-        for (slot, workers) in [1usize, 2].into_iter().enumerate() {
-            let mut times = Vec::new();
-            for rep in 0..3 {
+        // 1 and 2 workers alternate, so that a change in the machine's load between runs
+        // affects both sides of the ratio.
+        for rep in 0..REPETITIONS {
+            for (slot, workers) in [1usize, 2].into_iter().enumerate() {
                 let result = dir.join(format!("result-{delay_ms}-{workers}-{rep}.toml"));
                 let (time, bits) = pipeline_run(supervisor, &path, workers, &result)?;
-                times.push(time);
+                times[slot].push(time);
                 finals.push(bits);
             }
-            per_update[slot] = median_and_min(times).0;
         }
+        let per_update = times.map(|t| median_and_min(t).0);
         let cfg = RunConfig::parse(&variant, &path)?;
         let (_, in_process) = session::run_session(&cfg, cfg.run.seed, &mut NoObserver)?;
         let in_process: Vec<u64> = in_process.mean.iter().map(|v| v.to_bits()).collect();

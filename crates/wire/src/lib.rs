@@ -37,13 +37,18 @@
 //! 1. The updater publishes the distribution of update u ([`DistributionHeader::update`] = u) with
 //!    the task settings in force for u, and rings `wake/sampler`.
 //! 2. The sampler draws the K parameter vectors (a pure function of seed, u and k), and hands
-//!    them out in chunks: a worker that announced [`Ready`] gets ⌈pending / workers⌉ rollouts,
-//!    one `work/<w>` sample per rollout, all with the same [`WorkHeader::chunk`].
+//!    them out in chunks: each worker that announced [`Ready`] gets ⌈pending / workers⌉
+//!    rollouts (pending as at the start of the hand-out), one `work/<w>` sample per rollout, all
+//!    with the same [`WorkHeader::chunk`]; it rings the workers after publishing every chunk.
 //! 3. The worker executes each θ and writes the N immediate costs straight into a loaned `costs`
-//!    sample ([`CostHeader::terminal`] holds the terminal cost), rings `wake/updater`; after the
-//!    last rollout of its chunk it publishes [`Ready`] with `completed_chunk` = that chunk and
-//!    rings `wake/sampler`. A worker that has just started sends [`Ready`] with
-//!    [`Ready::NO_CHUNK`].
+//!    sample ([`CostHeader::terminal`] holds the terminal cost). After the last rollout of its
+//!    chunk it publishes [`Ready`] with `completed_chunk` = that chunk, then rings
+//!    `wake/updater`, then rings `wake/sampler` unless the chunk carried
+//!    [`WorkHeader::QUEUE_EMPTY`]. Ready goes out before the updater's bell: the updater may
+//!    publish the next distribution as soon as it has the costs, and the sampler, woken by that,
+//!    must find every finished worker's Ready. Within a long chunk the worker also rings
+//!    `wake/updater` at least every millisecond. A worker that has just started sends [`Ready`]
+//!    with [`Ready::NO_CHUNK`] and rings `wake/sampler`.
 //! 4. The updater stores cost (u, k) (duplicates and other updates are ignored, so a rollout may
 //!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
 //!
@@ -126,9 +131,18 @@ pub struct WorkHeader {
     pub steps: u32,
     /// Valid entries of `settings`.
     pub settings_len: u32,
-    pub _reserved: u32,
+    /// [`WorkHeader::QUEUE_EMPTY`] or 0.
+    pub flags: u32,
     /// Task settings for `update` (see [`DistributionHeader::settings`]).
     pub settings: [f64; MAX_SETTINGS],
+}
+
+impl WorkHeader {
+    /// No rollout of this update was left pending when this chunk was handed out: the worker
+    /// publishes its [`Ready`] for it without ringing `wake/sampler`, which reads it when the
+    /// next distribution or a lost worker wakes it anyway. A worker that ignores the flag and
+    /// always rings is still correct, only slower.
+    pub const QUEUE_EMPTY: u32 = 1;
 }
 
 /// Header of a `costs` sample. Payload: the N immediate costs q_i.
