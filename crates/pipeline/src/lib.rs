@@ -154,13 +154,18 @@ pub fn wait_loop(
         if on_wake()? == Flow::Stop {
             return Ok(Exit::Done);
         }
-        // Not node.wait(0): that is a nanosleep, which sleeps for the timer slack (~50 µs).
-        if SignalHandler::termination_requested() {
+        if termination_requested() {
             return Ok(Exit::Signal);
         }
         // An error here is a signal interrupting the wait; the check above sees it next.
         let _ = doorbell.timed_wait(|_| {}, TICK);
     }
+}
+
+/// Whether SIGINT or SIGTERM has arrived (iceoryx2's flag, installed by [`Context::new`]).
+/// Not `node.wait(0)`: that is a nanosleep, which sleeps for the timer slack (~50 µs).
+pub fn termination_requested() -> bool {
+    SignalHandler::termination_requested()
 }
 
 /// Keeps the lifecycle port alive: a sample of a dropped publisher may never be received.

@@ -6,10 +6,13 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
+use iceoryx2::node::NodeView;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use pi2cma::CostError;
 use tasks::TaskChange;
-use wire::{Control, DistributionHeader, Progress};
+use wire::{Control, DistributionHeader, Progress, RecorderAck, Service};
 
 use crate::result::{bits, RecordedChange, RunResult};
 use crate::{announce_ready, iox, wait_loop, Context, Exit, Flow, ProcessArgs};
@@ -57,6 +60,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let doorbell = ctx.listener("updater")?;
     let sampler_bell = ctx.notifier("sampler")?;
     let supervisor_bell = ctx.notifier("supervisor")?;
+    let mut recorder = RecorderLink::new(&ctx)?;
     let _announced = announce_ready(&ctx, wire::role::UPDATER, 0, 0)?;
 
     let mut batch = optimizer.cost_batch();
@@ -72,6 +76,8 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut recorded: Vec<RecordedChange> = Vec::new();
     let mut runtime: Vec<TaskChange> = Vec::new();
     let mut complete = false;
+    // The distribution whose publication the recorder's back-pressure holds back (its flags).
+    let mut held: Option<u32> = None;
     // Scheduled changes of update 0 are in force from the start; record them.
     for c in schedule.at(0) {
         recorded.push(RecordedChange {
@@ -158,8 +164,10 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 Control::START if started.is_none() => {
                     started = Some(Instant::now());
                     last_progress = Instant::now();
-                    publish(&optimizer, &task.settings(), 0)?;
+                    recorder.attach_if_running(optimizer.update_index());
+                    held = Some(0);
                 }
+                Control::RECORDER_LOST => recorder.detach("the supervisor reports it gone"),
                 Control::SET_TASK => {
                     let change = TaskChange {
                         // Update u is out (its distribution is published): u + 1 is the first
@@ -184,78 +192,93 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         let Some(t0) = started else {
             return Ok(Flow::Continue);
         };
-        let u = optimizer.update_index();
-        while let Some(sample) = iox(costs.receive(), "receive costs")? {
-            let h = *sample.user_header();
-            if h.run_id != ctx.run_id || h.update != u {
-                continue; // a re-executed rollout of an earlier update
+        // Publishes what is held (if the recorder's back-pressure allows), takes in costs, and
+        // after a complete batch updates and publishes again.
+        loop {
+            if let Some(flags) = held {
+                let u = optimizer.update_index();
+                if !recorder.may_publish(u, &ctx)? {
+                    return Ok(Flow::Continue);
+                }
+                held = None;
+                publish(&optimizer, &task.settings(), flags)?;
+                recorder.published(u, flags & DistributionHeader::FINAL != 0)?;
+                if flags & DistributionHeader::FINAL != 0 {
+                    return Ok(Flow::Stop);
+                }
+                // Draw this update's parameters now, while the workers run: `tell` needs them,
+                // and the time until the last cost arrives is idle.
+                optimizer.ask();
             }
-            match batch.insert(h.rollout as usize, sample.payload(), h.terminal) {
-                Ok(()) => {}
-                Err(CostError::Duplicate { .. }) => {} // re-executed after a worker was lost
-                Err(e) => bail!(
-                    "update {u}: {e} (reported by worker-{} for rollout {})",
-                    h.worker,
-                    h.rollout
-                ),
+            let u = optimizer.update_index();
+            while let Some(sample) = iox(costs.receive(), "receive costs")? {
+                let h = *sample.user_header();
+                if h.run_id != ctx.run_id || h.update != u {
+                    continue; // a re-executed rollout of an earlier update
+                }
+                match batch.insert(h.rollout as usize, sample.payload(), h.terminal) {
+                    Ok(()) => {}
+                    Err(CostError::Duplicate { .. }) => {} // re-executed after a worker was lost
+                    Err(e) => bail!(
+                        "update {u}: {e} (reported by worker-{} for rollout {})",
+                        h.worker,
+                        h.rollout
+                    ),
+                }
+            }
+            if !batch.is_complete() {
+                return Ok(Flow::Continue);
+            }
+            if trace && update_start.elapsed() > Duration::from_millis(20) {
+                slow.push((u, update_start.elapsed()));
+            }
+            update_start = Instant::now();
+            let summary = optimizer
+                .tell(&batch)
+                .map_err(|e| anyhow!("update {u}: {e}"))?;
+            batch.clear();
+            if u == 0 {
+                first_eval = summary.eval_cost;
+                first_done = Some(Instant::now());
+            }
+            last_eval = summary.eval_cost;
+            let next = optimizer.update_index();
+            let done = cfg.run.updates.is_some_and(|n| next >= n);
+            if done {
+                complete = true;
+                report(
+                    &optimizer,
+                    &task.settings(),
+                    last_eval,
+                    t0.elapsed(),
+                    Progress::FINAL,
+                )?;
+                held = Some(DistributionHeader::FINAL);
+                continue;
+            }
+            for c in schedule.at(next) {
+                apply(&mut *task, c, "schedule", &mut recorded)?;
+            }
+            for c in runtime.drain(..) {
+                apply(
+                    &mut *task,
+                    &TaskChange {
+                        from_update: next,
+                        ..c
+                    },
+                    "runtime",
+                    &mut recorded,
+                )?;
+            }
+            held = Some(0);
+            // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
+            // their progress too).
+            let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);
+            if tenth || last_progress.elapsed() >= PROGRESS_INTERVAL {
+                last_progress = Instant::now();
+                report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
             }
         }
-        if !batch.is_complete() {
-            return Ok(Flow::Continue);
-        }
-        if trace && update_start.elapsed() > Duration::from_millis(20) {
-            slow.push((u, update_start.elapsed()));
-        }
-        update_start = Instant::now();
-        let summary = optimizer
-            .tell(&batch)
-            .map_err(|e| anyhow!("update {u}: {e}"))?;
-        batch.clear();
-        if u == 0 {
-            first_eval = summary.eval_cost;
-            first_done = Some(Instant::now());
-        }
-        last_eval = summary.eval_cost;
-        let next = optimizer.update_index();
-        let done = cfg.run.updates.is_some_and(|n| next >= n);
-        if done {
-            complete = true;
-            report(
-                &optimizer,
-                &task.settings(),
-                last_eval,
-                t0.elapsed(),
-                Progress::FINAL,
-            )?;
-            publish(&optimizer, &task.settings(), DistributionHeader::FINAL)?;
-            return Ok(Flow::Stop);
-        }
-        for c in schedule.at(next) {
-            apply(&mut *task, c, "schedule", &mut recorded)?;
-        }
-        for c in runtime.drain(..) {
-            apply(
-                &mut *task,
-                &TaskChange {
-                    from_update: next,
-                    ..c
-                },
-                "runtime",
-                &mut recorded,
-            )?;
-        }
-        publish(&optimizer, &task.settings(), 0)?;
-        // Draw this update's parameters now, while the workers run: `tell` needs them, and the
-        // time until the last cost arrives is idle.
-        optimizer.ask();
-        // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
-        // their progress too).
-        let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);
-        if tenth || last_progress.elapsed() >= PROGRESS_INTERVAL {
-            last_progress = Instant::now();
-            report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
-        }
-        Ok(Flow::Continue)
     })?;
 
     if trace {
@@ -314,4 +337,147 @@ fn apply(
         source: source.into(),
     });
     Ok(())
+}
+
+/// The updater rings an idle recorder at most this often (see [`RecorderLink::published`]): a
+/// recorder killed with SIGKILL loses at most the updates of this interval (and never more than
+/// the lag bound), besides the one it was writing.
+const RECORDER_RING_INTERVAL: Duration = Duration::from_millis(1);
+
+/// How long the updater waits for a held-back recorder before it looks for a dead one itself
+/// (the supervisor reports its own recorder's death at once; a recorder started by hand has no
+/// one to report it).
+const RECORDER_SCAN_AFTER: Duration = Duration::from_secs(1);
+
+/// The updater's side of the recorder's back-pressure (see the `wire` crate, "The recorder").
+struct RecorderLink {
+    service: wire::FixedService<RecorderAck>,
+    acks: Subscriber<Service, RecorderAck, ()>,
+    bell: Notifier<Service>,
+    run_id: u64,
+    lag: u64,
+    attached: bool,
+    /// The recorder's newest acknowledgement: every distribution before it was taken in.
+    next_update: u64,
+    held_since: Option<Instant>,
+    last_scan: Instant,
+    last_ring: Option<Instant>,
+}
+
+impl RecorderLink {
+    fn new(ctx: &Context) -> anyhow::Result<Self> {
+        let service = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?;
+        let acks = iox(service.subscriber_builder().create(), "recorded subscriber")?;
+        Ok(Self {
+            service,
+            acks,
+            bell: ctx.notifier("recorder")?,
+            run_id: ctx.run_id,
+            lag: ctx.limits.recorder_max_lag(),
+            attached: false,
+            next_update: 0,
+            held_since: None,
+            last_scan: Instant::now(),
+            last_ring: None,
+        })
+    }
+
+    /// At START: a recorder that is running then has its publisher on `recorded` (the
+    /// supervisor starts it first and waits for it).
+    fn attach_if_running(&mut self, first_update: u64) {
+        self.attached = self.service.dynamic_config().number_of_publishers() > 0;
+        self.next_update = first_update;
+        if self.attached {
+            println!(
+                "recorder attached: the updater stays at most {} updates ahead of it",
+                self.lag
+            );
+        }
+    }
+
+    fn detach(&mut self, why: &str) {
+        if self.attached {
+            self.attached = false;
+            println!("recorder detached ({why}): no more back-pressure");
+        }
+    }
+
+    fn drain_acks(&mut self) -> anyhow::Result<()> {
+        while let Some(a) = iox(self.acks.receive(), "receive recorder ack")? {
+            if a.payload().run_id == self.run_id {
+                self.next_update = self.next_update.max(a.payload().next_update);
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether the distribution of update `u` may be published now; if not, asks the
+    /// recorder (HOLD) to ring back after its next acknowledgement.
+    fn may_publish(&mut self, u: u64, ctx: &Context) -> anyhow::Result<bool> {
+        if !self.attached {
+            return Ok(true);
+        }
+        self.drain_acks()?;
+        if u < self.next_update + self.lag {
+            self.held_since = None;
+            return Ok(true);
+        }
+        let since = *self.held_since.get_or_insert_with(Instant::now);
+        if since.elapsed() >= RECORDER_SCAN_AFTER && self.last_scan.elapsed() >= RECORDER_SCAN_AFTER
+        {
+            self.last_scan = Instant::now();
+            if self.service.dynamic_config().number_of_publishers() == 0 {
+                self.detach("it has exited");
+                return Ok(true);
+            }
+            if recorder_is_dead(ctx) {
+                self.detach("its node is dead");
+                return Ok(true);
+            }
+        }
+        iox(
+            self.bell.notify_with_custom_event_id(wire::HOLD),
+            "notify recorder",
+        )?;
+        Ok(false)
+    }
+
+    /// After publishing update `u`: rings the recorder if it had taken in everything before
+    /// (it may be asleep; a busy one looks again before it sleeps) and its last ring is
+    /// [`RECORDER_RING_INTERVAL`] ago, or if `last`. At thousands of updates per second the
+    /// recorder so works in rounds of several updates, and the ring, a system call and a
+    /// wake-up, stays off most updates' critical path; the lag bound rings it (HOLD) anyway.
+    fn published(&mut self, u: u64, last: bool) -> anyhow::Result<()> {
+        if !self.attached {
+            return Ok(());
+        }
+        self.drain_acks()?;
+        let due = last
+            || self
+                .last_ring
+                .is_none_or(|t| t.elapsed() >= RECORDER_RING_INTERVAL);
+        if self.next_update >= u && due {
+            self.last_ring = Some(Instant::now());
+            iox(
+                self.bell.notify_with_custom_event_id(wire::WAKE),
+                "notify recorder",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Whether the run has a dead node named `recorder` (a recorder killed with SIGKILL).
+fn recorder_is_dead(ctx: &Context) -> bool {
+    let mut dead = false;
+    let _ = Node::<Service>::list(ctx.node.config(), |state| {
+        if let NodeState::Dead(view) = state {
+            dead |= view
+                .details()
+                .as_ref()
+                .is_some_and(|d| d.name().as_str() == "recorder");
+        }
+        CallbackProgression::Continue
+    });
+    dead
 }

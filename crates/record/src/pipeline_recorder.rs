@@ -2,29 +2,32 @@
 //! role): subscribes to the run's iceoryx2 services (see the `wire` crate) and writes the run's
 //! MCAP with the same schemas as the in-process recorder.
 //!
-//! It owns no doorbell of its own (the wire contract has none for it): it is the second listener
-//! on `wake/updater` (rung for every cost trajectory and control message), `wake/sampler` (rung
-//! for every distribution) and `wake/supervisor` (lifecycle), and the spare subscriber of
-//! `distribution`, `costs`, `control` and `lifecycle`. Because those services keep no history,
-//! it must be subscribed before the updater publishes the distribution of update 0: start it
-//! first and wait for its `lifecycle` message (role [`ROLE_RECORDER`]) before sending START.
+//! It is the spare subscriber of `distribution`, `costs`, `control` and `lifecycle`, and waits
+//! on its own doorbell, `wake/recorder`, which the updater rings after a distribution when the
+//! recorder may be asleep. Because those services keep no history, it must be subscribed before
+//! the updater publishes the distribution of update 0: start it first and wait for its
+//! `lifecycle` message (role [`ROLE_RECORDER`]) before sending START.
 //!
-//! Two threads: the main thread only drains the subscribers into memory (a copy per message,
-//! microseconds), so the services' small buffers never overflow because of the recorder; the
-//! writer thread assembles the updates, recomputes each with the core from the recorded inputs
-//! (the samples are re-drawn from (seed, update, k)), logs a mismatch with the distribution the
-//! updater published as an `error` event on `/log`, writes it, and flushes the file. A SIGKILL
-//! loses the update being written and any the writer had not reached yet (none while it keeps
-//! up); `mcap-tool recover` completes the file. SIGINT/SIGTERM finish the file (summary and
-//! indexes) after writing everything received, and exit 0.
+//! Delivery is lossless by back-pressure, not by buffer size: after each round of draining,
+//! writing and flushing it acknowledges on `recorded` ([`wire::RecorderAck`]), and the updater
+//! stays at most `Limits::recorder_max_lag` updates ahead of the acknowledgement, a lag the
+//! subscriber buffers are sized for. When the updater is held back it rings with
+//! [`wire::HOLD`], and the recorder rings `wake/updater` after its next acknowledgement.
+//!
+//! One thread: drain every subscriber (distributions first), recompute each complete update
+//! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k)),
+//! log a mismatch with the distribution the updater published as an `error` event on `/log`,
+//! write and flush it, acknowledge, and look for new samples before sleeping. At thousands of
+//! updates per second it therefore works in rounds of several updates and is rung rarely. A
+//! SIGKILL loses the updates of the round being written (at most the lag bound plus one); `mcap-tool
+//! recover` completes the file. SIGINT/SIGTERM finish the file (summary and indexes) after
+//! writing everything received, and exit 0.
 
 use std::path::PathBuf;
 
 use crate::assemble::{Assembler, CostOutcome};
 use crate::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 use anyhow::Context as _;
-use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
 use pipeline::{announce_ready, iox, Context};
 use wire::{Control, CostHeader, DistributionHeader, Lifecycle};
 
@@ -41,17 +44,12 @@ pub struct RecorderArgs {
     pub out: Option<PathBuf>,
 }
 
-/// What the receiving thread hands to the writing thread, in arrival order.
+/// A message taken from one of the subscribers.
 enum Msg {
     Distribution(DistributionHeader, Vec<f64>),
     Cost(CostHeader, Vec<f64>, u64),
     Control(Control),
     Lifecycle(Lifecycle),
-    /// The receiving thread has drained every subscriber once: everything published before
-    /// the newest distribution it passed on has been passed on too.
-    Drained,
-    /// No more messages; `true` if a signal ended the run.
-    End(bool),
 }
 
 fn role_name(l: &Lifecycle) -> String {
@@ -99,46 +97,32 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             .create(),
         "lifecycle subscriber",
     )?;
-    let mut bells = Vec::new();
-    for owner in ["updater", "sampler", "supervisor"] {
-        bells.push(ctx.listener(owner)?);
-    }
-    let waitset = iox(
-        WaitSetBuilder::new().create::<wire::Service>(),
-        "cannot create waitset",
+    let doorbell = ctx.listener("recorder")?;
+    let updater_bell = ctx.notifier("updater")?;
+    let acks = iox(
+        wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?
+            .publisher_builder()
+            .create(),
+        "recorded publisher",
     )?;
-    let mut guards = Vec::new();
-    for b in &bells {
-        guards.push(iox(
-            waitset.attach_notification(b),
-            "cannot attach doorbell",
-        )?);
-    }
 
     let writer = RunWriter::create(&out)?;
-    let (tx, rx) = std::sync::mpsc::channel::<Msg>();
-    let state = WriterState::new(&ctx, text, writer)?;
-    let writing = std::thread::Builder::new()
-        .name("writer".into())
-        .spawn(move || state.run(rx))
-        .context("cannot start the writer thread")?;
+    let mut state = WriterState::new(&ctx, text, writer)?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
     eprintln!("recording to {}", out.display());
 
     let p = ctx.limits.dim;
-    let send = |m: Msg| {
-        tx.send(m)
-            .map_err(|_| anyhow::anyhow!("the writer thread has stopped"))
-    };
-    let mut result = Ok(());
+    // The first distribution not yet taken in.
+    let mut next_update: Option<u64> = None;
+    let mut hold = false;
     let signal = loop {
-        for b in &bells {
-            iox(b.try_wait(|_| {}), "doorbell")?;
-        }
+        iox(
+            doorbell.try_wait(|a| hold |= a.id == wire::HOLD),
+            "doorbell",
+        )?;
         // Distributions before costs: every cost of update u was published before the
         // distribution of u + 1, so after this order of draining, a seen distribution's
         // predecessor costs are all in hand.
-        let mut last = false;
         while let Some(s) = iox(dist_sub.receive(), "receive distribution")? {
             let h: DistributionHeader = *s.user_header();
             if h.run_id != ctx.run_id {
@@ -146,61 +130,77 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             }
             let payload = s.payload();
             if payload.len() < p + p * p {
-                result = Err(anyhow::anyhow!(
+                anyhow::bail!(
                     "distribution of update {}: {} values, expected {}",
                     h.update,
                     payload.len(),
                     p + p * p
-                ));
-                break;
+                );
             }
-            last |= h.flags & DistributionHeader::FINAL != 0;
-            send(Msg::Distribution(h, payload[..p + p * p].to_vec()))?;
+            next_update = Some(next_update.unwrap_or(0).max(h.update + 1));
+            state.handle(Msg::Distribution(h, payload[..p + p * p].to_vec()))?;
         }
         while let Some(s) = iox(costs_sub.receive(), "receive costs")? {
             let h = *s.user_header();
             if h.run_id == ctx.run_id {
-                send(Msg::Cost(h, s.payload().to_vec(), now_ns()))?;
+                state.handle(Msg::Cost(h, s.payload().to_vec(), now_ns()))?;
             }
         }
         while let Some(s) = iox(control_sub.receive(), "receive control")? {
             if s.payload().run_id == ctx.run_id {
-                send(Msg::Control(*s.payload()))?;
+                state.handle(Msg::Control(*s.payload()))?;
             }
         }
         while let Some(s) = iox(lifecycle_sub.receive(), "receive lifecycle")? {
             if s.payload().run_id == ctx.run_id {
-                send(Msg::Lifecycle(*s.payload()))?;
+                state.handle(Msg::Lifecycle(*s.payload()))?;
             }
         }
-        // The writer thread stops by itself after the final update; a marker it no longer
-        // needs is not an error.
-        let _ = tx.send(Msg::Drained);
-        if last || result.is_err() {
+        // Every subscriber has been drained once: what is still missing can no longer arrive.
+        state.write_complete(true)?;
+        if let Some(next_update) = next_update {
+            iox(
+                acks.send_copy(wire::RecorderAck {
+                    run_id: ctx.run_id,
+                    next_update,
+                }),
+                "send recorder ack",
+            )?;
+        }
+        if std::mem::take(&mut hold) {
+            iox(
+                updater_bell.notify_with_custom_event_id(wire::WAKE),
+                "notify updater",
+            )?;
+        }
+        if state.done() {
             break false;
         }
-        match iox(
-            // A bounded wait: iceoryx2 0.10's WaitSet can miss a wake-up when several processes
-            // notify at once; the pipeline's processes use the same 100 ms safety tick.
-            waitset.wait_and_process_once_with_timeout(
-                |_| CallbackProgression::Continue,
-                std::time::Duration::from_millis(100),
-            ),
-            "waitset",
-        )? {
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => break true,
-            WaitSetRunResult::StopRequest | WaitSetRunResult::AllEventsHandled => {}
+        // Samples published after the drain above, whose publisher may not have rung (it saw
+        // an acknowledgement that said this process was busy): take them in before sleeping.
+        let more = iox(dist_sub.has_samples(), "distribution subscriber")?
+            || iox(costs_sub.has_samples(), "costs subscriber")?;
+        if more {
+            continue;
         }
+        if pipeline::termination_requested() {
+            break true;
+        }
+        // A bounded wait, as in the pipeline's processes (`pipeline::wait_loop`); an error is a
+        // signal interrupting the wait, seen above next.
+        let _ = doorbell.timed_wait(|a| hold |= a.id == wire::HOLD, pipeline::TICK);
     };
-    let _ = tx.send(Msg::End(signal));
-    let written = writing
-        .join()
-        .map_err(|_| anyhow::anyhow!("the writer thread panicked"))??;
-    eprintln!("recorded {written} updates to {}", out.display());
-    result
+    let written = state.finish(signal)?;
+    let cpu = process_cpu_seconds();
+    eprintln!(
+        "recorded {written} updates to {} ({:.1} µs of CPU per update)",
+        out.display(),
+        cpu * 1e6 / written.max(1) as f64
+    );
+    Ok(())
 }
 
-/// The writing thread: assembles updates, recomputes and writes them.
+/// Assembles updates, recomputes and writes them.
 struct WriterState {
     writer: RunWriter<std::io::BufWriter<std::fs::File>>,
     assembler: Assembler,
@@ -256,30 +256,15 @@ impl WriterState {
         })
     }
 
-    fn run(mut self, rx: std::sync::mpsc::Receiver<Msg>) -> anyhow::Result<u64> {
-        let mut signal = true;
-        while let Ok(m) = rx.recv() {
-            match m {
-                Msg::End(s) => {
-                    signal = s;
-                    break;
-                }
-                // Only at a drain boundary may a missing input count as lost: within one drain
-                // the distributions are passed on before the costs that precede them.
-                Msg::Drained => self.write_complete(true)?,
-                m => {
-                    self.handle(m)?;
-                    self.write_complete(false)?;
-                }
-            }
-            if self
-                .final_update
-                .is_some_and(|f| self.assembler.first_update().is_none_or(|n| n >= f))
-            {
-                signal = false;
-                break;
-            }
-        }
+    /// Whether every update up to the `FINAL` distribution has been written.
+    fn done(&self) -> bool {
+        self.final_update
+            .is_some_and(|f| self.assembler.first_update().is_none_or(|n| n >= f))
+    }
+
+    /// Logs the recorder's exit and finishes the file (summary, indexes); returns the number of
+    /// updates written.
+    fn finish(mut self, signal: bool) -> anyhow::Result<u64> {
         let pid = self.pid;
         let (written, mismatches) = (self.written, self.mismatches);
         self.writer.write_event(
@@ -425,7 +410,6 @@ impl WriterState {
                     ),
                 )?;
             }
-            Msg::End(_) | Msg::Drained => {}
         }
         Ok(())
     }
@@ -511,4 +495,18 @@ impl WriterState {
             self.writer.flush()?;
         }
     }
+}
+
+/// CPU time (user + system) this process has used, in seconds; 0 if unknown.
+fn process_cpu_seconds() -> f64 {
+    // SAFETY: getrusage writes into the struct it is given and reads nothing else.
+    #[allow(unsafe_code)]
+    let usage = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        (libc::getrusage(libc::RUSAGE_SELF, &mut u) == 0).then_some(u)
+    };
+    usage.map_or(0.0, |u| {
+        let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
+        t(u.ru_utime) + t(u.ru_stime)
+    })
 }

@@ -113,6 +113,13 @@ impl Event {
     }
 }
 
+/// zstd's level −1, the fastest "fast" level: literals are stored, not Huffman-coded. A chunk
+/// is mostly f64 step costs, which do not compress: at level 1 zstd spent ~5× longer on
+/// Huffman-coding them (16 µs against 3 µs for a via-point update of 13.6 kB) to save 4 % more
+/// (15 % of the size against 11 %). The `mcap` crate takes the level as `u32` and hands it to
+/// zstd as `i32`, so −1 is written as `u32::MAX`.
+const ZSTD_LEVEL_FAST_1: u32 = u32::MAX;
+
 /// Channel ids of the six topics, in [`topics::ALL`] order.
 struct Channels([u16; 6]);
 
@@ -141,7 +148,7 @@ impl<W: Write + Seek> RunWriter<W> {
         let file = file.into();
         let opts = WriteOptions::new()
             .compression(Some(Compression::Zstd))
-            .compression_level(1)
+            .compression_level(ZSTD_LEVEL_FAST_1)
             .compression_threads(0)
             // Chunks are closed by the flush after every update; this bound only matters for
             // very large updates.

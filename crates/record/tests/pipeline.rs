@@ -1,6 +1,7 @@
 //! The pipeline's recorder process against a real pipeline run (`supervisor run`): every update
 //! recorded and recomputed bit-identically from the MCAP; a recorder killed with SIGKILL mid-run
-//! leaves a file that `recover` completes with every update it had flushed.
+//! leaves a file that `recover` completes with every update it had flushed; a recorder stopped
+//! (SIGSTOP) at full speed holds the updater back instead of losing updates.
 //!
 //! Needs the supervisor crate's binaries next to this crate's (`cargo test --workspace` or
 //! `cargo build -p supervisor` first). Without them the tests fail under CI (`CI` set) and are
@@ -56,7 +57,11 @@ fn setup(name: &str, updates: u64, delay_ms: f64) -> Run {
         );
     let config = dir.join("config.toml");
     std::fs::write(&config, text).unwrap();
-    let salt = if name == "kill" { 1 } else { 2 };
+    let salt = match name {
+        "kill" => 1,
+        "stop" => 3,
+        _ => 2,
+    };
     Run {
         run_id: format!("{:08x}{:08x}", std::process::id(), 0xdead_0000u32 + salt),
         dir,
@@ -207,4 +212,62 @@ fn a_killed_pipeline_recorder_is_recovered_with_every_flushed_update() {
         .args(["-INT", &sup.0.id().to_string()])
         .status();
     wait_bounded(&mut sup.0, 60);
+}
+
+fn signal(pid: u32, sig: &str) {
+    assert!(Command::new("kill")
+        .args([sig, &pid.to_string()])
+        .status()
+        .unwrap()
+        .success());
+}
+
+/// Updates completed so far, from the updater's result file or the supervisor's progress lines
+/// ("update N/M").
+fn progress(run: &Run) -> u64 {
+    let log = std::fs::read_to_string(run.dir.join("supervisor.log")).unwrap_or_default();
+    log.lines()
+        .filter_map(|l| l.split("update ").nth(1)?.split('/').next()?.parse().ok())
+        .max()
+        .unwrap_or(0)
+}
+
+#[test]
+fn a_stopped_recorder_holds_the_updater_back_and_loses_nothing() {
+    let Some(bin) = bin_dir() else { return };
+    // Full speed (µs rollouts, thousands of updates per second): without back-pressure the
+    // 1.5 s stop below would be thousands of updates, far beyond the recorder's buffers.
+    let updates = 3000;
+    let run = setup("stop", updates, 0.0);
+    let out = run.dir.join("run.mcap");
+    let mut rec = Guard(start_recorder(&bin, &run, &out));
+    let mut sup = Guard(start_supervisor(&bin, &run));
+    let t = Instant::now();
+    while progress(&run) < 1 && t.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    signal(rec.0.id(), "-STOP");
+    std::thread::sleep(Duration::from_millis(300));
+    let held_at = progress(&run);
+    std::thread::sleep(Duration::from_millis(1200));
+    let after_stop = progress(&run);
+    signal(rec.0.id(), "-CONT");
+    assert!(wait_bounded(&mut sup.0, 120).success());
+    assert!(wait_bounded(&mut rec.0, 30).success());
+    // Held: no progress while the recorder was stopped (progress lines come every 200 ms).
+    assert!(
+        held_at < updates,
+        "the run finished although the recorder was stopped"
+    );
+    assert_eq!(
+        held_at, after_stop,
+        "the updater went on without the recorder"
+    );
+    let r = read_recording(&out).unwrap();
+    assert!(r.indexed && r.truncated.is_none());
+    let indices: Vec<u64> = r.updates.iter().map(|u| u.update).collect();
+    assert_eq!(indices, (0..updates).collect::<Vec<_>>());
+    assert!(r.logs.iter().all(|l| l.event != "error"), "{:?}", r.logs);
+    let v = verify(&r).unwrap();
+    assert!(v.mismatches.is_empty(), "{v:?}");
 }

@@ -197,6 +197,8 @@ struct Ports {
     control: Publisher<Service, Control, ()>,
     sampler_bell: Notifier<Service>,
     updater_bell: Notifier<Service>,
+    /// Rung after every control message, so the recorder logs it when it happens.
+    recorder_bell: Notifier<Service>,
     // Dropped last: ports above belong to it.
     _node: Node<Service>,
 }
@@ -391,6 +393,12 @@ impl Supervisor {
                     .notifier_builder()
                     .create(),
                 "updater notifier",
+            )?,
+            recorder_bell: iox(
+                wire::doorbell(&node, self.run_id, "recorder", limits)?
+                    .notifier_builder()
+                    .create(),
+                "recorder notifier",
             )?,
             _node: node,
         });
@@ -801,6 +809,12 @@ impl Supervisor {
             &ports.sampler_bell
         };
         iox(bell.notify_with_custom_event_id(wire::WAKE), "notify")?;
+        if self.recording.as_ref().is_some_and(|r| r.lost.is_none()) {
+            iox(
+                ports.recorder_bell.notify_with_custom_event_id(wire::WAKE),
+                "notify recorder",
+            )?;
+        }
         Ok(())
     }
 
@@ -1089,6 +1103,15 @@ impl Supervisor {
                     return;
                 };
                 let path = rec.path.display().to_string();
+                if !starting {
+                    // Whatever its exit status, the updater must stop waiting for its
+                    // acknowledgements.
+                    let _ = self
+                        .send_control(Control::plain(self.run_id, Control::RECORDER_LOST), true);
+                }
+                let Some(rec) = self.recording.as_mut() else {
+                    return;
+                };
                 if starting {
                     self.fail(format!(
                         "recorder exited before it was ready ({cause}); run with --no-record to \

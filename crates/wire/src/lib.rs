@@ -21,11 +21,12 @@
 //! | `costs` | `[f64]`: immediate costs (N) | [`CostHeader`] | workers → updater |
 //! | `ready` | [`Ready`] | – | workers → sampler |
 //! | `progress` | [`Progress`] | – | updater → supervisor |
+//! | `recorded` | [`RecorderAck`] | – | recorder → updater |
 //! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
 //! | `control` | [`Control`] | – | supervisor → sampler, updater |
 //!
 //! Every receiving process owns one event service, its doorbell: `wake/updater`,
-//! `wake/sampler`, `wake/supervisor`, `wake/worker/<w>`. A sender publishes its samples, then
+//! `wake/sampler`, `wake/supervisor`, `wake/recorder`, `wake/worker/<w>`. A sender publishes its samples, then
 //! notifies the receiver's doorbell once (event id [`WAKE`]); the receiver waits on its doorbell
 //! (never spins), consumes all notifications, then drains its subscribers. Wait with the
 //! listener's own `timed_wait`/`blocking_wait`, not by attaching it to a `WaitSet`: with
@@ -52,6 +53,20 @@
 //! 4. The updater stores cost (u, k) (duplicates and other updates are ignored, so a rollout may
 //!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
 //!
+//! # The recorder
+//!
+//! The MCAP recorder (crate `record`) is a spare subscriber of `distribution`, `costs`,
+//! `control` and `lifecycle`; it is woken on its own doorbell, `wake/recorder`, so no sender on
+//! the data paths pays for it. It acknowledges on `recorded` ([`RecorderAck`]). The updater
+//! applies back-pressure when a recorder was running at START (`recorded` has a publisher): it
+//! publishes distribution u only while u − `next_update` < [`Limits::recorder_max_lag`],
+//! otherwise it rings `wake/recorder` with [`HOLD`] and waits; the recorder rings
+//! `wake/updater` after its next acknowledgement. After publishing u, the updater rings
+//! `wake/recorder` only if the recorder's acknowledgement covers u − 1 (it may be asleep); a
+//! busy recorder looks for new samples after each acknowledgement, before it sleeps. The
+//! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits, and an updater held for
+//! a second also looks for a dead `recorder` node, so a dead recorder never stalls the run.
+//!
 //! A worker that dies (or is scaled away) is reported by the supervisor on `control`
 //! ([`Control::WORKER_LOST`]), announces a higher incarnation when restarted, or is found by the
 //! sampler among the run's dead nodes (node name [`worker_node_name`]); the sampler hands its
@@ -75,8 +90,13 @@ pub const MAX_SETTINGS: usize = 8;
 /// Length of a setting name in a [`Control`] message.
 pub const MAX_NAME: usize = 32;
 
-/// The only event id used: "something for you was published".
+/// "Something for you was published."
 pub const WAKE: EventId = EventId::new(1);
+
+/// On `wake/recorder` only, from the updater: "I am holding back a distribution until you
+/// acknowledge more updates (see [`RecorderAck`]); ring `wake/updater` after your next
+/// acknowledgement."
+pub const HOLD: EventId = EventId::new(2);
 
 /// The iceoryx2 service flavour of every port in the pipeline.
 pub type Service = ipc::Service;
@@ -203,6 +223,20 @@ impl Progress {
     pub const FINAL: u32 = 1;
 }
 
+/// The recorder's acknowledgement on `recorded`: every distribution before `next_update` has
+/// been taken out of its buffers, and every update whose inputs it had then is written and
+/// flushed. The updater publishes the distribution of update u only while
+/// u − `next_update` < [`Limits::recorder_max_lag`]: delivery to the recorder is lossless
+/// (its subscriber buffers are sized for that lag), and a recorder killed with SIGKILL loses at
+/// most that many updates plus the one in flight.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.RecorderAck.v1")]
+pub struct RecorderAck {
+    pub run_id: u64,
+    pub next_update: u64,
+}
+
 /// Process roles in [`Lifecycle`].
 pub mod role {
     pub const UPDATER: u32 = 1;
@@ -249,6 +283,8 @@ impl Control {
     pub const SET_TASK: u32 = 2;
     /// Start: the sampler is ready, publish the first distribution (updater).
     pub const START: u32 = 3;
+    /// The recorder is gone: stop waiting for its acknowledgements (updater).
+    pub const RECORDER_LOST: u32 = 4;
 
     /// A message of `kind` without arguments.
     pub fn plain(run_id: u64, kind: u32) -> Self {
@@ -341,7 +377,25 @@ impl Limits {
         let affordable = SEGMENT_BUDGET_BYTES / (4 * 8 * (self.dim + self.dim * self.dim).max(1));
         4usize.max(RECORDER_SLACK_UPDATES.min(affordable))
     }
+
+    /// How many distributions the updater may publish beyond the recorder's acknowledgement
+    /// ([`RecorderAck`]): at most [`RECORDER_MAX_LAG`], and only as many as the recorder's
+    /// buffers hold (L distributions, and the costs of L + 1 updates plus re-executions), so
+    /// nothing is dropped by safe overflow. At least 1.
+    pub fn recorder_max_lag(&self) -> u64 {
+        let by_costs =
+            ((self.cost_buffer() - self.max_workers - 4) / self.rollouts.max(1)).saturating_sub(1);
+        RECORDER_MAX_LAG
+            .min(self.distribution_buffer() as u64)
+            .min(by_costs as u64)
+            .max(1)
+    }
 }
+
+/// The most updates the recorder may fall behind the updater (see [`RecorderAck`]). Enough
+/// for the recorder to batch its work at thousands of updates per second; small enough that a
+/// recorder killed with SIGKILL loses little.
+pub const RECORDER_MAX_LAG: u64 = 16;
 
 /// The node name of worker `w`, incarnation `incarnation`: `worker-<w>.<incarnation>`. The
 /// sampler finds crashed workers by these names among the run's dead nodes.
@@ -558,6 +612,16 @@ pub fn ready(
     )
 }
 
+/// `recorded`: 1 publisher (the recorder), 2 subscribers (updater, spare), a buffer of 4 (only
+/// the newest acknowledgement matters).
+pub fn recorded(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<RecorderAck>, WireError> {
+    fixed_service(node, run_id, "recorded", 2, 2, 4, l.nodes())
+}
+
 /// `progress`: 2 publishers, 4 subscribers, a buffer of 8.
 pub fn progress(
     node: &Node<Service>,
@@ -601,8 +665,9 @@ pub fn control(
     )
 }
 
-/// The doorbell of a receiving process: `wake/updater`, `wake/sampler`, `wake/supervisor` or
-/// `wake/worker/<w>`. Up to 2·max_workers + 6 notifiers, 2 listeners, event ids up to 1.
+/// The doorbell of a receiving process: `wake/updater`, `wake/sampler`, `wake/supervisor`,
+/// `wake/recorder` or `wake/worker/<w>`. Up to 2·max_workers + 6 notifiers, 2 listeners, event
+/// ids up to 2 ([`WAKE`], [`HOLD`]).
 pub fn doorbell(
     node: &Node<Service>,
     run_id: u64,
@@ -615,7 +680,7 @@ pub fn doorbell(
         .max_notifiers(l.worker_ports() + 4)
         .max_listeners(2)
         .max_nodes(l.nodes())
-        .event_id_max_value(1)
+        .event_id_max_value(HOLD.as_value())
         .open_or_create()
         .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
@@ -637,6 +702,32 @@ mod tests {
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 24 + MAX_NAME + 8);
         assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
+        assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
+    }
+
+    #[test]
+    fn recorder_lag_fits_the_buffers() {
+        let via_point = Limits {
+            max_workers: 16,
+            rollouts: 15,
+            dim: 2,
+            steps: 101,
+        };
+        assert_eq!(via_point.recorder_max_lag(), RECORDER_MAX_LAG);
+        // A large policy: a distribution is ~1 MB, so only 4 fit in the 16 MiB budget.
+        let large = Limits {
+            max_workers: 16,
+            rollouts: 50,
+            dim: 350,
+            steps: 1000,
+        };
+        assert_eq!(large.distribution_buffer(), 4);
+        assert_eq!(large.recorder_max_lag(), 4);
+        for l in [via_point, large] {
+            let lag = l.recorder_max_lag() as usize;
+            assert!(lag <= l.distribution_buffer());
+            assert!((lag + 1) * l.rollouts + l.max_workers + 4 <= l.cost_buffer());
+        }
     }
 
     #[test]
