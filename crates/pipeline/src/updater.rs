@@ -357,7 +357,7 @@ struct RecorderLink {
     run_id: u64,
     lag: u64,
     attached: bool,
-    /// The recorder's newest acknowledgement: every distribution before it was taken in.
+    /// The recorder's newest acknowledgement: every update before it is written.
     next_update: u64,
     held_since: Option<Instant>,
     last_scan: Instant,
@@ -442,8 +442,8 @@ impl RecorderLink {
         Ok(false)
     }
 
-    /// After publishing update `u`: rings the recorder if it had taken in everything before
-    /// (it may be asleep; a busy one looks again before it sleeps) and its last ring is
+    /// After publishing update `u`: rings the recorder if it had written everything before
+    /// u − 1 (it may be asleep; a busy one looks again before it sleeps) and its last ring is
     /// [`RECORDER_RING_INTERVAL`] ago, or if `last`. At thousands of updates per second the
     /// recorder so works in rounds of several updates, and the ring, a system call and a
     /// wake-up, stays off most updates' critical path; the lag bound rings it (HOLD) anyway.
@@ -456,7 +456,7 @@ impl RecorderLink {
             || self
                 .last_ring
                 .is_none_or(|t| t.elapsed() >= RECORDER_RING_INTERVAL);
-        if self.next_update >= u && due {
+        if self.next_update + 1 >= u && due {
             self.last_ring = Some(Instant::now());
             iox(
                 self.bell.notify_with_custom_event_id(wire::WAKE),

@@ -98,22 +98,38 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
     }
     println!("\n| pipeline case | updates | without (updates/s) | with recorder (updates/s) | recording cost | recorded | bytes/update |");
     println!("|---|---|---|---|---|---|---|");
-    let cases = [
-        ("pipeline A1, 3 workers", 2000u64, 0.0),
-        ("pipeline A1, 3 workers, 1 ms rollouts", 150, 1.0),
-    ];
-    let mut id = 0u32;
-    for (name, updates, delay) in cases {
-        if !filter.iter().all(|f| name.contains(f.as_str())) {
-            continue;
-        }
-        let cfg = dir.join("pipe.toml");
-        let text = session::DEFAULT_CONFIG
+    let via_point = |updates: u64, delay: f64| {
+        session::DEFAULT_CONFIG
             .replace("updates = 40", &format!("updates = {updates}"))
             .replace(
                 "viapoint_weight = 1000.0",
                 &format!("viapoint_weight = 1000.0\nrollout_delay_ms = {delay}"),
-            );
+            )
+    };
+    // The T-ball task of the paper (config/tball.toml): K = 10 rollouts of ~0.1 ms, P = 21,
+    // N = 1001 (80 kB of step costs per update), 2 workers.
+    let tball = |updates: u64| {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tball.toml");
+        std::fs::read_to_string(path)
+            .unwrap()
+            .replace("updates = 40", &format!("updates = {updates}"))
+            .replace("[task.tball]", "[pipeline]\nworkers = 2\n\n[task.tball]")
+    };
+    let cases = [
+        ("pipeline A1, 3 workers", 2000u64, via_point(2000, 0.0)),
+        (
+            "pipeline A1, 3 workers, 1 ms rollouts",
+            150,
+            via_point(150, 1.0),
+        ),
+        ("pipeline T-ball, 2 workers", 300, tball(300)),
+    ];
+    let mut id = 0u32;
+    for (name, updates, text) in cases {
+        if !filter.iter().all(|f| name.contains(f.as_str())) {
+            continue;
+        }
+        let cfg = dir.join("pipe.toml");
         std::fs::write(&cfg, text).unwrap();
         let mut best = [f64::INFINITY; 2];
         let mut hung = 0;

@@ -21,6 +21,7 @@ mod reader;
 pub mod recompute;
 mod recorder;
 pub mod recover;
+mod seek_buffer;
 mod writer;
 
 /// Generated protobuf types (prost) of `proto/`.

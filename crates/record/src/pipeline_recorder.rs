@@ -112,14 +112,19 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     eprintln!("recording to {}", out.display());
 
     let p = ctx.limits.dim;
+    let lag = ctx.limits.recorder_max_lag();
     // The first distribution not yet taken in.
     let mut next_update: Option<u64> = None;
     let mut hold = false;
+    // For the exit line: rounds of draining and writing, and requests of a held updater.
+    let (mut rounds, mut holds) = (0u64, 0u64);
     let signal = loop {
         iox(
             doorbell.try_wait(|a| hold |= a.id == wire::HOLD),
             "doorbell",
         )?;
+        rounds += 1;
+        holds += u64::from(hold);
         // Distributions before costs: every cost of update u was published before the
         // distribution of u + 1, so after this order of draining, a seen distribution's
         // predecessor costs are all in hand.
@@ -157,22 +162,32 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             }
         }
         // Every subscriber has been drained once: what is still missing can no longer arrive.
-        state.write_complete(true)?;
-        if let Some(next_update) = next_update {
+        // Each written update is acknowledged at once, so a held updater goes on while the rest
+        // of the round is written; it is rung back when half the lag bound is free.
+        let newest = next_update.unwrap_or(0);
+        let ring_back = |hold: &mut bool| -> anyhow::Result<()> {
+            if std::mem::take(hold) {
+                iox(
+                    updater_bell.notify_with_custom_event_id(wire::WAKE),
+                    "notify updater",
+                )?;
+            }
+            Ok(())
+        };
+        state.write_complete(true, &mut |u| {
             iox(
                 acks.send_copy(wire::RecorderAck {
                     run_id: ctx.run_id,
-                    next_update,
+                    next_update: u + 1,
                 }),
                 "send recorder ack",
             )?;
-        }
-        if std::mem::take(&mut hold) {
-            iox(
-                updater_bell.notify_with_custom_event_id(wire::WAKE),
-                "notify updater",
-            )?;
-        }
+            if newest.saturating_sub(u + 1) <= lag / 2 {
+                ring_back(&mut hold)?;
+            }
+            Ok(())
+        })?;
+        ring_back(&mut hold)?;
         if state.done() {
             break false;
         }
@@ -193,7 +208,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let written = state.finish(signal)?;
     let cpu = process_cpu_seconds();
     eprintln!(
-        "recorded {written} updates to {} ({:.1} µs of CPU per update)",
+        "recorded {written} updates to {} ({:.1} µs of CPU per update; {rounds} rounds, {holds} \
+         of them asked for by a held updater)",
         out.display(),
         cpu * 1e6 / written.max(1) as f64
     );
@@ -202,7 +218,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
 
 /// Assembles updates, recomputes and writes them.
 struct WriterState {
-    writer: RunWriter<std::io::BufWriter<std::fs::File>>,
+    writer: RunWriter<crate::writer::FileSink>,
     assembler: Assembler,
     config: session::RunConfig,
     text: String,
@@ -223,7 +239,7 @@ impl WriterState {
     fn new(
         ctx: &Context,
         text: String,
-        writer: RunWriter<std::io::BufWriter<std::fs::File>>,
+        writer: RunWriter<crate::writer::FileSink>,
     ) -> anyhow::Result<Self> {
         let cfg = ctx.config.clone();
         let task = session::build_task(&cfg)?;
@@ -416,7 +432,12 @@ impl WriterState {
 
     /// Writes every complete update; with `skip_lost`, also gives up (with an `error` event) on
     /// updates whose inputs can no longer arrive, and writes what that unblocks.
-    fn write_complete(&mut self, skip_lost: bool) -> anyhow::Result<()> {
+    /// Calls `written(u)` after update u is written and flushed (or given up).
+    fn write_complete(
+        &mut self,
+        skip_lost: bool,
+        written: &mut dyn FnMut(u64) -> anyhow::Result<()>,
+    ) -> anyhow::Result<()> {
         let pid = self.pid;
         loop {
             while let Some(a) = self.assembler.next_complete() {
@@ -475,6 +496,7 @@ impl WriterState {
                     ),
                     )?;
                 }
+                written(a.update)?;
             }
             if !skip_lost {
                 return Ok(());
@@ -493,6 +515,7 @@ impl WriterState {
                 ),
             )?;
             self.writer.flush()?;
+            written(u)?;
         }
     }
 }

@@ -6,8 +6,6 @@
 //! update u − 1 is flushed, so at any time at most one update — the one in flight — is not yet
 //! in the file.
 
-use std::fs::File;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
@@ -84,7 +82,7 @@ enum Ack {
 }
 
 fn write_job(
-    w: &mut RunWriter<BufWriter<File>>,
+    w: &mut RunWriter<crate::writer::FileSink>,
     job: Job,
     progress: bool,
 ) -> Result<(), RecordError> {
@@ -146,7 +144,7 @@ fn write_job(
 /// Writes jobs until the recorder drops its sender, then finishes the file. After the first
 /// error nothing more is written (update jobs are answered `Skipped`) and the error is returned.
 fn writer_thread(
-    mut w: RunWriter<BufWriter<File>>,
+    mut w: RunWriter<crate::writer::FileSink>,
     jobs: Receiver<Job>,
     acks: Sender<Ack>,
     progress: bool,

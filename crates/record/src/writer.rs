@@ -4,7 +4,9 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{BufWriter, Seek, Write};
+use std::io::{Seek, Write};
+
+use crate::seek_buffer::SeekBuffer;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -134,11 +136,15 @@ pub struct RunWriter<W: Write + Seek> {
     buf: Vec<u8>,
 }
 
-impl RunWriter<BufWriter<File>> {
+/// What [`RunWriter::create`] writes to: the file behind a buffer that serves the `mcap`
+/// writer's per-chunk seeks from memory (one `write` per flush).
+pub type FileSink = SeekBuffer<File>;
+
+impl RunWriter<FileSink> {
     /// Creates (truncates) `path`.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
         let f = File::create(path).map_err(|e| RecordError::io(path, e))?;
-        Self::new(BufWriter::with_capacity(1 << 16, f), path)
+        Self::new(SeekBuffer::new(f), path)
     }
 }
 

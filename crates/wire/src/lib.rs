@@ -60,10 +60,11 @@
 //! the data paths pays for it. It acknowledges on `recorded` ([`RecorderAck`]). The updater
 //! applies back-pressure when a recorder was running at START (`recorded` has a publisher): it
 //! publishes distribution u only while u − `next_update` < [`Limits::recorder_max_lag`],
-//! otherwise it rings `wake/recorder` with [`HOLD`] and waits; the recorder rings
-//! `wake/updater` after its next acknowledgement. After publishing u, the updater rings
-//! `wake/recorder` only if the recorder's acknowledgement covers u − 1 (it may be asleep); a
-//! busy recorder looks for new samples after each acknowledgement, before it sleeps. The
+//! otherwise it rings `wake/recorder` with [`HOLD`] and waits; the recorder acknowledges each
+//! update as soon as it is written and rings `wake/updater` once half the lag bound is free
+//! (or at the end of its round). After publishing u, the updater rings `wake/recorder` if the
+//! recorder has written everything before u − 1 (it may be asleep) and its last ring is a
+//! millisecond ago; a busy recorder looks for new samples before it sleeps. The
 //! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits, and an updater held for
 //! a second also looks for a dead `recorder` node, so a dead recorder never stalls the run.
 //!
@@ -223,12 +224,12 @@ impl Progress {
     pub const FINAL: u32 = 1;
 }
 
-/// The recorder's acknowledgement on `recorded`: every distribution before `next_update` has
-/// been taken out of its buffers, and every update whose inputs it had then is written and
-/// flushed. The updater publishes the distribution of update u only while
-/// u − `next_update` < [`Limits::recorder_max_lag`]: delivery to the recorder is lossless
-/// (its subscriber buffers are sized for that lag), and a recorder killed with SIGKILL loses at
-/// most that many updates plus the one in flight.
+/// The recorder's acknowledgement on `recorded`, sent after each update it has written and
+/// flushed: every update before `next_update` is in the file. The updater publishes the
+/// distribution of update u only while u − `next_update` < [`Limits::recorder_max_lag`]:
+/// then at most that many distributions and the costs of that many updates can be waiting in
+/// the recorder's buffers, which are sized for it, so delivery to the recorder is lossless; and
+/// a recorder killed with SIGKILL loses at most that many updates.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("pi2cma.RecorderAck.v1")]
@@ -378,10 +379,10 @@ impl Limits {
         4usize.max(RECORDER_SLACK_UPDATES.min(affordable))
     }
 
-    /// How many distributions the updater may publish beyond the recorder's acknowledgement
-    /// ([`RecorderAck`]): at most [`RECORDER_MAX_LAG`], and only as many as the recorder's
-    /// buffers hold (L distributions, and the costs of L + 1 updates plus re-executions), so
-    /// nothing is dropped by safe overflow. At least 1.
+    /// How far the updater may run ahead of the recorder's acknowledgement ([`RecorderAck`]):
+    /// at most [`RECORDER_MAX_LAG`] updates, and only as many as the recorder's buffers hold
+    /// (L distributions, and the costs of L + 1 updates plus re-executions, which leaves a
+    /// margin), so nothing is dropped by safe overflow. At least 1.
     pub fn recorder_max_lag(&self) -> u64 {
         let by_costs =
             ((self.cost_buffer() - self.max_workers - 4) / self.rollouts.max(1)).saturating_sub(1);
