@@ -76,8 +76,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut recorded: Vec<RecordedChange> = Vec::new();
     let mut runtime: Vec<TaskChange> = Vec::new();
     let mut complete = false;
-    // The distribution whose publication the recorder's back-pressure holds back (its flags).
-    let mut held: Option<u32> = None;
+    // The flags of the distribution waiting to be published (the optimizer's current one); it
+    // waits while the recorder's back-pressure holds it back.
+    let mut to_publish: Option<u32> = None;
     // Scheduled changes of update 0 are in force from the start; record them.
     for c in schedule.at(0) {
         recorded.push(RecordedChange {
@@ -165,7 +166,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     started = Some(Instant::now());
                     last_progress = Instant::now();
                     recorder.attach_if_running(optimizer.update_index());
-                    held = Some(0);
+                    to_publish = Some(0);
                 }
                 Control::RECORDER_LOST => recorder.detach("the supervisor reports it gone"),
                 Control::SET_TASK => {
@@ -192,15 +193,15 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         let Some(t0) = started else {
             return Ok(Flow::Continue);
         };
-        // Publishes what is held (if the recorder's back-pressure allows), takes in costs, and
+        // Publishes what waits (if the recorder's back-pressure allows), takes in costs, and
         // after a complete batch updates and publishes again.
         loop {
-            if let Some(flags) = held {
+            if let Some(flags) = to_publish {
                 let u = optimizer.update_index();
                 if !recorder.may_publish(u, &ctx)? {
                     return Ok(Flow::Continue);
                 }
-                held = None;
+                to_publish = None;
                 publish(&optimizer, &task.settings(), flags)?;
                 recorder.published(u, flags & DistributionHeader::FINAL != 0)?;
                 if flags & DistributionHeader::FINAL != 0 {
@@ -253,7 +254,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     t0.elapsed(),
                     Progress::FINAL,
                 )?;
-                held = Some(DistributionHeader::FINAL);
+                to_publish = Some(DistributionHeader::FINAL);
                 continue;
             }
             for c in schedule.at(next) {
@@ -270,7 +271,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     &mut recorded,
                 )?;
             }
-            held = Some(0);
+            to_publish = Some(0);
             // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
             // their progress too).
             let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);
@@ -344,9 +345,9 @@ fn apply(
 /// the lag bound), besides the one it was writing.
 const RECORDER_RING_INTERVAL: Duration = Duration::from_millis(1);
 
-/// How long the updater waits for a held-back recorder before it looks for a dead one itself
-/// (the supervisor reports its own recorder's death at once; a recorder started by hand has no
-/// one to report it).
+/// How long the updater waits for a recorder that holds it back before it looks for a dead one
+/// itself (the supervisor reports its own recorder's death at once; a recorder started by hand
+/// has no one to report it).
 const RECORDER_SCAN_AFTER: Duration = Duration::from_secs(1);
 
 /// The updater's side of the recorder's back-pressure (see the `wire` crate, "The recorder").
