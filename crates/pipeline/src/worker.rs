@@ -144,7 +144,9 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
             chunk.1 += 1;
             let chunk_done = chunk.1 >= h.chunk_len;
             // Ready before the updater's bell: the distribution the updater then publishes
-            // wakes the sampler, which must find this worker idle (see the wire protocol).
+            // wakes the sampler, which must find this worker idle (see the wire protocol). Not
+            // before the costs: the sampler forgets a chunk once it is reported done, so a
+            // worker killed in between would leave a rollout that nobody redoes.
             if chunk_done {
                 publish_ready(h.chunk)?;
             }

@@ -165,14 +165,11 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         // Each written update is acknowledged at once, so a held updater goes on while the rest
         // of the round is written; it is rung back when half the lag bound is free.
         let newest = next_update.unwrap_or(0);
-        let ring_back = |hold: &mut bool| -> anyhow::Result<()> {
+        let ring_back = |hold: &mut bool| {
+            // Not fatal: after the final update the updater may already have exited.
             if std::mem::take(hold) {
-                iox(
-                    updater_bell.notify_with_custom_event_id(wire::WAKE),
-                    "notify updater",
-                )?;
+                let _ = updater_bell.notify_with_custom_event_id(wire::WAKE);
             }
-            Ok(())
         };
         state.write_complete(true, &mut |u| {
             iox(
@@ -183,11 +180,11 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 "send recorder ack",
             )?;
             if newest.saturating_sub(u + 1) <= lag / 2 {
-                ring_back(&mut hold)?;
+                ring_back(&mut hold);
             }
             Ok(())
         })?;
-        ring_back(&mut hold)?;
+        ring_back(&mut hold);
         if state.done() {
             break false;
         }
