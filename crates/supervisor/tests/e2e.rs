@@ -949,3 +949,44 @@ fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_th
     assert_recording_matches_in_process(&text, &rec);
     assert_nothing_left(&run);
 }
+
+#[test]
+fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
+    // µs rollouts: the updater runs into the recorder's lag bound within milliseconds, so after
+    // the SIGKILL it waits for acknowledgements that never come, until the supervisor reports
+    // the recorder gone (Control::RECORDER_LOST).
+    let scratch = Scratch::new("rec-kill-fast");
+    let updates = 20_000;
+    let text = config(&[("updates = 40", &format!("updates = {updates}"))]);
+    let cfg = write_config(&scratch, "fast.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        801,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    let status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
+    let (_, victim) = pids_in(&status)
+        .into_iter()
+        .find(|(n, _)| n == "recorder")
+        .expect("recorder in status");
+    assert!(Command::new("kill")
+        .args(["-9", &victim.to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    assert_eq!(RunResult::read(&result).unwrap().updates, updates);
+    let out = run.text();
+    assert!(
+        out.contains("recorder attached") && out.contains("recorder detached"),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}
