@@ -340,11 +340,6 @@ fn apply(
     Ok(())
 }
 
-/// The updater rings an idle recorder at most this often (see [`RecorderLink::published`]): a
-/// recorder killed with SIGKILL loses at most the updates of this interval (and never more than
-/// the lag bound), besides the one it was writing.
-const RECORDER_RING_INTERVAL: Duration = Duration::from_millis(1);
-
 /// How long the updater waits for a recorder that holds it back before it looks for a dead one
 /// itself (the supervisor reports its own recorder's death at once; a recorder started by hand
 /// has no one to report it).
@@ -444,7 +439,7 @@ impl RecorderLink {
 
     /// After publishing update `u`: rings the recorder if it had written everything before
     /// u − 1 (it may be asleep; a busy one looks again before it sleeps) and its last ring is
-    /// [`RECORDER_RING_INTERVAL`] ago, or if `last`. At thousands of updates per second the
+    /// [`wire::RECORDER_RING_INTERVAL`] ago, or if `last`. At thousands of updates per second the
     /// recorder so works in rounds of several updates, and the ring, a system call and a
     /// wake-up, stays off most updates' critical path; the lag bound rings it (HOLD) anyway.
     fn published(&mut self, u: u64, last: bool) -> anyhow::Result<()> {
@@ -455,7 +450,7 @@ impl RecorderLink {
         let due = last
             || self
                 .last_ring
-                .is_none_or(|t| t.elapsed() >= RECORDER_RING_INTERVAL);
+                .is_none_or(|t| t.elapsed() >= wire::RECORDER_RING_INTERVAL);
         if self.next_update + 1 >= u && due {
             self.last_ring = Some(Instant::now());
             // A recorder that has died is reported by the supervisor; no reason to fail here.

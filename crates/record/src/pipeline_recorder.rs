@@ -125,6 +125,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         )?;
         rounds += 1;
         holds += u64::from(hold);
+        let mut took_in = false;
         // Distributions before costs: every cost of update u was published before the
         // distribution of u + 1, so after this order of draining, a seen distribution's
         // predecessor costs are all in hand.
@@ -143,11 +144,13 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 );
             }
             next_update = Some(next_update.unwrap_or(0).max(h.update + 1));
+            took_in = true;
             state.handle(Msg::Distribution(h, payload[..p + p * p].to_vec()))?;
         }
         while let Some(s) = iox(costs_sub.receive(), "receive costs")? {
             let h = *s.user_header();
             if h.run_id == ctx.run_id {
+                took_in = true;
                 state.handle(Msg::Cost(h, s.payload().to_vec(), now_ns()))?;
             }
         }
@@ -198,9 +201,15 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         if pipeline::termination_requested() {
             break true;
         }
-        // A bounded wait, as in the pipeline's processes (`pipeline::wait_loop`); an error is a
-        // signal interrupting the wait, seen above next.
-        let _ = doorbell.timed_wait(|a| hold |= a.id == wire::HOLD, pipeline::TICK);
+        // A bounded wait, as in the pipeline's processes (`pipeline::wait_loop`); shorter while
+        // the run is active, because the updater skips rings within RECORDER_RING_INTERVAL of
+        // the last. An error is a signal interrupting the wait, seen above next.
+        let wait = if took_in {
+            wire::RECORDER_RING_INTERVAL
+        } else {
+            pipeline::TICK
+        };
+        let _ = doorbell.timed_wait(|a| hold |= a.id == wire::HOLD, wait);
     };
     let written = state.finish(signal)?;
     let cpu = process_cpu_seconds();

@@ -393,6 +393,11 @@ impl Limits {
     }
 }
 
+/// The updater rings an idle recorder at most this often; in return, a recorder that took in
+/// anything in its last round waits at most this long before it looks again, so an update
+/// whose ring was skipped is taken in within about this interval even if the run then pauses.
+pub const RECORDER_RING_INTERVAL: std::time::Duration = std::time::Duration::from_millis(1);
+
 /// The most updates the recorder may fall behind the updater (see [`RecorderAck`]). Enough
 /// for the recorder to batch its work at thousands of updates per second; small enough that a
 /// recorder killed with SIGKILL loses little.
