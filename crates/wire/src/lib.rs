@@ -362,9 +362,8 @@ impl Limits {
         2 * self.max_workers + 8
     }
     /// Cost samples a subscriber can hold: one per rollout plus re-executions after a crash, and
-    /// room for the recorder, which must not lose a sample while the scheduler runs the other
-    /// processes of a busy machine: about [`RECORDER_SLACK_UPDATES`] updates' worth, as far as
-    /// [`SEGMENT_BUDGET_BYTES`] allows.
+    /// room for the recorder's lag: [`RECORDER_SLACK_UPDATES`] updates' worth, as far as
+    /// [`SEGMENT_BUDGET_BYTES`] allows (the lag bound shrinks to what fits).
     fn cost_buffer(&self) -> usize {
         let needed = 2 * self.rollouts + self.max_workers + 4;
         let slack = RECORDER_SLACK_UPDATES * self.rollouts;
@@ -532,15 +531,16 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
         .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
-/// Updates' worth of samples a subscriber's buffer holds, so that the recorder loses nothing
-/// while it is not scheduled (at 7,000 updates/s, 256 updates are 36 ms).
-pub const RECORDER_SLACK_UPDATES: usize = 256;
+/// Updates' worth of samples a subscriber's buffer holds: the recorder's lag bound
+/// ([`RECORDER_MAX_LAG`]) twice over. Back-pressure, not buffer size, keeps the recorder from
+/// losing samples (until back-pressure, these buffers held 256 updates, 8× the shared memory).
+pub const RECORDER_SLACK_UPDATES: usize = 2 * RECORDER_MAX_LAG as usize;
 
 /// The most shared memory the subscriber buffers of one publisher may take (16 MiB).
 pub const SEGMENT_BUDGET_BYTES: usize = 16 << 20;
 
 /// `distribution`: 1 publisher (updater), up to 4 subscribers (sampler, supervisor, recorder,
-/// spare), a buffer of 4 to 256 (see `Limits::distribution_buffer`). Publishers use
+/// spare), a buffer of 4 to 32 (see `Limits::distribution_buffer`). Publishers use
 /// `initial_max_slice_len(P + P·P)`.
 pub fn distribution(
     node: &Node<Service>,
@@ -583,7 +583,7 @@ pub fn work(
 }
 
 /// `costs`: 2·max_workers + 2 publishers, 2 subscribers (updater, recorder), a buffer of
-/// 2K + max_workers + 4, raised towards 256·K for the recorder (see `Limits::cost_buffer`).
+/// 2K + max_workers + 4, raised towards 32·K for the recorder (see `Limits::cost_buffer`).
 /// Publishers use `initial_max_slice_len(N)`.
 pub fn costs(
     node: &Node<Service>,
