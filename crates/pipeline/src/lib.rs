@@ -17,6 +17,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{anyhow, Context as _};
+use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
@@ -79,6 +80,22 @@ impl Context {
             bell.listener_builder().create(),
             &format!("listener on wake/{owner}"),
         )
+    }
+
+    /// The names of this run's dead nodes (processes killed without cleaning up); their stale
+    /// iceoryx2 resources are removed on the way.
+    pub fn dead_nodes(&self) -> Vec<String> {
+        let mut names = Vec::new();
+        let _ = Node::<Service>::list(self.node.config(), |state| {
+            if let NodeState::Dead(view) = state {
+                if let Some(d) = view.details().as_ref() {
+                    names.push(d.name().as_str().to_string());
+                }
+                let _ = view.try_remove_stale_resources();
+            }
+            CallbackProgression::Continue
+        });
+        names
     }
 
     /// A notifier ringing the doorbell `wake/<owner>` of this run.

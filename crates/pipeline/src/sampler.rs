@@ -8,7 +8,6 @@
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
-use iceoryx2::node::NodeView;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::prelude::*;
@@ -92,19 +91,11 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         }
         if last_scan.elapsed() >= DEAD_SCAN {
             last_scan = Instant::now();
-            let _ = Node::<Service>::list(ctx.node.config(), |state| {
-                if let NodeState::Dead(view) = state {
-                    if let Some(w) = view
-                        .details()
-                        .as_ref()
-                        .and_then(|d| wire::parse_worker_node_name(d.name().as_str()))
-                    {
-                        lost.push(w);
-                    }
-                    let _ = view.try_remove_stale_resources();
-                }
-                CallbackProgression::Continue
-            });
+            lost.extend(
+                ctx.dead_nodes()
+                    .iter()
+                    .filter_map(|n| wire::parse_worker_node_name(n)),
+            );
         }
         for (worker, incarnation) in lost {
             if workers

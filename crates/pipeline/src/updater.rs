@@ -6,7 +6,6 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
-use iceoryx2::node::NodeView;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -426,7 +425,7 @@ impl RecorderLink {
                 self.detach("it has exited");
                 return Ok(true);
             }
-            if recorder_is_dead(ctx) {
+            if ctx.dead_nodes().iter().any(|n| n == "recorder") {
                 self.detach("its node is dead");
                 return Ok(true);
             }
@@ -458,19 +457,4 @@ impl RecorderLink {
         }
         Ok(())
     }
-}
-
-/// Whether the run has a dead node named `recorder` (a recorder killed with SIGKILL).
-fn recorder_is_dead(ctx: &Context) -> bool {
-    let mut dead = false;
-    let _ = Node::<Service>::list(ctx.node.config(), |state| {
-        if let NodeState::Dead(view) = state {
-            dead |= view
-                .details()
-                .as_ref()
-                .is_some_and(|d| d.name().as_str() == "recorder");
-        }
-        CallbackProgression::Continue
-    });
-    dead
 }

@@ -902,18 +902,10 @@ fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_th
         ],
     );
     let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
-    let (_, victim) = pids_in(&status)
-        .into_iter()
-        .find(|(n, _)| n == "recorder")
-        .expect("recorder in status");
     let path = scratch.recording("A1", 800);
     // What the recorder has flushed so far must survive its SIGKILL.
     let flushed = record::read_recording(&path).unwrap().updates.len();
-    let killed = Command::new("kill")
-        .args(["-9", &victim.to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
+    let victim = sigkill_recorder(&status);
     let exit = run.wait(Duration::from_secs(60));
     assert!(exit.success(), "{}", run.text());
     assert_eq!(RunResult::read(&result).unwrap().updates, 200);
@@ -971,15 +963,7 @@ fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
         ],
     );
     let status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
-    let (_, victim) = pids_in(&status)
-        .into_iter()
-        .find(|(n, _)| n == "recorder")
-        .expect("recorder in status");
-    assert!(Command::new("kill")
-        .args(["-9", &victim.to_string()])
-        .status()
-        .unwrap()
-        .success());
+    sigkill_recorder(&status);
     let exit = run.wait(Duration::from_secs(60));
     assert!(exit.success(), "{}", run.text());
     assert_eq!(RunResult::read(&result).unwrap().updates, updates);
@@ -989,4 +973,18 @@ fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
         "{out}"
     );
     assert_nothing_left(&run);
+}
+
+/// Kills the recorder named in a `supervisor status` output with SIGKILL; returns its pid.
+fn sigkill_recorder(status: &str) -> u32 {
+    let (_, pid) = pids_in(status)
+        .into_iter()
+        .find(|(n, _)| n == "recorder")
+        .expect("recorder in status");
+    assert!(Command::new("kill")
+        .args(["-9", &pid.to_string()])
+        .status()
+        .unwrap()
+        .success());
+    pid
 }
