@@ -10,7 +10,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use wire::{CostHeader, Ready, WorkHeader};
 
-use crate::{announce_ready, iox, wait_loop, Context, Flow, ProcessArgs};
+use crate::{announce_ready, iox, wait_loop_spinning, Context, Flow, ProcessArgs, Spin};
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct WorkerArgs {
@@ -89,7 +89,8 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
     let mut chunk = (u64::MAX, 0u32);
     let mut last_notify = Instant::now();
     let mut unannounced = false;
-    wait_loop(&doorbell, || {
+    let mut spin = Spin::new(Duration::from_micros(ctx.config.pipeline().worker_spin_us));
+    wait_loop_spinning(&doorbell, &mut spin, || {
         // The sampler rings the workers one after another, and the kernel tends to run a woken
         // process on the CPU of the process that woke it (Unix-socket wake-ups are "sync"),
         // preempting it: the sampler then rings the next worker only after this one has

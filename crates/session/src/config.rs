@@ -170,6 +170,9 @@ pub struct PipelineSection {
     pub startup_timeout_ms: u64,
     /// Bound on an orderly shutdown; then the whole group is killed.
     pub shutdown_timeout_ms: u64,
+    /// Longest a rollout worker polls for its next work before it blocks (adaptive, see
+    /// `pipeline::Spin`); 0 never polls.
+    pub worker_spin_us: u64,
     /// FAULT INJECTION, for tests only: from this update on, workers report NaN costs.
     pub fault_nan_from_update: Option<u64>,
 }
@@ -188,6 +191,7 @@ impl Default for PipelineSection {
             restart_window_s: 60.0,
             startup_timeout_ms: 10_000,
             shutdown_timeout_ms: 5_000,
+            worker_spin_us: 200,
             fault_nan_from_update: None,
         }
     }
@@ -351,6 +355,13 @@ impl RunConfig {
                     "must be finite and > 0",
                 ));
             }
+            if p.worker_spin_us > 100_000 {
+                return Err(self.invalid(
+                    "pipeline.worker_spin_us",
+                    p.worker_spin_us,
+                    "must be at most 100000 (0.1 s)",
+                ));
+            }
             for (field, v) in [
                 ("startup_timeout_ms", p.startup_timeout_ms),
                 ("shutdown_timeout_ms", p.shutdown_timeout_ms),
@@ -492,6 +503,12 @@ mod tests {
         let text = DEFAULT_CONFIG.replace("lambda_min = 2.0", "lambda_min = 5000.0");
         let e = parse(&text).unwrap_err().to_string();
         assert!(e.contains("optimizer.lambda_init = 2000"), "{e}");
+        let text = DEFAULT_CONFIG.replace("[pipeline]", "[pipeline]\nworker_spin_us = 200000");
+        let e = parse(&text).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "test.toml: pipeline.worker_spin_us = 200000: must be at most 100000 (0.1 s)"
+        );
     }
 
     #[test]
