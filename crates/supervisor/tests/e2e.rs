@@ -87,6 +87,12 @@ impl Run {
         Self::start_with_env(scratch, id, args, &[])
     }
 
+    /// `run CONFIG --quiet --result RESULT`: the shape most tests start.
+    fn start_quiet(scratch: &Scratch, id: u64, config: &Path, result: &Path) -> Self {
+        let (config, result) = (config.to_str().unwrap(), result.to_str().unwrap());
+        Self::start(scratch, id, &[config, "--quiet", "--result", result])
+    }
+
     fn start_with_env(scratch: &Scratch, id: u64, args: &[&str], env: &[(&str, &str)]) -> Self {
         let run_id = run_id(id);
         let mut child = Command::new(SUPERVISOR)
@@ -420,16 +426,7 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
     ]);
     let cfg = write_config(&scratch, "kill.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start(
-        &scratch,
-        100,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--result",
-            result.to_str().unwrap(),
-        ],
-    );
+    let mut run = Run::start_quiet(&scratch, 100, &cfg, &result);
     let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
     let (_, victim) = pids_in(&status)
         .into_iter()
@@ -560,16 +557,7 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     ]);
     let cfg = write_config(&scratch, "scale.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start(
-        &scratch,
-        200,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--result",
-            result.to_str().unwrap(),
-        ],
-    );
+    let mut run = Run::start_quiet(&scratch, 200, &cfg, &result);
     let s = run.wait_status("5 updates", |s| updates_in(s) >= 5);
     assert!(s.contains("workers: 1 running"), "{s}");
     let (ok, reply) = run.ctl(&["scale", "--workers", "4"]);
@@ -652,16 +640,7 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     ]);
     let cfg = write_config(&scratch, "continual.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start(
-        &scratch,
-        400,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--result",
-            result.to_str().unwrap(),
-        ],
-    );
+    let mut run = Run::start_quiet(&scratch, 400, &cfg, &result);
     run.wait_status("3 updates", |s| updates_in(s) >= 3);
     let (ok, reply) = run.ctl(&["set", "goal", "2.0"]);
     assert!(!ok && reply.contains("no setting `goal`"), "{reply}");
@@ -891,16 +870,7 @@ fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_th
     ]);
     let cfg = write_config(&scratch, "kill.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start(
-        &scratch,
-        800,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--result",
-            result.to_str().unwrap(),
-        ],
-    );
+    let mut run = Run::start_quiet(&scratch, 800, &cfg, &result);
     let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
     let path = scratch.recording("A1", 800);
     // What the recorder has flushed so far must survive its SIGKILL.
@@ -952,16 +922,7 @@ fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
     let text = config(&[("updates = 40", &format!("updates = {updates}"))]);
     let cfg = write_config(&scratch, "fast.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start(
-        &scratch,
-        801,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--result",
-            result.to_str().unwrap(),
-        ],
-    );
+    let mut run = Run::start_quiet(&scratch, 801, &cfg, &result);
     let status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
     sigkill_recorder(&status);
     let exit = run.wait(Duration::from_secs(60));
