@@ -376,17 +376,27 @@ impl WriterState {
                 }
             }
             Msg::Control(c) => match c.kind {
-                Control::WORKER_LOST => self.writer.write_event(
-                    self.current_update,
-                    Event::Crash,
-                    &format!("worker-{}", c.worker),
-                    0,
-                    &format!(
-                        "worker {} (incarnation {}) lost: exited, crashed or scaled away; its \
-                         rollouts go to the other workers",
-                        c.worker, c.incarnation
-                    ),
-                )?,
+                Control::WORKER_LOST => {
+                    let (event, what) = match c.reason {
+                        wire::lost::SCALED_DOWN => (Event::Scale, "stopped by a scale-down"),
+                        wire::lost::STOPPED => (Event::Exit, "stopped with the run"),
+                        wire::lost::EXITED => (Event::Exit, "exited unasked"),
+                        _ => (Event::Crash, "crashed"),
+                    };
+                    self.writer.write_event(
+                        self.current_update,
+                        event,
+                        &format!("worker-{}", c.worker),
+                        0,
+                        &format!(
+                            "worker-{} (incarnation {}) {what} ({}); the rollouts it held go to \
+                             the other workers",
+                            c.worker,
+                            c.incarnation,
+                            c.name()
+                        ),
+                    )?
+                }
                 Control::SET_TASK => self.writer.write_event(
                     self.current_update,
                     Event::Info,

@@ -1037,8 +1037,23 @@ impl Supervisor {
         };
         match p.role {
             Role::Worker(w) => {
-                let _ =
-                    self.send_control(Control::worker_lost(self.run_id, w, p.incarnation), false);
+                let reason = if !self.slots.contains_key(&w) {
+                    wire::lost::SCALED_DOWN
+                } else if p.stopping || self.phase == Phase::Stopping {
+                    wire::lost::STOPPED
+                } else if status.success() {
+                    wire::lost::EXITED
+                } else {
+                    wire::lost::CRASHED
+                };
+                let lost = Control::worker_lost(
+                    self.run_id,
+                    w,
+                    p.incarnation,
+                    reason,
+                    &status.to_string(),
+                );
+                let _ = self.send_control(lost, false);
                 let Some(slot) = self.slots.get_mut(&w) else {
                     return; // scaled away
                 };

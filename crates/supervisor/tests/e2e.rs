@@ -459,7 +459,11 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
     assert_bit_identical(&text, &result);
     // The recording's health log has the loss and the restart.
     let rec = record::read_recording(&scratch.recording("A1", 100)).unwrap();
-    assert!(logged(&rec, "crash", "worker-1"), "{:#?}", rec.logs);
+    let crash = rec
+        .logs
+        .iter()
+        .any(|l| l.event == "crash" && l.name == "worker-1" && l.message.contains("SIGKILL"));
+    assert!(crash, "{:#?}", rec.logs);
     assert!(logged(&rec, "restart", "worker-1"), "{:#?}", rec.logs);
     assert_recorded(&rec, 200);
     assert_nothing_left(&run);
@@ -583,6 +587,18 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     for w in ["worker-1", "worker-2", "worker-3"] {
         assert!(logged(&rec, "scale", w), "{w}: {:#?}", rec.logs);
     }
+    // The scale-down stopped the two highest slots: logged as such, not as crashes.
+    for w in ["worker-2", "worker-3"] {
+        let stopped = rec.logs.iter().any(|l| {
+            l.event == "scale" && l.name == w && l.message.contains("stopped by a scale-down")
+        });
+        assert!(stopped, "{w}: {:#?}", rec.logs);
+    }
+    assert!(
+        !rec.logs.iter().any(|l| l.event == "crash"),
+        "{:#?}",
+        rec.logs
+    );
     assert_recorded(&rec, 120);
     assert_nothing_left(&run);
 }

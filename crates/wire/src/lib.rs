@@ -264,17 +264,35 @@ pub struct Lifecycle {
 /// A command from the supervisor.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Control.v1")]
+#[type_name("pi2cma.Control.v2")]
 pub struct Control {
     pub run_id: u64,
     pub kind: u32,
     /// For [`Control::WORKER_LOST`].
     pub worker: u32,
     pub incarnation: u32,
+    /// For [`Control::WORKER_LOST`]: one of [`lost`].
+    pub reason: u32,
     /// Length of `name` in bytes (UTF-8).
     pub name_len: u32,
+    pub _reserved: u32,
+    /// The task setting of [`Control::SET_TASK`]; for [`Control::WORKER_LOST`], how the process
+    /// ended (e.g. `signal: 9 (SIGKILL)`), cut to [`MAX_NAME`] bytes.
     pub name: [u8; MAX_NAME],
     pub value: f64,
+}
+
+/// Why a worker is gone ([`Control::reason`] of [`Control::WORKER_LOST`]): the recording's health
+/// log tells a crash from a scale-down.
+pub mod lost {
+    /// Killed by a signal or exited with a failure status, unasked.
+    pub const CRASHED: u32 = 0;
+    /// Exited with status 0, unasked.
+    pub const EXITED: u32 = 1;
+    /// Stopped by the supervisor because the number of workers was scaled down.
+    pub const SCALED_DOWN: u32 = 2;
+    /// Stopped by the supervisor because the run is stopping.
+    pub const STOPPED: u32 = 3;
 }
 
 impl Control {
@@ -290,20 +308,34 @@ impl Control {
     /// A message of `kind` without arguments.
     pub fn plain(run_id: u64, kind: u32) -> Self {
         Self {
+            run_id,
             kind,
-            ..Self::worker_lost(run_id, 0, 0)
+            worker: 0,
+            incarnation: 0,
+            reason: 0,
+            name_len: 0,
+            _reserved: 0,
+            name: [0; MAX_NAME],
+            value: 0.0,
         }
     }
 
-    pub fn worker_lost(run_id: u64, worker: u32, incarnation: u32) -> Self {
+    /// `reason` is one of [`lost`]; `how` (e.g. the exit status) is cut to [`MAX_NAME`] bytes at
+    /// a character boundary.
+    pub fn worker_lost(run_id: u64, worker: u32, incarnation: u32, reason: u32, how: &str) -> Self {
+        let mut cut = how.len().min(MAX_NAME);
+        while !how.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        let mut name = [0; MAX_NAME];
+        name[..cut].copy_from_slice(&how.as_bytes()[..cut]);
         Self {
-            run_id,
-            kind: Self::WORKER_LOST,
             worker,
             incarnation,
-            name_len: 0,
-            name: [0; MAX_NAME],
-            value: 0.0,
+            reason,
+            name_len: cut as u32,
+            name,
+            ..Self::plain(run_id, Self::WORKER_LOST)
         }
     }
 
@@ -316,13 +348,10 @@ impl Control {
         let mut n = [0; MAX_NAME];
         n[..bytes.len()].copy_from_slice(bytes);
         Some(Self {
-            run_id,
-            kind: Self::SET_TASK,
-            worker: 0,
-            incarnation: 0,
             name_len: bytes.len() as u32,
             name: n,
             value,
+            ..Self::plain(run_id, Self::SET_TASK)
         })
     }
 
@@ -706,7 +735,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<CostHeader>(), 40);
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
-        assert_eq!(std::mem::size_of::<Control>(), 24 + MAX_NAME + 8);
+        assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 8);
         assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
     }
@@ -751,5 +780,15 @@ mod tests {
         let c = Control::set_task(7, "viapoint", 0.1).unwrap();
         assert_eq!(c.name(), "viapoint");
         assert!(Control::set_task(7, &"x".repeat(MAX_NAME + 1), 0.0).is_none());
+        let c = Control::worker_lost(7, 2, 1, lost::CRASHED, "signal: 9 (SIGKILL)");
+        assert_eq!(
+            (c.kind, c.worker, c.incarnation),
+            (Control::WORKER_LOST, 2, 1)
+        );
+        assert_eq!((c.reason, c.name()), (lost::CRASHED, "signal: 9 (SIGKILL)"));
+        // Cut to MAX_NAME bytes, never inside a character.
+        let long = format!("{}é", "x".repeat(MAX_NAME - 1));
+        let c = Control::worker_lost(7, 0, 0, lost::EXITED, &long);
+        assert_eq!(c.name(), "x".repeat(MAX_NAME - 1));
     }
 }
