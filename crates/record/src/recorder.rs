@@ -14,7 +14,7 @@ use pi2cma::{CostBatch, Distribution, Hyperparameters, Optimizer, ParameterBatch
 use session::{Observer, RunConfig, UpdateRecord};
 use tasks::TaskChange;
 
-use crate::writer::{now_ns, Event, RunStart, RunWriter, UpdateData};
+use crate::writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 use crate::{config_to_toml, RecordError};
 
 /// Worker name of every rollout of the in-process runner.
@@ -42,6 +42,7 @@ struct UpdateJob {
     settings: Vec<(String, f64)>,
     batch_start_ns: u64,
     batch_end_ns: u64,
+    rollouts: Vec<RolloutTiming>,
 }
 
 enum Job {
@@ -54,9 +55,9 @@ enum Job {
 /// Records a run through [`session::Observer`]. Observer hooks cannot fail: the first error
 /// stops the recording and is returned by [`McapRecorder::finish`].
 ///
-/// The in-process executor does not time single rollouts: each `/rollout` gets worker
-/// `"in-process"` and no timing, and `/update` carries the update's wall-clock interval (from
-/// the end of the previous hook to this one).
+/// Each `/rollout` gets worker `"in-process"` and the wall-clock interval the executor measured
+/// for it (the recorder asks for them, [`Observer::wants_rollout_times`]); `/update` carries the
+/// update's wall-clock interval (from the end of the previous hook to this one).
 pub struct McapRecorder {
     jobs: Option<Sender<Job>>,
     acks: Receiver<Ack>,
@@ -127,7 +128,7 @@ fn write_job(
                 task_settings: &settings,
                 batch_start_ns: j.batch_start_ns,
                 batch_end_ns: j.batch_end_ns,
-                rollouts: &[],
+                rollouts: &j.rollouts,
                 default_worker: IN_PROCESS,
             })?;
             if progress {
@@ -321,6 +322,10 @@ impl Drop for McapRecorder {
 }
 
 impl Observer for McapRecorder {
+    fn wants_rollout_times(&self) -> bool {
+        true
+    }
+
     fn on_start(&mut self, config: &RunConfig, optimizer: &Optimizer) {
         let text = self
             .config_text
@@ -379,6 +384,15 @@ impl Observer for McapRecorder {
                 .collect(),
             batch_start_ns: start,
             batch_end_ns: end,
+            rollouts: r
+                .rollout_times
+                .iter()
+                .map(|&(start_ns, end_ns)| RolloutTiming {
+                    worker: IN_PROCESS.to_string(),
+                    start_ns,
+                    end_ns,
+                })
+                .collect(),
         })));
         self.update_index = r.summary.update + 1;
         self.last_ns = now_ns();

@@ -33,6 +33,16 @@ fn every_update_recomputes_bit_identically() {
     assert_eq!(rec.updates.len(), 40);
     assert_eq!(rec.summaries.len(), 40);
     assert_eq!(rec.rollouts.len(), 40 * 15);
+    // Every rollout timed by the in-process executor, within its update's interval.
+    for r in &rec.rollouts {
+        let u = &rec.updates[r.update as usize];
+        assert_eq!(r.worker, "in-process");
+        assert!(r.start_ns > 0 && r.start_ns <= r.end_ns, "{r:?}");
+        assert!(
+            u.batch_start_ns <= r.start_ns && r.end_ns <= u.batch_end_ns,
+            "{r:?}"
+        );
+    }
     assert_eq!(rec.task_changes.len(), 1);
     assert_eq!(rec.task_changes[0].update, 20);
     let events: Vec<&str> = rec.logs.iter().map(|l| l.event.as_str()).collect();

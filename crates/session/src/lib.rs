@@ -70,10 +70,18 @@ pub struct UpdateRecord<'a> {
     pub summary: &'a UpdateSummary,
     /// The task's settings during this update.
     pub task_settings: &'a [(&'static str, f64)],
+    /// Wall-clock start and end of each rollout, in ns since the Unix epoch, in rollout order;
+    /// empty unless an observer asked for them ([`Observer::wants_rollout_times`]).
+    pub rollout_times: &'a [(u64, u64)],
 }
 
 /// Hooks called by an executor; the default implementations do nothing.
 pub trait Observer {
+    /// Whether [`UpdateRecord::rollout_times`] should be measured (two clock reads per rollout,
+    /// which a fast in-process task notices; so only on request).
+    fn wants_rollout_times(&self) -> bool {
+        false
+    }
     fn on_start(&mut self, _config: &RunConfig, _optimizer: &Optimizer) {}
     fn on_task_change(&mut self, _update: u64, _change: &TaskChange) {}
     fn on_update(&mut self, _record: &UpdateRecord<'_>) {}
@@ -88,6 +96,9 @@ impl Observer for NoObserver {}
 pub struct Observers<'a>(pub Vec<&'a mut dyn Observer>);
 
 impl Observer for Observers<'_> {
+    fn wants_rollout_times(&self) -> bool {
+        self.0.iter().any(|o| o.wants_rollout_times())
+    }
     fn on_start(&mut self, config: &RunConfig, optimizer: &Optimizer) {
         self.0
             .iter_mut()
@@ -113,6 +124,14 @@ pub struct InProcess {
     optimizer: Optimizer,
     initial_settings: Vec<(&'static str, f64)>,
     costs: CostBatch,
+    rollout_times: Vec<(u64, u64)>,
+}
+
+/// Wall-clock time in ns since the Unix epoch (0 before it).
+fn wall_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
 }
 
 impl InProcess {
@@ -127,6 +146,7 @@ impl InProcess {
             optimizer,
             initial_settings,
             costs,
+            rollout_times: Vec::new(),
         })
     }
 
@@ -171,9 +191,15 @@ impl InProcess {
         let before = self.optimizer.distribution().clone();
         let samples = self.optimizer.ask().clone();
         self.costs.clear();
+        self.rollout_times.clear();
+        let timed = observer.wants_rollout_times();
         for k in 0..samples.rollouts {
+            let start = if timed { wall_ns() } else { 0 };
             let (per_step, terminal) = self.costs.slot_mut(k);
             *terminal = self.task.rollout(samples.row(k), per_step);
+            if timed {
+                self.rollout_times.push((start, wall_ns()));
+            }
         }
         let update = self.optimizer.update_index();
         let summary = self
@@ -188,6 +214,7 @@ impl InProcess {
             costs: &self.costs,
             summary: &summary,
             task_settings: &settings,
+            rollout_times: &self.rollout_times,
         });
         Ok(summary)
     }
@@ -204,6 +231,9 @@ pub fn run_session(
         out: Vec<UpdateSummary>,
     }
     impl Observer for Collect<'_> {
+        fn wants_rollout_times(&self) -> bool {
+            self.inner.wants_rollout_times()
+        }
         fn on_start(&mut self, c: &RunConfig, o: &Optimizer) {
             self.inner.on_start(c, o)
         }
