@@ -242,7 +242,14 @@ struct Supervisor {
 }
 
 fn say(msg: &str) {
-    println!("[supervisor] {msg}");
+    print_line("supervisor", msg);
+}
+
+/// Prints `[who] line`. A closed stdout (e.g. `supervisor run | head`) is not a reason to die
+/// before cleaning up, so write errors are ignored (`println!` would panic).
+fn print_line(who: &str, line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stdout().lock(), "[{who}] {line}");
 }
 
 fn draw_run_id() -> u64 {
@@ -306,6 +313,12 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             term_at: None,
         })
     };
+    for (id, files) in sweep_abandoned_runs(&control::runs_dir()) {
+        say(&format!(
+            "removed what run {id} left behind (its supervisor was killed): its run directory, \
+             iceoryx2 directory and {files} shared-memory files"
+        ));
+    }
     if run_dir.exists() {
         bail!(
             "run directory {} exists: run {} is active or was killed (remove the directory)",
@@ -318,6 +331,9 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     std::fs::create_dir_all(&run_dir)
         .or_else(|_| std::fs::create_dir_all(&run_dir))
         .with_context(|| format!("cannot create {}", run_dir.display()))?;
+    let pid_file = run_dir.join(PID_FILE);
+    std::fs::write(&pid_file, std::process::id().to_string())
+        .with_context(|| format!("cannot write {}", pid_file.display()))?;
     let (tx, rx) = mpsc::channel();
     let mut sup = Supervisor {
         pipe: pipe.clone(),
@@ -766,7 +782,7 @@ impl Supervisor {
             .spawn(move || {
                 for line in BufReader::new(reader).lines() {
                     let Ok(line) = line else { break };
-                    println!("[{name}] {line}");
+                    print_line(&name, &line);
                     if let Ok(mut l) = last.lock() {
                         *l = line;
                     }
@@ -1155,13 +1171,7 @@ impl Supervisor {
             std::fs::copy(&result_path, dest)
                 .with_context(|| format!("cannot copy the result to {}", dest.display()))?;
         }
-        let _ = std::fs::remove_dir_all(&self.run_dir);
-        // The runs directory too, if this was the last run in it (remove_dir keeps non-empty ones).
-        if let Some(base) = self.run_dir.parent() {
-            let _ = std::fs::remove_dir(base);
-        }
-        let _ = std::fs::remove_dir_all(wire::iceoryx_root(self.run_id));
-        remove_prefixed(&wire::file_prefix(self.run_id));
+        remove_run(&self.run_dir, self.run_id);
         if let Some(r) = result {
             let of = self
                 .cfg
@@ -1227,15 +1237,88 @@ impl Supervisor {
 
 /// Removes the run's shared-memory segments and iceoryx2's files in the temp directory (a
 /// SIGKILLed process leaves its own behind).
-fn remove_prefixed(prefix: &str) {
+/// The supervisor's pid, in its run directory: tells a killed run from a live one.
+const PID_FILE: &str = "supervisor.pid";
+
+/// Removes everything of run `run_id`: its run directory (and the runs directory if it was the
+/// last run in it), its iceoryx2 directory and its shared memory. Returns how many
+/// shared-memory files were removed.
+fn remove_run(run_dir: &Path, run_id: u64) -> usize {
+    let _ = std::fs::remove_dir_all(run_dir);
+    // remove_dir keeps a non-empty runs directory.
+    if let Some(base) = run_dir.parent() {
+        let _ = std::fs::remove_dir(base);
+    }
+    let _ = std::fs::remove_dir_all(wire::iceoryx_root(run_id));
+    remove_prefixed(&wire::file_prefix(run_id))
+}
+
+fn remove_prefixed(prefix: &str) -> usize {
+    let mut removed = 0;
     for dir in ["/dev/shm", "/tmp"] {
         if let Ok(entries) = std::fs::read_dir(dir) {
             for e in entries.flatten() {
-                if e.file_name().to_string_lossy().starts_with(prefix) {
-                    let _ = std::fs::remove_file(e.path());
+                if e.file_name().to_string_lossy().starts_with(prefix)
+                    && std::fs::remove_file(e.path()).is_ok()
+                {
+                    removed += 1;
                 }
             }
         }
+    }
+    removed
+}
+
+/// Removes the runs under `base` whose supervisor is gone (killed with SIGKILL, or its machine
+/// lost power): a killed supervisor's processes die with it (PR_SET_PDEATHSIG), but nobody
+/// removes their shared memory, which holds RAM until reboot, nor their run directory, whose
+/// stale control socket `supervisor ctl` would otherwise offer as an active run. Returns the
+/// removed runs and how many shared-memory files each had.
+///
+/// A run is gone when its control socket refuses connections and the pid in its run directory
+/// is not alive; a run directory without a pid file (one being created right now) is left
+/// alone unless it is older than a minute.
+fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize)> {
+    let mut removed = Vec::new();
+    let Ok(entries) = std::fs::read_dir(base) else {
+        return removed;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        let Ok(run_id) = u64::from_str_radix(&name, 16) else {
+            continue;
+        };
+        if name.len() != 16 || !run_abandoned(&e.path()) {
+            continue;
+        }
+        removed.push((name, remove_run(&e.path(), run_id)));
+    }
+    removed
+}
+
+fn run_abandoned(run_dir: &Path) -> bool {
+    if std::os::unix::net::UnixStream::connect(control::socket_path(run_dir)).is_ok() {
+        return false;
+    }
+    match std::fs::read_to_string(run_dir.join(PID_FILE)) {
+        Ok(pid) => match pid.trim().parse::<u32>() {
+            Ok(pid) => !process_alive(pid),
+            Err(_) => false,
+        },
+        Err(_) => std::fs::metadata(run_dir)
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| t.elapsed().is_ok_and(|age| age > Duration::from_secs(60))),
+    }
+}
+
+/// Whether a process with this pid exists (a zombie counts as gone).
+fn process_alive(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        // The state follows the parenthesised command name, which may contain spaces.
+        Ok(stat) => stat
+            .rsplit_once(')')
+            .is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')),
+        Err(_) => false,
     }
 }
 

@@ -644,6 +644,61 @@ fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
 }
 
 #[test]
+fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
+    let scratch = Scratch::new("sweep");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "unbounded.toml", &text);
+    let mut killed = Run::start(
+        &scratch,
+        700,
+        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+    );
+    let s = killed.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let pids = pids_in(&s);
+    assert_eq!(pids.len(), 5, "{s}");
+    killed.child.kill().unwrap(); // SIGKILL: no clean-up of its own
+    killed.wait(Duration::from_secs(10));
+    let end = Instant::now() + Duration::from_secs(10);
+    while pids.iter().any(|(_, pid)| alive(*pid)) {
+        assert!(
+            Instant::now() < end,
+            "children outlived their supervisor: {pids:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let prefix = format!("p2c{}_", killed.run_id);
+    let shm = || {
+        std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+            .count()
+    };
+    assert!(shm() > 0, "a SIGKILLed run leaves its shared memory");
+    assert!(killed.runs.join(&killed.run_id).exists());
+
+    let short = write_config(
+        &scratch,
+        "short.toml",
+        &config(&[("updates = 40", "updates = 5")]),
+    );
+    let result = scratch.path("result.toml");
+    let mut next = Run::start_quiet(&scratch, 701, &short, &result);
+    assert!(
+        next.wait(Duration::from_secs(60)).success(),
+        "{}",
+        next.text()
+    );
+    let said = format!("removed what run {} left behind", killed.run_id);
+    assert!(next.text().contains(&said), "{}", next.text());
+    assert_nothing_left(&killed);
+    assert_nothing_left(&next);
+}
+
+#[test]
 fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     let scratch = Scratch::new("continual");
     let text = config(&[
