@@ -56,6 +56,12 @@ pub fn socket_path(run_dir: &Path) -> PathBuf {
     run_dir.join("control.sock")
 }
 
+/// Whether a supervisor accepts connections on the run's socket (a killed one leaves the socket
+/// file, which then refuses them).
+pub fn serving(run_dir: &Path) -> bool {
+    UnixStream::connect(socket_path(run_dir)).is_ok()
+}
+
 /// Accepts connections on the run's socket and forwards each command to `tx`.
 pub fn serve(run_dir: &Path, tx: Sender<super::run::Event>) -> anyhow::Result<()> {
     let path = socket_path(run_dir);
@@ -111,12 +117,19 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
         if !socket_path(&dir).exists() {
             bail!("no active run `{id}` under {}", base.display());
         }
+        if !serving(&dir) {
+            bail!(
+                "run `{id}` under {} is not active: its supervisor was killed (the next \
+                 `supervisor run` removes what it left behind)",
+                base.display()
+            );
+        }
         return Ok(dir);
     }
     let mut found = Vec::new();
     if let Ok(entries) = std::fs::read_dir(&base) {
         for e in entries.flatten() {
-            if socket_path(&e.path()).exists() {
+            if serving(&e.path()) {
                 found.push(e.path());
             }
         }

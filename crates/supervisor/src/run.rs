@@ -1297,7 +1297,7 @@ fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize)> {
 }
 
 fn run_abandoned(run_dir: &Path) -> bool {
-    if std::os::unix::net::UnixStream::connect(control::socket_path(run_dir)).is_ok() {
+    if control::serving(run_dir) {
         return false;
     }
     match std::fs::read_to_string(run_dir.join(PID_FILE)) {

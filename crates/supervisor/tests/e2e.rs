@@ -679,6 +679,8 @@ fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
     };
     assert!(shm() > 0, "a SIGKILLed run leaves its shared memory");
     assert!(killed.runs.join(&killed.run_id).exists());
+    let (ok, reply) = killed.ctl(&["status"]);
+    assert!(!ok && reply.contains("supervisor was killed"), "{reply}");
 
     let short = write_config(
         &scratch,
