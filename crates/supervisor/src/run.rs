@@ -1235,8 +1235,6 @@ impl Supervisor {
     }
 }
 
-/// Removes the run's shared-memory segments and iceoryx2's files in the temp directory (a
-/// SIGKILLed process leaves its own behind).
 /// The supervisor's pid, in its run directory: tells a killed run from a live one.
 const PID_FILE: &str = "supervisor.pid";
 
@@ -1253,6 +1251,8 @@ fn remove_run(run_dir: &Path, run_id: u64) -> usize {
     remove_prefixed(&wire::file_prefix(run_id))
 }
 
+/// Removes the run's shared-memory segments and iceoryx2's files in the temp directory (a
+/// SIGKILLed process leaves its own behind); returns how many.
 fn remove_prefixed(prefix: &str) -> usize {
     let mut removed = 0;
     for dir in ["/dev/shm", "/tmp"] {

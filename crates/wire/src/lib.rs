@@ -310,49 +310,39 @@ impl Control {
         Self {
             run_id,
             kind,
-            worker: 0,
-            incarnation: 0,
-            reason: 0,
-            name_len: 0,
-            _reserved: 0,
-            name: [0; MAX_NAME],
-            value: 0.0,
+            ..Self::default()
         }
     }
 
     /// `reason` is one of [`lost`]; `how` (e.g. the exit status) is cut to [`MAX_NAME`] bytes at
     /// a character boundary.
     pub fn worker_lost(run_id: u64, worker: u32, incarnation: u32, reason: u32, how: &str) -> Self {
-        let mut cut = how.len().min(MAX_NAME);
-        while !how.is_char_boundary(cut) {
-            cut -= 1;
-        }
-        let mut name = [0; MAX_NAME];
-        name[..cut].copy_from_slice(&how.as_bytes()[..cut]);
         Self {
             worker,
             incarnation,
             reason,
-            name_len: cut as u32,
-            name,
-            ..Self::plain(run_id, Self::WORKER_LOST)
+            ..Self::plain(run_id, Self::WORKER_LOST).with_name(how)
         }
     }
 
     /// `None` if the name is longer than [`MAX_NAME`] bytes.
     pub fn set_task(run_id: u64, name: &str, value: f64) -> Option<Self> {
-        let bytes = name.as_bytes();
-        if bytes.len() > MAX_NAME {
-            return None;
-        }
-        let mut n = [0; MAX_NAME];
-        n[..bytes.len()].copy_from_slice(bytes);
-        Some(Self {
-            name_len: bytes.len() as u32,
-            name: n,
+        (name.len() <= MAX_NAME).then(|| Self {
             value,
-            ..Self::plain(run_id, Self::SET_TASK)
+            ..Self::plain(run_id, Self::SET_TASK).with_name(name)
         })
+    }
+
+    /// Sets `name`, cut to [`MAX_NAME`] bytes at a character boundary.
+    fn with_name(mut self, text: &str) -> Self {
+        let mut cut = text.len().min(MAX_NAME);
+        while !text.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        self.name = [0; MAX_NAME];
+        self.name[..cut].copy_from_slice(&text.as_bytes()[..cut]);
+        self.name_len = cut as u32;
+        self
     }
 
     pub fn name(&self) -> &str {
