@@ -114,7 +114,7 @@ pub fn result_path(run_dir: &Path) -> PathBuf {
 
 /// K, P, N and the worker limit of a config: the numbers every service is sized from.
 pub fn limits(config: &RunConfig) -> anyhow::Result<Limits> {
-    let task = session::build_task(config)?;
+    let task = config.build_task()?;
     if task.settings().len() > wire::MAX_SETTINGS {
         anyhow::bail!(
             "task `{}` has {} settings; the wire headers carry at most {}",

@@ -22,7 +22,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let ctx = Context::new(args, "updater")?;
     let cfg = &ctx.config;
     let seed = cfg.run.seed;
-    let mut task = session::build_task(cfg)?;
+    let mut task = cfg.build_task()?;
     let mut optimizer = session::build_optimizer(cfg, task.as_ref(), seed)?;
     let initial_settings = task.settings();
     let schedule = cfg.schedule();

@@ -8,6 +8,8 @@ use std::time::{Duration, Instant};
 use anyhow::bail;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
+use session::RunConfig;
+use tasks::Task;
 use wire::{CostHeader, Ready, WorkHeader};
 
 use crate::{announce_ready, iox, wait_loop_spinning, Context, Flow, ProcessArgs, Spin};
@@ -27,7 +29,23 @@ pub struct WorkerArgs {
 /// Costs are announced to the updater at least this often while a chunk is being worked on.
 const NOTIFY_INTERVAL: Duration = Duration::from_millis(1);
 
+/// The built-in `rollout-worker`: runs the config's own task (via-point, T-ball).
 pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
+    serve(args, |config| Ok(session::build_task(config)?))
+}
+
+/// Runs one worker slot of a run with a task of your own — your simulator, your robot — until
+/// the run ends; it is the loop of the built-in `rollout-worker`. `make_task` gets the run's
+/// config once at start. Use it with `[task.external]`, whose `worker` command is a program
+/// that calls this ([`serve_main`] parses the arguments the supervisor passes and reports
+/// errors), e.g. `crates/supervisor/examples/reach-worker.rs`.
+///
+/// The task must have the shape the config declares — P parameters, N steps, the same setting
+/// names in the same order — or this fails at start, naming both.
+pub fn serve<T: Task>(
+    args: &WorkerArgs,
+    make_task: impl FnOnce(&RunConfig) -> anyhow::Result<T>,
+) -> anyhow::Result<()> {
     let (w, incarnation) = (args.worker, args.incarnation);
     let ctx = Context::new(&args.process, &wire::worker_node_name(w, incarnation))?;
     if w as usize >= ctx.limits.max_workers {
@@ -36,7 +54,8 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
             ctx.limits.max_workers
         );
     }
-    let mut task = session::build_task(&ctx.config)?;
+    let mut task = make_task(&ctx.config)?;
+    check_shape(&task, &ctx.config)?;
     let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
     let mut applied: Vec<f64> = task.settings().iter().map(|(_, v)| *v).collect();
     let nan_from = ctx.config.pipeline().fault_nan_from_update;
@@ -167,5 +186,82 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
         }
         Ok(Flow::Continue)
     })?;
+    Ok(())
+}
+
+/// Parses the arguments the supervisor passes a worker and runs [`serve`]; returns the exit
+/// code (1, after printing the error chain, on failure). The whole `main` of a worker of your own:
+///
+/// ```no_run
+/// # struct MySim;
+/// # impl MySim { fn new(_: &session::RunConfig) -> anyhow::Result<Self> { Ok(MySim) } }
+/// # impl tasks::Task for MySim {
+/// #     fn name(&self) -> &'static str { "my-sim" }
+/// #     fn parameters(&self) -> usize { 1 }
+/// #     fn steps(&self) -> usize { 1 }
+/// #     fn initial_mean(&self) -> Vec<f64> { vec![0.0] }
+/// #     fn rollout(&mut self, _: &[f64], c: &mut [f64]) -> f64 { c.fill(0.0); 0.0 }
+/// #     fn settings(&self) -> Vec<(&'static str, f64)> { vec![] }
+/// #     fn set(&mut self, n: &str, _: f64) -> Result<(), tasks::TaskError> {
+/// #         Err(tasks::TaskError::Invalid { task: "my-sim", reason: n.into() })
+/// #     }
+/// # }
+/// fn main() -> std::process::ExitCode {
+///     pipeline::worker::serve_main("my-sim-worker", MySim::new)
+/// }
+/// ```
+pub fn serve_main<T: Task>(
+    name: &str,
+    make_task: impl FnOnce(&RunConfig) -> anyhow::Result<T>,
+) -> std::process::ExitCode {
+    use clap::Parser as _;
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        worker: WorkerArgs,
+    }
+    let cli = Cli::parse();
+    crate::run_main(name, || serve(&cli.worker, make_task))
+}
+
+/// A worker's task must match what the update side was configured with: it sizes θ and the
+/// cost trajectories, and settings travel by position.
+fn check_shape(task: &dyn Task, config: &RunConfig) -> anyhow::Result<()> {
+    let declared = config.build_task()?;
+    let field = |f: &str| match config.external_worker() {
+        Some(_) => format!("task.external.{f}"),
+        None => format!("the `{}` task's {f}", declared.name()),
+    };
+    if task.parameters() != declared.parameters() {
+        bail!(
+            "task `{}` has {} parameters, but {} = {} in {}",
+            task.name(),
+            task.parameters(),
+            field("parameters"),
+            declared.parameters(),
+            config.origin.display()
+        );
+    }
+    if task.steps() != declared.steps() {
+        bail!(
+            "task `{}` has {} steps, but {} = {} in {}",
+            task.name(),
+            task.steps(),
+            field("steps"),
+            declared.steps(),
+            config.origin.display()
+        );
+    }
+    let names = |t: &dyn Task| t.settings().iter().map(|(n, _)| *n).collect::<Vec<_>>();
+    if names(task) != names(declared.as_ref()) {
+        bail!(
+            "task `{}` has the settings {:?}, but {} declares {:?} (same names, same order) in {}",
+            task.name(),
+            names(task),
+            field("settings"),
+            names(declared.as_ref()),
+            config.origin.display()
+        );
+    }
     Ok(())
 }

@@ -248,7 +248,7 @@ impl WriterState {
         writer: RunWriter<crate::writer::FileSink>,
     ) -> anyhow::Result<Self> {
         let cfg = ctx.config.clone();
-        let task = session::build_task(&cfg)?;
+        let task = cfg.build_task()?;
         let names: Vec<String> = task.settings().iter().map(|(n, _)| n.to_string()).collect();
         let basis = task.basis_activations();
         let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);

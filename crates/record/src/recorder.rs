@@ -334,7 +334,7 @@ impl Observer for McapRecorder {
         let hp = optimizer.hyperparameters().clone();
         // Basis activations are a property of the policy; rebuilding the task is cheap and keeps
         // the recording self-contained for recomputing basis-activation averaging.
-        let (basis, settings) = match session::build_task(config) {
+        let (basis, settings) = match config.build_task() {
             Ok(t) => (t.basis_activations(), t.settings()),
             Err(_) => (None, Vec::new()),
         };

@@ -113,6 +113,31 @@ pub enum TaskSection {
     ViaPoint(ViaPointConfig),
     /// `[task.tball]`: the T-ball task of Section IV-B (keys documented in `tball::TballConfig`).
     Tball(Box<tball::TballConfig>),
+    /// `[task.external]`: a task of the user's own, whose rollouts run in their own rollout
+    /// workers (`worker`, see `pipeline::worker::serve`); only the pipeline can run it.
+    External(ExternalConfig),
+}
+
+/// `[task.external]`: what the update side needs to know of a task whose policy and cost live
+/// in the user's own rollout worker.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalConfig {
+    /// The command that runs one rollout worker: program, then arguments. The supervisor appends
+    /// `--config FILE --run-dir DIR --run-id HEX --worker W --incarnation I`. A program path
+    /// with a `/` is relative to this config file's directory; a bare name is looked up in PATH.
+    pub worker: Vec<String>,
+    /// P: the length of θ.
+    pub parameters: usize,
+    /// N: the number of immediate costs of a rollout.
+    pub steps: usize,
+    /// The initial mean of the search distribution (P values).
+    pub initial_mean: Vec<f64>,
+    /// Named task settings that task changes (`[[schedule]]`, `supervisor set`) may change, with
+    /// their initial values. They reach the worker with every work item, in the alphabetical
+    /// order of their names.
+    #[serde(default)]
+    pub settings: std::collections::BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -326,6 +351,10 @@ impl RunConfig {
         let (delay_field, delay_ms) = match &self.task {
             TaskSection::ViaPoint(v) => ("task.via-point.rollout_delay_ms", v.rollout_delay_ms),
             TaskSection::Tball(t) => ("task.tball.rollout_delay_ms", t.rollout_delay_ms),
+            TaskSection::External(e) => {
+                self.validate_external(e)?;
+                ("", 0.0)
+            }
         };
         if !(delay_ms.is_finite() && (0.0..=3.6e6).contains(&delay_ms)) {
             return Err(self.invalid(delay_field, delay_ms, "must be between 0 and 3600000"));
@@ -378,6 +407,76 @@ impl RunConfig {
             .validate(&mut task)
             .map_err(|e| self.invalid("schedule", "", &e.to_string()))?;
         Ok(())
+    }
+
+    fn validate_external(&self, e: &ExternalConfig) -> Result<(), ConfigError> {
+        if e.worker.first().is_none_or(|p| p.trim().is_empty()) {
+            return Err(self.invalid(
+                "task.external.worker",
+                format!("{:?}", e.worker),
+                "must name the program that runs a rollout worker, then its arguments",
+            ));
+        }
+        for (field, v) in [("parameters", e.parameters), ("steps", e.steps)] {
+            if !(1..=1_000_000).contains(&v) {
+                return Err(self.invalid(
+                    &format!("task.external.{field}"),
+                    v,
+                    "must be between 1 and 1000000",
+                ));
+            }
+        }
+        if e.initial_mean.len() != e.parameters {
+            return Err(self.invalid(
+                "task.external.initial_mean",
+                format!("({} values)", e.initial_mean.len()),
+                &format!("must have parameters = {} values", e.parameters),
+            ));
+        }
+        if let Some(i) = e.initial_mean.iter().position(|v| !v.is_finite()) {
+            return Err(self.invalid(
+                &format!("task.external.initial_mean[{i}]"),
+                e.initial_mean[i],
+                "must be finite",
+            ));
+        }
+        for (name, v) in &e.settings {
+            let well_formed = !name.is_empty()
+                && name.len() <= 32
+                && name
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+            if !well_formed {
+                return Err(self.invalid(
+                    &format!("task.external.settings.{name}"),
+                    v,
+                    "a setting name is 1 to 32 of A-Z, a-z, 0-9, _ and -",
+                ));
+            }
+            if !v.is_finite() {
+                return Err(self.invalid(
+                    &format!("task.external.settings.{name}"),
+                    v,
+                    "must be finite",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The program and arguments of an external task's rollout worker, the program resolved
+    /// against the config file's directory when it is a path; `None` for built-in tasks.
+    pub fn external_worker(&self) -> Option<(PathBuf, Vec<String>)> {
+        let TaskSection::External(e) = &self.task else {
+            return None;
+        };
+        let (program, args) = e.worker.split_first()?;
+        let program = if program.contains('/') {
+            self.origin.parent().unwrap_or(Path::new("")).join(program)
+        } else {
+            PathBuf::from(program)
+        };
+        Some((program, args.to_vec()))
     }
 
     fn invalid_param(&self, e: pi2cma::ParameterError) -> ConfigError {
@@ -456,15 +555,28 @@ impl RunConfig {
         let delay_ms = match &self.task {
             TaskSection::ViaPoint(v) => v.rollout_delay_ms,
             TaskSection::Tball(t) => t.rollout_delay_ms,
+            TaskSection::External(_) => 0.0,
         };
         std::time::Duration::from_secs_f64(delay_ms / 1e3)
     }
 
     /// Builds the task without its rollout delay (see [`crate::build_task`] for the full one).
+    /// For `[task.external]` this is the task's shape ([`tasks::External`]): enough for the
+    /// updater, sampler, recorder and supervisor, which never run rollouts; not runnable.
     pub fn build_task(&self) -> Result<Box<dyn tasks::Task>, tasks::TaskError> {
         match &self.task {
             TaskSection::ViaPoint(v) => Ok(Box::new(tasks::ViaPoint::new(&v.spec())?)),
             TaskSection::Tball(t) => Ok(Box::new(tball::Tball::new(t)?)),
+            TaskSection::External(e) => {
+                let settings: Vec<(String, f64)> =
+                    e.settings.iter().map(|(n, v)| (n.clone(), *v)).collect();
+                Ok(Box::new(tasks::External::new(
+                    e.parameters,
+                    e.steps,
+                    e.initial_mean.clone(),
+                    &settings,
+                )?))
+            }
         }
     }
 }
@@ -545,6 +657,67 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("no setting `ball_hight`"), "{e}");
+    }
+
+    #[test]
+    fn external_task_declares_its_shape_and_worker_and_is_checked() {
+        let text = include_str!("../../../config/external-reach.toml");
+        let c = RunConfig::parse(text, Path::new("config/external-reach.toml")).unwrap();
+        let t = c.build_task().unwrap();
+        assert_eq!((t.name(), t.parameters(), t.steps()), ("external", 10, 101));
+        assert_eq!(t.settings(), vec![("target_x", 0.30), ("target_y", 0.70)]);
+        let (program, args) = c.external_worker().unwrap();
+        assert_eq!(
+            program,
+            Path::new("config/../target/release/examples/reach-worker")
+        );
+        assert!(args.is_empty());
+        // Not runnable in process, and the error says where it runs.
+        let e = crate::build_task(&c).err().unwrap().to_string();
+        assert!(
+            e.contains("supervisor run config/external-reach.toml"),
+            "{e}"
+        );
+
+        for (from, to, expect) in [
+            (
+                "parameters = 10",
+                "parameters = 10\nparameter = 3",
+                "unknown field `parameter`",
+            ),
+            (
+                "parameters = 10",
+                "parameters = 11",
+                "task.external.initial_mean = (10 values)",
+            ),
+            (
+                "target_x = 0.30",
+                "\"target x\" = 0.30",
+                "task.external.settings.target x",
+            ),
+            (
+                "target_x = 0.30",
+                "target_x = nan",
+                "task.external.settings.target_x = NaN",
+            ),
+            (
+                "set = \"target_y\"",
+                "set = \"target_z\"",
+                "no setting `target_z`",
+            ),
+            (
+                "worker = [\"../target/release/examples/reach-worker\"]",
+                "worker = []",
+                "task.external.worker = []",
+            ),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let e = parse(&text.replacen(from, to, 1)).unwrap_err().to_string();
+            assert!(e.contains(expect), "{expect}: {e}");
+        }
+        // A bare program name is looked up in PATH, not next to the config.
+        let c = parse(&text.replace("../target/release/examples/reach-worker", "my-sim")).unwrap();
+        assert_eq!(c.external_worker().unwrap().0, Path::new("my-sim"));
     }
 
     #[test]

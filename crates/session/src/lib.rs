@@ -8,8 +8,8 @@
 mod config;
 
 pub use config::{
-    ConfigError, Method, OptimizerSection, PipelineSection, RunConfig, RunSection, ScheduleEntry,
-    TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
+    ConfigError, ExternalConfig, Method, OptimizerSection, PipelineSection, RunConfig, RunSection,
+    ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
 };
 
 use pi2cma::{
@@ -31,8 +31,22 @@ pub enum SessionError {
     Parameter(#[from] ParameterError),
 }
 
-/// The task of a config, with its rollout delay if one is set.
+/// The task of a config, with its rollout delay if one is set, ready to run rollouts. An
+/// external task (`[task.external]`) is refused: its rollouts run in the user's own workers,
+/// started by `supervisor run`.
 pub fn build_task(config: &RunConfig) -> Result<Box<dyn Task>, TaskError> {
+    if let Some((program, _)) = config.external_worker() {
+        return Err(TaskError::Invalid {
+            task: "external",
+            reason: format!(
+                "{}: its rollouts run in its own workers (task.external.worker = {}), which only \
+                 the pipeline starts: use `supervisor run {}`",
+                config.origin.display(),
+                program.display(),
+                config.origin.display()
+            ),
+        });
+    }
     let task = config.build_task()?;
     let delay = config.rollout_delay();
     Ok(if delay.is_zero() {

@@ -108,12 +108,67 @@ const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
 /// recorder (crate `record`'s `recorder` binary) is taken from the directory when it is there,
 /// else hosted by the supervisor's executable too.
 #[derive(Debug, Clone)]
-enum Launcher {
-    Binaries { dir: PathBuf, exe: PathBuf },
+struct Launcher {
+    binaries: Binaries,
+    /// The program and leading arguments of an external task's workers (`task.external.worker`),
+    /// which replace `rollout-worker`.
+    external_worker: Option<(PathBuf, Vec<String>)>,
+}
+
+#[derive(Debug, Clone)]
+enum Binaries {
+    InDir { dir: PathBuf, exe: PathBuf },
     SelfHosted(PathBuf),
 }
 
 impl Launcher {
+    fn find(bin_dir: Option<&Path>, cfg: &RunConfig) -> anyhow::Result<Self> {
+        let external_worker = match cfg.external_worker() {
+            Some((program, args)) => Some((
+                resolve_program(&program).with_context(|| {
+                    format!(
+                        "{}: task.external.worker = \"{}\": not an executable file{}",
+                        cfg.origin.display(),
+                        program.display(),
+                        if program.components().count() > 1 {
+                            " (a path with a `/` is relative to the config file's directory)"
+                        } else {
+                            " in PATH"
+                        }
+                    )
+                })?,
+                args,
+            )),
+            None => None,
+        };
+        let binaries = Binaries::find(bin_dir)?;
+        Ok(Self {
+            binaries,
+            external_worker,
+        })
+    }
+
+    /// The program and its leading arguments for `role`.
+    fn program(&self, role: Role) -> (PathBuf, Vec<String>) {
+        if let (Role::Worker(_), Some((program, args))) = (role, &self.external_worker) {
+            return (program.clone(), args.clone());
+        }
+        let hosted = |exe: &PathBuf| (exe.clone(), vec![role.binary().to_string()]);
+        match &self.binaries {
+            Binaries::InDir { dir, exe } => {
+                let bin = dir.join(role.binary());
+                if role == Role::Recorder && !bin.is_file() {
+                    hosted(exe)
+                } else {
+                    (bin, Vec::new())
+                }
+            }
+            Binaries::SelfHosted(exe) => hosted(exe),
+        }
+    }
+}
+
+impl Binaries {
     fn find(bin_dir: Option<&Path>) -> anyhow::Result<Self> {
         if let Some(dir) = bin_dir {
             for b in BINARIES {
@@ -122,7 +177,7 @@ impl Launcher {
                     bail!("missing binary `{b}`: {} does not exist", p.display());
                 }
             }
-            return Ok(Self::Binaries {
+            return Ok(Self::InDir {
                 dir: dir.to_path_buf(),
                 exe: std::env::current_exe()?,
             });
@@ -132,7 +187,7 @@ impl Launcher {
             .parent()
             .context("the supervisor executable has no directory")?;
         Ok(if BINARIES.iter().all(|b| dir.join(b).is_file()) {
-            Self::Binaries {
+            Self::InDir {
                 dir: dir.to_path_buf(),
                 exe: exe.clone(),
             }
@@ -140,21 +195,24 @@ impl Launcher {
             Self::SelfHosted(exe)
         })
     }
+}
 
-    /// The program and its leading arguments for `role`.
-    fn program(&self, role: Role) -> (PathBuf, Option<&'static str>) {
-        match self {
-            Self::Binaries { dir, exe } => {
-                let bin = dir.join(role.binary());
-                if role == Role::Recorder && !bin.is_file() {
-                    (exe.clone(), Some(role.binary()))
-                } else {
-                    (bin, None)
-                }
-            }
-            Self::SelfHosted(exe) => (exe.clone(), Some(role.binary())),
-        }
+/// `program` as an absolute path to an executable file: a path as it is (made absolute, so that
+/// it does not depend on the children's working directory), a bare name looked up in PATH.
+fn resolve_program(program: &Path) -> Option<PathBuf> {
+    use std::os::unix::fs::PermissionsExt as _;
+    let executable = |p: &Path| {
+        p.metadata()
+            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+    };
+    if program.components().count() > 1 {
+        return executable(program)
+            .then(|| std::path::absolute(program).ok())
+            .flatten();
     }
+    std::env::split_paths(&std::env::var_os("PATH")?)
+        .map(|dir| dir.join(program))
+        .find(|p| executable(p))
 }
 
 struct Proc {
@@ -287,7 +345,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             pipe.max_workers
         );
     }
-    let launcher = Launcher::find(opts.bin_dir.as_deref())?;
+    let launcher = Launcher::find(opts.bin_dir.as_deref(), &cfg)?;
     let limits = pipeline::limits(&cfg)?;
     let run_id = opts.run_id.unwrap_or_else(draw_run_id);
     let run_dir = control::runs_dir().join(wire::run_id_hex(run_id));
@@ -745,9 +803,9 @@ impl Supervisor {
     }
 
     fn spawn(&mut self, role: Role, incarnation: u32) -> anyhow::Result<()> {
-        let (exe, role_arg) = self.launcher.program(role);
+        let (exe, leading) = self.launcher.program(role);
         let mut cmd = Command::new(&exe);
-        cmd.args(role_arg)
+        cmd.args(leading)
             .arg("--config")
             .arg(&self.config_file)
             .arg("--run-dir")
@@ -968,7 +1026,7 @@ impl Supervisor {
                 if self.phase == Phase::Stopping {
                     return Err("the run is stopping".into());
                 }
-                let mut task = session::build_task(&self.cfg).map_err(|e| e.to_string())?;
+                let mut task = self.cfg.build_task().map_err(|e| e.to_string())?;
                 task.set(&name, value).map_err(|e| e.to_string())?;
                 let msg = Control::set_task(self.run_id, &name, value)
                     .ok_or_else(|| format!("setting name `{name}` is too long"))?;
@@ -1015,7 +1073,9 @@ impl Supervisor {
         }
         match &self.progress {
             Some(p) => {
-                let names: Vec<&'static str> = session::build_task(&self.cfg)
+                let names: Vec<&'static str> = self
+                    .cfg
+                    .build_task()
                     .map(|t| t.settings().into_iter().map(|(n, _)| n).collect())
                     .unwrap_or_default();
                 let settings: Vec<String> = names

@@ -1022,3 +1022,101 @@ fn sigkill_recorder(status: &str) -> u32 {
         .success());
     pid
 }
+
+/// `config/external-reach.toml` with its worker — `examples/reach-worker.rs`, built with the
+/// tests — given by absolute path, and `edits` applied (checked to apply).
+fn external_config(edits: &[(&str, &str)]) -> String {
+    let worker = Path::new(SUPERVISOR)
+        .parent()
+        .unwrap()
+        .join("examples/reach-worker");
+    assert!(worker.is_file(), "{} not built", worker.display());
+    let mut text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/external-reach.toml"),
+    )
+    .unwrap()
+    .replacen(
+        "\"../target/release/examples/reach-worker\"",
+        &format!("{:?}", worker.to_str().unwrap()),
+        1,
+    );
+    assert!(text.contains(worker.to_str().unwrap()));
+    for (from, to) in edits {
+        assert!(text.contains(from), "`{from}` not in external-reach.toml");
+        text = text.replacen(from, to, 1);
+    }
+    text
+}
+
+#[test]
+fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
+    let scratch = Scratch::exclusive("external");
+    let text = external_config(&[]);
+    let cfg = write_config(&scratch, "reach.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 800, &cfg, &result);
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 80);
+    // Learned (the first reach misses the target by 12 cm), and re-learned after the target
+    // moved at update 40.
+    assert!(r.first_eval_cost > 100.0, "{}", r.first_eval_cost);
+    assert!(r.last_eval_cost < 5.0, "{}", r.last_eval_cost);
+    assert_eq!(r.task_changes.len(), 1);
+    assert_eq!(
+        (
+            r.task_changes[0].name.as_str(),
+            r.task_changes[0].from_update
+        ),
+        ("target_y", 40)
+    );
+    let rec = record::read_recording(&scratch.recording("reach", 800)).unwrap();
+    assert_recorded(&rec, 80);
+    for name in ["worker-0", "worker-1"] {
+        assert!(
+            logged(&rec, "start", name) || logged(&rec, "scale", name),
+            "{name}: {:#?}",
+            rec.logs
+        );
+    }
+    // The built-in rollout-worker cannot run an external task (session::build_task refuses
+    // it), so these rollouts ran in the example's program.
+    assert_eq!(rec.rollouts.len(), 80 * 10);
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn a_worker_whose_task_does_not_match_the_config_or_is_missing_is_named() {
+    let scratch = Scratch::new("external-bad");
+    // The worker's task has P = 10; the config says 12.
+    let text = external_config(&[
+        ("parameters = 10", "parameters = 12"),
+        ("initial_mean = [", "initial_mean = [0.0, 0.0, "),
+        ("workers = 2", "workers = 2\nrestart_limit = 0"),
+    ]);
+    let cfg = write_config(&scratch, "p12.toml", &text);
+    let mut run = Run::start(&scratch, 810, &[cfg.to_str().unwrap(), "--quiet"]);
+    assert_eq!(run.wait(Duration::from_secs(30)).code(), Some(1));
+    let out = run.text();
+    assert!(
+        out.contains("task `reach` has 10 parameters, but task.external.parameters = 12"),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+
+    // A worker program that does not exist: refused before anything starts.
+    let text = external_config(&[]).replacen("worker = [\"/", "worker = [\"/nonexistent/", 1);
+    let cfg = write_config(&scratch, "missing.toml", &text);
+    let mut run = Run::start(&scratch, 811, &[cfg.to_str().unwrap(), "--quiet"]);
+    assert_eq!(run.wait(Duration::from_secs(30)).code(), Some(1));
+    let out = run.text();
+    assert!(
+        out.contains(&format!(
+            "{}: task.external.worker = \"/nonexistent/",
+            cfg.display()
+        )) && out.contains("not an executable file"),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}

@@ -8,6 +8,9 @@
 
 use std::time::Duration;
 
+mod external;
+pub use external::External;
+
 use dmp::{AffineDmp, Dmp, Gains};
 use thiserror::Error;
 

@@ -1,0 +1,127 @@
+//! A rollout worker for a task of your own: the template for putting your simulator or your
+//! robot behind the pipeline. `config/external-reach.toml` runs it:
+//!
+//! ```sh
+//! cargo build --release -p supervisor --example reach-worker
+//! cargo run --release -p supervisor -- run config/external-reach.toml
+//! ```
+//!
+//! The task — a planar two-link arm whose hand should pass through a target halfway through a
+//! 1 s reach — lives only here. The update side knows it only by what `[task.external]` declares
+//! (P = 10, N = 101, the initial mean, the settings `target_x` and `target_y`); the supervisor
+//! starts, restarts and scales this program like its own workers, and every run is recorded as
+//! usual. Replace `rollout` with a call into your simulator, or with executing the movement on a
+//! robot and measuring the cost: nothing else changes.
+
+use dmp::{AffineDmp, Dmp, Gains, Trajectory};
+use session::RunConfig;
+use tasks::{Task, TaskError};
+
+/// Joint angles (rad) at the start and the end of the reach; the DMP's goal.
+const START: [f64; 2] = [0.3, 1.6];
+const END: [f64; 2] = [1.4, 0.5];
+/// Upper arm and forearm (m).
+const LINKS: [f64; 2] = [0.5, 0.4];
+const BASIS: usize = 5;
+const DURATION: f64 = 1.0;
+const DT: f64 = 0.01;
+/// Weight of the hand's squared distance (m²) to the target at mid-reach, against the
+/// acceleration cost.
+const TARGET_WEIGHT: f64 = 1e4;
+
+struct Reach {
+    /// The DMP weights of a minimum-jerk reach from START to END: the initial mean, printed by
+    /// `reach-worker --initial-mean` for the config.
+    min_jerk: Vec<f64>,
+    dmp: AffineDmp,
+    trajectory: Trajectory,
+    target: [f64; 2],
+}
+
+impl Reach {
+    fn new(_config: &RunConfig) -> anyhow::Result<Self> {
+        let dmp = Dmp::new(
+            START.to_vec(),
+            END.to_vec(),
+            BASIS,
+            DURATION,
+            DT,
+            Gains::default(),
+        )?;
+        let trajectory = Trajectory::zeros(dmp.steps(), 2, DT);
+        Ok(Self {
+            min_jerk: dmp.fit_min_jerk(DURATION),
+            dmp: dmp.affine(),
+            trajectory,
+            // The run's [task.external.settings] come with every work item, before its rollout.
+            target: [f64::NAN; 2],
+        })
+    }
+
+    fn hand(q: &[f64]) -> [f64; 2] {
+        [
+            LINKS[0] * q[0].cos() + LINKS[1] * (q[0] + q[1]).cos(),
+            LINKS[0] * q[0].sin() + LINKS[1] * (q[0] + q[1]).sin(),
+        ]
+    }
+}
+
+impl Task for Reach {
+    fn name(&self) -> &'static str {
+        "reach"
+    }
+    fn parameters(&self) -> usize {
+        self.dmp.parameters()
+    }
+    fn steps(&self) -> usize {
+        self.dmp.steps()
+    }
+    fn initial_mean(&self) -> Vec<f64> {
+        self.min_jerk.clone()
+    }
+
+    fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
+        self.dmp.rollout_into(theta, &mut self.trajectory);
+        let n = per_step.len();
+        for (i, c) in per_step.iter_mut().enumerate() {
+            let acc = &self.trajectory.acc[2 * i..2 * i + 2];
+            *c = 1e-3 * (acc[0] * acc[0] + acc[1] * acc[1]) / n as f64;
+        }
+        let mid = (n - 1) / 2;
+        let hand = Self::hand(&self.trajectory.pos[2 * mid..2 * mid + 2]);
+        let miss = (hand[0] - self.target[0]).powi(2) + (hand[1] - self.target[1]).powi(2);
+        per_step[mid] += TARGET_WEIGHT * miss;
+        0.0
+    }
+
+    /// Alphabetical, as `[task.external.settings]` sends them.
+    fn settings(&self) -> Vec<(&'static str, f64)> {
+        vec![("target_x", self.target[0]), ("target_y", self.target[1])]
+    }
+
+    fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+        let slot = match name {
+            "target_x" => &mut self.target[0],
+            "target_y" => &mut self.target[1],
+            _ => {
+                return Err(TaskError::UnknownSetting {
+                    task: "reach",
+                    name: name.into(),
+                    known: "target_x, target_y".into(),
+                })
+            }
+        };
+        *slot = value;
+        Ok(())
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    if std::env::args().nth(1).as_deref() == Some("--initial-mean") {
+        // For `[task.external] initial_mean` (Reach::new does not read the config).
+        let reach = Reach::new(&RunConfig::default_config()).expect("the constants are valid");
+        println!("initial_mean = {:?}", reach.initial_mean());
+        return std::process::ExitCode::SUCCESS;
+    }
+    pipeline::worker::serve_main("reach-worker", Reach::new)
+}
