@@ -36,6 +36,7 @@ struct Reach {
     dmp: AffineDmp,
     trajectory: Trajectory,
     target: [f64; 2],
+    delay: std::time::Duration,
 }
 
 impl Reach {
@@ -55,6 +56,7 @@ impl Reach {
             trajectory,
             // The run's [task.external.settings] come with every work item, before its rollout.
             target: [f64::NAN; 2],
+            delay: std::time::Duration::ZERO,
         })
     }
 
@@ -81,6 +83,7 @@ impl Task for Reach {
     }
 
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
+        let start = std::time::Instant::now();
         self.dmp.rollout_into(theta, &mut self.trajectory);
         let n = per_step.len();
         for (i, c) in per_step.iter_mut().enumerate() {
@@ -91,6 +94,7 @@ impl Task for Reach {
         let hand = Self::hand(&self.trajectory.pos[2 * mid..2 * mid + 2]);
         let miss = (hand[0] - self.target[0]).powi(2) + (hand[1] - self.target[1]).powi(2);
         per_step[mid] += TARGET_WEIGHT * miss;
+        std::thread::sleep(self.delay.saturating_sub(start.elapsed()));
         0.0
     }
 
@@ -116,12 +120,36 @@ impl Task for Reach {
     }
 }
 
+/// The arguments the supervisor passes (`WorkerArgs`) and this program's own, from
+/// `task.external.worker` in the config.
+#[derive(clap::Parser)]
+struct Cli {
+    /// Each rollout takes at least this long: a stand-in for a simulator or robot that runs in
+    /// real time.
+    #[arg(long, default_value_t = 0.0)]
+    rollout_ms: f64,
+    #[command(flatten)]
+    worker: pipeline::worker::WorkerArgs,
+}
+
 fn main() -> std::process::ExitCode {
+    use clap::Parser as _;
     if std::env::args().nth(1).as_deref() == Some("--initial-mean") {
         // For `[task.external] initial_mean` (Reach::new does not read the config).
         let reach = Reach::new(&RunConfig::default_config()).expect("the constants are valid");
         println!("initial_mean = {:?}", reach.initial_mean());
         return std::process::ExitCode::SUCCESS;
     }
-    pipeline::worker::serve_main("reach-worker", Reach::new)
+    // Without arguments of its own, `pipeline::worker::serve_main("reach-worker", Reach::new)`
+    // would be the whole of main.
+    let cli = Cli::parse();
+    let delay = std::time::Duration::from_secs_f64(cli.rollout_ms.max(0.0) / 1e3);
+    pipeline::run_main("reach-worker", || {
+        pipeline::worker::serve(&cli.worker, |config| {
+            Ok(Reach {
+                delay,
+                ..Reach::new(config)?
+            })
+        })
+    })
 }

@@ -1120,3 +1120,75 @@ fn a_worker_whose_task_does_not_match_the_config_or_is_missing_is_named() {
     );
     assert_nothing_left(&run);
 }
+
+#[test]
+fn external_workers_are_restarted_and_scaled_like_built_in_ones_and_the_result_stays_the_same() {
+    let scratch = Scratch::new("external-heal");
+    let base = [
+        ("updates = 80", "updates = 120"),
+        ("workers = 2", "workers = 2\nmax_workers = 4"),
+    ];
+    // 1 ms rollouts: a real-time simulator; the run lasts long enough to act on it.
+    let slow = external_config(&[
+        base[0],
+        base[1],
+        (
+            "/reach-worker\"]",
+            "/reach-worker\", \"--rollout-ms\", \"1\"]",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "slow.toml", &slow);
+    let result = scratch.path("slow.toml.result");
+    let mut run = Run::start_quiet(&scratch, 820, &cfg, &result);
+    let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
+    let (_, victim) = pids_in(&status)
+        .into_iter()
+        .find(|(n, _)| n == "worker-1")
+        .expect("worker-1 in status");
+    let cmdline = std::fs::read(format!("/proc/{victim}/cmdline")).unwrap();
+    assert!(
+        String::from_utf8_lossy(&cmdline).contains("reach-worker"),
+        "{}",
+        String::from_utf8_lossy(&cmdline)
+    );
+    let killed = Command::new("kill")
+        .args(["-9", &victim.to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    run.wait_status("restarted worker-1", |s| {
+        s.contains("restarts 1") && s.contains("incarnation 1")
+    });
+    let (ok, reply) = run.ctl(&["scale", "--workers", "3"]);
+    assert!(ok, "{reply}");
+    run.wait_status("3 workers", |s| {
+        s.contains("workers: 3 running") && !s.contains("(starting)")
+    });
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    let rec = record::read_recording(&scratch.recording("reach", 820)).unwrap();
+    assert!(logged(&rec, "restart", "worker-1"), "{:#?}", rec.logs);
+    assert!(logged(&rec, "scale", "worker-2"), "{:#?}", rec.logs);
+    assert_recorded(&rec, 120);
+    assert_nothing_left(&run);
+
+    // The same run without delay, loss or scaling ends with the same distribution, bit for bit:
+    // the noise of a rollout is a function of (seed, update, rollout), not of who ran it.
+    let fast = external_config(&base);
+    let cfg = write_config(&scratch, "fast.toml", &fast);
+    let reference = scratch.path("fast.toml.result");
+    let mut run = Run::start_quiet(&scratch, 821, &cfg, &reference);
+    assert!(
+        run.wait(Duration::from_secs(60)).success(),
+        "{}",
+        run.text()
+    );
+    let (a, b) = (
+        RunResult::read(&result).unwrap(),
+        RunResult::read(&reference).unwrap(),
+    );
+    assert_eq!(a.updates, 120);
+    assert_eq!(a.mean_bits, b.mean_bits);
+    assert_eq!(a.covariance_bits, b.covariance_bits);
+    assert_nothing_left(&run);
+}
