@@ -1023,29 +1023,43 @@ fn sigkill_recorder(status: &str) -> u32 {
     pid
 }
 
-/// `config/external-reach.toml` with its worker — `examples/reach-worker.rs`, built with the
-/// tests — given by absolute path, and `edits` applied (checked to apply).
+/// `config/<file>` with its worker program `relative` (as the file names it) replaced by the
+/// absolute `worker` (the test's config lives elsewhere), and `edits` applied (checked to apply).
+fn external_config_from(
+    file: &str,
+    relative: &str,
+    worker: &Path,
+    edits: &[(&str, &str)],
+) -> String {
+    let worker = std::path::absolute(worker).unwrap();
+    let worker = worker.to_str().unwrap();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../config")
+        .join(file);
+    let mut text = std::fs::read_to_string(path).unwrap();
+    let quoted = format!("{relative:?}");
+    assert!(text.contains(&quoted), "{quoted} not in {file}");
+    text = text.replacen(&quoted, &format!("{worker:?}"), 1);
+    for (from, to) in edits {
+        assert!(text.contains(from), "`{from}` not in {file}");
+        text = text.replacen(from, to, 1);
+    }
+    text
+}
+
+/// `config/external-reach.toml`, its worker `examples/reach-worker.rs` built with the tests.
 fn external_config(edits: &[(&str, &str)]) -> String {
     let worker = Path::new(SUPERVISOR)
         .parent()
         .unwrap()
         .join("examples/reach-worker");
     assert!(worker.is_file(), "{} not built", worker.display());
-    let mut text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/external-reach.toml"),
+    external_config_from(
+        "external-reach.toml",
+        "../target/release/examples/reach-worker",
+        &worker,
+        edits,
     )
-    .unwrap()
-    .replacen(
-        "\"../target/release/examples/reach-worker\"",
-        &format!("{:?}", worker.to_str().unwrap()),
-        1,
-    );
-    assert!(text.contains(worker.to_str().unwrap()));
-    for (from, to) in edits {
-        assert!(text.contains(from), "`{from}` not in external-reach.toml");
-        text = text.replacen(from, to, 1);
-    }
-    text
 }
 
 #[test]
@@ -1190,5 +1204,58 @@ fn external_workers_are_restarted_and_scaled_like_built_in_ones_and_the_result_s
     assert_eq!(a.updates, 120);
     assert_eq!(a.mean_bits, b.mean_bits);
     assert_eq!(a.covariance_bits, b.covariance_bits);
+    assert_nothing_left(&run);
+}
+
+/// `config/external-reach-python.toml`, its worker `tools/reach_worker.py`.
+fn python_config(edits: &[(&str, &str)]) -> String {
+    let worker = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/reach_worker.py");
+    external_config_from(
+        "external-reach-python.toml",
+        "../tools/reach_worker.py",
+        &worker,
+        edits,
+    )
+}
+
+/// Needs `python3 -m pip install -r tools/requirements.txt` (the README's test command does it).
+#[test]
+fn a_python_worker_speaks_the_wire_protocol_and_learns_its_task() {
+    let scratch = Scratch::new("python");
+    let text = python_config(&[]);
+    let cfg = write_config(&scratch, "reach.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 830, &cfg, &result);
+    let exit = run.wait(Duration::from_secs(120));
+    assert!(
+        exit.success(),
+        "is tools/requirements.txt installed (iceoryx2 for Python)?\n{}",
+        run.text()
+    );
+    // No worker reported an error on the way out.
+    assert!(!run.text().contains("error"), "{}", run.text());
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 80);
+    assert!(r.first_eval_cost > 100.0, "{}", r.first_eval_cost);
+    assert!(r.last_eval_cost < 5.0, "{}", r.last_eval_cost);
+    assert_eq!(r.task_changes.len(), 1);
+    let rec = record::read_recording(&scratch.recording("reach-python", 830)).unwrap();
+    assert_recorded(&rec, 80);
+    assert_nothing_left(&run);
+
+    // Its own shape check, named as the Rust worker's is.
+    let text = python_config(&[
+        ("parameters = 10", "parameters = 12"),
+        ("initial_mean = [", "initial_mean = [0.0, 0.0, "),
+        ("workers = 2", "workers = 2\nrestart_limit = 0"),
+    ]);
+    let cfg = write_config(&scratch, "p12.toml", &text);
+    let mut run = Run::start(&scratch, 831, &[cfg.to_str().unwrap(), "--quiet"]);
+    assert_eq!(run.wait(Duration::from_secs(60)).code(), Some(1));
+    let out = run.text();
+    assert!(
+        out.contains("the task has parameters 10, but task.external.parameters = 12"),
+        "{out}"
+    );
     assert_nothing_left(&run);
 }

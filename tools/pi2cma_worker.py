@@ -1,0 +1,327 @@
+"""A pi2cma rollout worker in Python: your task's rollouts in your own Python process (a MuJoCo or
+PyBullet simulation, a robot's driver) behind the pipeline, over iceoryx2 shared memory.
+
+What it is: the wire protocol of crates/wire (README, "Wire layout") spoken with the `iceoryx2`
+PyPI package (0.10, the version the Rust side uses) -- the same loop as the Rust
+`pipeline::worker::serve`. What it is not: a second implementation of anything else; the update
+rule, the sampler and the supervisor stay in Rust.
+
+Use: a task object with `parameters`, `steps`, `settings` (a dict, the names of
+`[task.external.settings]`), `set(name, value)` and `rollout(theta) -> (per_step_costs,
+terminal_cost)`, and a script whose main is `pi2cma_worker.serve(make_task)`. Name the script
+in `[task.external] worker`; the supervisor starts, restarts and scales it like its own workers
+(tools/reach_worker.py and config/external-reach-python.toml are the example).
+"""
+
+import argparse
+import ctypes
+import os
+import signal
+import sys
+import time
+import tomllib
+
+import iceoryx2 as iox2
+
+MAX_SETTINGS = 8
+WAKE = iox2.EventId.new(1)
+NO_CHUNK = 2**64 - 1
+QUEUE_EMPTY = 1
+ROLE_WORKER = 3
+# Costs are announced to the updater at least this often while a chunk is being worked on.
+NOTIFY_INTERVAL_S = 0.001
+
+
+class WorkHeader(ctypes.Structure):
+    _fields_ = [
+        ("run_id", ctypes.c_uint64),
+        ("update", ctypes.c_uint64),
+        ("chunk", ctypes.c_uint64),
+        ("rollout", ctypes.c_uint32),
+        ("chunk_len", ctypes.c_uint32),
+        ("worker", ctypes.c_uint32),
+        ("steps", ctypes.c_uint32),
+        ("settings_len", ctypes.c_uint32),
+        ("flags", ctypes.c_uint32),
+        ("settings", ctypes.c_double * MAX_SETTINGS),
+    ]
+
+    @staticmethod
+    def type_name():
+        return "pi2cma.WorkHeader.v1"
+
+
+class CostHeader(ctypes.Structure):
+    _fields_ = [
+        ("run_id", ctypes.c_uint64),
+        ("update", ctypes.c_uint64),
+        ("rollout", ctypes.c_uint32),
+        ("worker", ctypes.c_uint32),
+        ("duration_ns", ctypes.c_uint64),
+        ("terminal", ctypes.c_double),
+    ]
+
+    @staticmethod
+    def type_name():
+        return "pi2cma.CostHeader.v1"
+
+
+class Ready(ctypes.Structure):
+    _fields_ = [
+        ("run_id", ctypes.c_uint64),
+        ("completed_chunk", ctypes.c_uint64),
+        ("worker", ctypes.c_uint32),
+        ("incarnation", ctypes.c_uint32),
+        ("pid", ctypes.c_uint32),
+        ("reserved", ctypes.c_uint32),
+    ]
+
+    @staticmethod
+    def type_name():
+        return "pi2cma.Ready.v1"
+
+
+class Lifecycle(ctypes.Structure):
+    _fields_ = [
+        ("run_id", ctypes.c_uint64),
+        ("pid", ctypes.c_uint32),
+        ("role", ctypes.c_uint32),
+        ("worker", ctypes.c_uint32),
+        ("incarnation", ctypes.c_uint32),
+    ]
+
+    @staticmethod
+    def type_name():
+        return "pi2cma.Lifecycle.v1"
+
+
+for _t, _size in [(WorkHeader, 112), (CostHeader, 40), (Ready, 32), (Lifecycle, 24)]:
+    assert ctypes.sizeof(_t) == _size, (_t.__name__, ctypes.sizeof(_t))
+
+
+class WorkerError(Exception):
+    pass
+
+
+class Shape:
+    """What the run's config declares, and the service sizes crates/wire derives from it."""
+
+    def __init__(self, config_path):
+        with open(config_path, "rb") as f:
+            cfg = tomllib.load(f)
+        ext = cfg.get("task", {}).get("external")
+        if ext is None:
+            raise WorkerError(f"{config_path}: has no [task.external] section")
+        self.parameters = ext["parameters"]
+        self.steps = ext["steps"]
+        self.settings = sorted(ext.get("settings", {}))
+        self.rollouts = cfg["optimizer"]["rollouts"]
+        self.max_workers = cfg.get("pipeline", {}).get("max_workers", 16)
+        self.origin = config_path
+
+    def nodes(self):
+        return 2 * self.max_workers + 8
+
+    def worker_ports(self):
+        return 2 * self.max_workers + 2
+
+
+def _service_name(run_id, tail):
+    return iox2.ServiceName.new(f"pi2cma/{run_id:016x}/{tail}")
+
+
+def _node(run_id, worker, incarnation):
+    config = iox2.config.default()
+    config.global_cfg.prefix = iox2.FileName.new(f"p2c{run_id:016x}_")
+    config.global_cfg.root_path = iox2.Path.new(f"/tmp/p2c-{run_id:016x}/")
+    return (
+        iox2.NodeBuilder.new()
+        .name(iox2.NodeName.new(f"worker-{worker}.{incarnation}"))
+        .config(config)
+        # Python's own SIGTERM handler below ends the loop; iceoryx2's would not be seen.
+        .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+        .create(iox2.ServiceType.Ipc)
+    )
+
+
+def _check_shape(task, shape):
+    theirs = sorted(task.settings)
+    for what, ours, declared in [
+        ("parameters", task.parameters, shape.parameters),
+        ("steps", task.steps, shape.steps),
+        ("settings", theirs, shape.settings),
+    ]:
+        if ours != declared:
+            raise WorkerError(
+                f"the task has {what} {ours}, but task.external.{what} = {declared} "
+                f"in {shape.origin}"
+            )
+
+
+def serve(make_task, argv=None):
+    """Parses the supervisor's arguments, builds the task with `make_task(shape)` and runs
+    rollouts until SIGTERM/SIGINT. Exits the process: 0 when stopped, 1 on an error."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--config", required=True)
+    p.add_argument("--run-dir", required=True)
+    p.add_argument("--run-id", required=True, type=lambda s: int(s, 16))
+    p.add_argument("--worker", required=True, type=int)
+    p.add_argument("--incarnation", type=int, default=0)
+    args = p.parse_args(argv)
+    name = os.path.basename(sys.argv[0])
+    try:
+        _serve(make_task, args)
+    except WorkerError as e:
+        print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
+        sys.exit(1)
+    except Exception as e:  # an iceoryx2 error or a failing task: report it, as the Rust side does
+        print(f"error: {name} failed: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+        sys.exit(1)
+    sys.exit(0)
+
+
+def _serve(make_task, args):
+    stop = []
+    for s in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(s, lambda *_: stop.append(True))
+    shape = Shape(args.config)
+    if not 0 <= args.worker < shape.max_workers:
+        raise WorkerError(f"worker slot {args.worker} is beyond pipeline.max_workers = {shape.max_workers}")
+    task = make_task(shape)
+    _check_shape(task, shape)
+    run_id, w, inc = args.run_id, args.worker, args.incarnation
+    node = _node(run_id, w, inc)
+
+    def bell(owner, listen=False):
+        # The settings of crates/wire `doorbell`: this worker's own doorbell may not exist yet.
+        service = (
+            node.service_builder(_service_name(run_id, f"wake/{owner}"))
+            .event()
+            .max_notifiers(shape.worker_ports() + 4)
+            .max_listeners(2)
+            .max_nodes(shape.nodes())
+            .event_id_max_value(2)
+            .open_or_create()
+        )
+        return service.listener_builder().create() if listen else service.notifier_builder().create()
+
+    # `work/<w>` is created by its worker (the sampler opens it when the worker asks for work):
+    # the settings of crates/wire `work`. The other services exist; they are opened as they are.
+    inbox = (
+        node.service_builder(_service_name(run_id, f"work/{w}"))
+        .publish_subscribe(iox2.Slice[ctypes.c_double])
+        .user_header(WorkHeader)
+        .max_publishers(2)
+        .max_subscribers(2)
+        .subscriber_max_buffer_size(max(shape.rollouts, 1))
+        .subscriber_max_borrowed_samples(2)
+        .history_size(0)
+        .enable_safe_overflow(True)
+        .max_nodes(8)
+        .open_or_create()
+        .subscriber_builder()
+        .create()
+    )
+    doorbell = bell(f"worker/{w}", listen=True)
+    costs = (
+        node.service_builder(_service_name(run_id, "costs"))
+        .publish_subscribe(iox2.Slice[ctypes.c_double])
+        .user_header(CostHeader)
+        .open()
+        .publisher_builder()
+        .initial_max_slice_len(shape.steps)
+        .create()
+    )
+    ready = (
+        node.service_builder(_service_name(run_id, "ready"))
+        .publish_subscribe(Ready)
+        .open()
+        .publisher_builder()
+        .create()
+    )
+    lifecycle = (
+        node.service_builder(_service_name(run_id, "lifecycle"))
+        .publish_subscribe(Lifecycle)
+        .open()
+        .publisher_builder()
+        .create()
+    )
+    updater_bell, sampler_bell, supervisor_bell = bell("updater"), bell("sampler"), bell("supervisor")
+
+    pid = os.getpid()
+    lifecycle.send_copy(Lifecycle(run_id=run_id, pid=pid, role=ROLE_WORKER, worker=w, incarnation=inc))
+    supervisor_bell.notify_with_custom_event_id(WAKE)
+
+    def publish_ready(chunk):
+        ready.send_copy(Ready(run_id=run_id, completed_chunk=chunk, worker=w, incarnation=inc, pid=pid))
+
+    publish_ready(NO_CHUNK)
+    sampler_bell.notify_with_custom_event_id(WAKE)
+
+    names = shape.settings
+    applied = [None] * len(names)
+    chunk, done_in_chunk = None, 0
+    last_notify = time.monotonic()
+    n = shape.steps
+    while not stop:
+        try:
+            doorbell.timed_wait(iox2.Duration.from_millis(50))
+        except iox2.ListenerWaitError as e:
+            # A signal interrupted the wait; its handler has run or runs next, and the loop
+            # condition sees it.
+            if "Interrupt" in str(e):
+                continue
+            raise
+        unannounced = False
+        while not stop:
+            item = inbox.receive()
+            if item is None:
+                break
+            h = item.user_header().contents
+            if h.run_id != run_id:
+                continue
+            # Slice.len() of iceoryx2 0.10's Python binding counts bytes; the header counts f64s.
+            count = item.header.number_of_elements
+            if count != shape.parameters or h.steps != n:
+                raise WorkerError(
+                    f"work item of update {h.update} has θ of length {count} and {h.steps} "
+                    f"steps, expected {shape.parameters} and {n}"
+                )
+            theta = list((ctypes.c_double * count).from_address(item.payload().as_ptr()))
+            for i in range(min(h.settings_len, len(names))):
+                if applied[i] != h.settings[i]:
+                    task.set(names[i], h.settings[i])
+                    applied[i] = h.settings[i]
+            update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
+            item.delete()
+            start = time.monotonic_ns()
+            per_step, terminal = task.rollout(theta)
+            if len(per_step) != n:
+                raise WorkerError(f"the task's rollout returned {len(per_step)} step costs, expected {n}")
+            sample = costs.loan_slice_uninit(n)
+            (ctypes.c_double * n).from_address(sample.payload().as_ptr()).__setitem__(slice(0, n), per_step)
+            sample.user_header().contents.__init__(
+                run_id=run_id,
+                update=update,
+                rollout=rollout,
+                worker=w,
+                duration_ns=time.monotonic_ns() - start,
+                terminal=terminal,
+            )
+            sample.assume_init().send()
+            unannounced = True
+            if chunk != chunk_id:
+                chunk, done_in_chunk = chunk_id, 0
+            done_in_chunk += 1
+            chunk_done = done_in_chunk >= chunk_len
+            # Ready before the updater's bell, and not before the costs (see the wire protocol).
+            if chunk_done:
+                publish_ready(chunk_id)
+            now = time.monotonic()
+            if chunk_done or not inbox.has_samples() or now - last_notify >= NOTIFY_INTERVAL_S:
+                updater_bell.notify_with_custom_event_id(WAKE)
+                last_notify, unannounced = now, False
+            if chunk_done and not flags & QUEUE_EMPTY:
+                sampler_bell.notify_with_custom_event_id(WAKE)
+        if unannounced:
+            updater_bell.notify_with_custom_event_id(WAKE)
