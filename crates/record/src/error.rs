@@ -1,30 +1,29 @@
 //! One error type for the library; every variant names the file (and, where it applies, the
-//! topic, update or field) it is about.
+//! topic, update or field) it is about. The underlying error is part of the message, not a
+//! `source()`: reported through `anyhow`, it would otherwise be printed twice ("X: No such
+//! file… Caused by: No such file…").
 
 use std::path::PathBuf;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
-    #[error("{file}: {source}")]
+    #[error("{file}: {error}")]
     Io {
         file: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
-    #[error("{file}: MCAP: {source}")]
+    #[error("{file}: MCAP: {error}")]
     Mcap {
         file: PathBuf,
-        #[source]
-        source: mcap::McapError,
+        error: mcap::McapError,
     },
-    #[error("{file}: topic {topic}, message {index}: cannot decode as {schema}: {source}")]
+    #[error("{file}: topic {topic}, message {index}: cannot decode as {schema}: {error}")]
     Decode {
         file: PathBuf,
         topic: String,
         index: u64,
         schema: &'static str,
-        #[source]
-        source: prost::DecodeError,
+        error: prost::DecodeError,
     },
     #[error("{file}: {what}")]
     Invalid { file: PathBuf, what: String },
@@ -46,13 +45,13 @@ impl RecordError {
     pub(crate) fn io(file: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io {
             file: file.into(),
-            source,
+            error: source,
         }
     }
     pub(crate) fn mcap(file: impl Into<PathBuf>, source: mcap::McapError) -> Self {
         Self::Mcap {
             file: file.into(),
-            source,
+            error: source,
         }
     }
     pub(crate) fn invalid(file: impl Into<PathBuf>, what: impl Into<String>) -> Self {

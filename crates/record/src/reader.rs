@@ -85,12 +85,12 @@ fn decode<M: Message + Default>(
     schema: &'static str,
     data: &[u8],
 ) -> Result<M, RecordError> {
-    M::decode(data).map_err(|source| RecordError::Decode {
+    M::decode(data).map_err(|error| RecordError::Decode {
         file: file.to_path_buf(),
         topic: topic.to_string(),
         index,
         schema,
-        source,
+        error,
     })
 }
 
