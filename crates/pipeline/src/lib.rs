@@ -1,11 +1,14 @@
 //! The processes of the pipeline: [`updater`] (owns the sans-IO optimizer: tells costs, publishes
 //! distributions), [`sampler`] (draws each update's parameter vectors and hands them out to
-//! workers by load) and [`worker`] (executes rollouts, writing costs straight into shared memory).
-//! The wire contract (message layouts, service names and settings) is the `wire` crate's; the
-//! binaries live in the `supervisor` crate, which starts and supervises these processes.
+//! workers by load) and [`worker`] (executes rollouts, writing costs straight into shared memory;
+//! [`worker::serve`] runs the same loop around a user's own task). The wire contract (message
+//! layouts, service names and settings) is the `wire` crate's; the binaries live in the
+//! `supervisor` crate, which starts and supervises these processes.
 //!
-//! **Architecture Invariant:** the processes never serialise on the data paths and never spin:
-//! each waits on its doorbell event ([`wait_loop`]) and then drains its subscribers.
+//! **Architecture Invariant:** the processes never serialise on the data paths and do not spin:
+//! each waits on its doorbell event ([`wait_loop`]) and then drains its subscribers. The one
+//! bounded exception is a worker polling for its next work for at most
+//! `pipeline.worker_spin_us` after a chunk ([`wait_loop_spinning`]).
 
 pub mod result;
 pub mod sampler;
