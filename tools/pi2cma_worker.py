@@ -298,16 +298,14 @@ def _serve(make_task, args):
             per_step, terminal = task.rollout(theta)
             if len(per_step) != n:
                 raise WorkerError(f"the task's rollout returned {len(per_step)} step costs, expected {n}")
+            # Written straight into the loaned shared memory, as the Rust worker does.
             sample = costs.loan_slice_uninit(n)
-            (ctypes.c_double * n).from_address(sample.payload().as_ptr()).__setitem__(slice(0, n), per_step)
-            sample.user_header().contents.__init__(
-                run_id=run_id,
-                update=update,
-                rollout=rollout,
-                worker=w,
-                duration_ns=time.monotonic_ns() - start,
-                terminal=terminal,
-            )
+            values = (ctypes.c_double * n).from_address(sample.payload().as_ptr())
+            values[:] = per_step
+            header = sample.user_header().contents
+            header.run_id, header.update, header.rollout, header.worker = run_id, update, rollout, w
+            header.duration_ns = time.monotonic_ns() - start
+            header.terminal = terminal
             sample.assume_init().send()
             unannounced = True
             if chunk != chunk_id:
