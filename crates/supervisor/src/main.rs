@@ -101,7 +101,13 @@ fn main() -> ExitCode {
     let remote = |run: Option<String>, line: String| match supervisor::client(run.as_deref(), &line)
     {
         Ok(text) => {
-            print!("{text}");
+            // Replies end with a newline or not (`set`, `stop`); a shell prompt must not follow
+            // on the same line.
+            if text.is_empty() || text.ends_with('\n') {
+                print!("{text}");
+            } else {
+                println!("{text}");
+            }
             ExitCode::SUCCESS
         }
         Err(e) => {
