@@ -106,7 +106,8 @@ const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
 /// directory, or — when they are not next to the supervisor, as after `cargo run`, which builds
 /// only the binary it runs — the supervisor's own executable, which hosts all four roles. The
 /// recorder (crate `record`'s `recorder` binary) is taken from the directory when it is there,
-/// else hosted by the supervisor's executable too.
+/// else hosted by the supervisor's executable too. An external task's workers are the user's
+/// program (`task.external.worker`).
 #[derive(Debug, Clone)]
 struct Launcher {
     binaries: Binaries,
@@ -1465,6 +1466,24 @@ fn die_with_parent(cmd: &mut Command) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_worker_program_is_an_executable_path_or_found_in_path() {
+        let sh = resolve_program(Path::new("sh")).expect("sh in PATH");
+        assert!(sh.is_absolute() && sh.ends_with("sh"), "{}", sh.display());
+        assert_eq!(resolve_program(Path::new("no-such-program-p2c")), None);
+        let dir = std::env::temp_dir().join(format!("p2c-resolve-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("worker");
+        std::fs::write(&file, "#!/bin/sh\n").unwrap();
+        // Not executable yet.
+        assert_eq!(resolve_program(&file), None);
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::set_permissions(&file, std::fs::Permissions::from_mode(0o755)).unwrap();
+        assert_eq!(resolve_program(&file), Some(file.clone()));
+        assert_eq!(resolve_program(&dir), None, "a directory is not a program");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn the_default_recording_is_under_runs_named_after_the_run_and_its_id() {
