@@ -32,7 +32,19 @@ ROLE_WORKER = 3
 NOTIFY_INTERVAL_S = 0.001
 
 
-class WorkHeader(ctypes.Structure):
+class WireStruct(ctypes.Structure):
+    """A `#[repr(C)]` struct of crates/wire; iceoryx2 matches it by `WIRE_NAME`, the Rust side's
+    `#[type_name]`."""
+
+    WIRE_NAME = ""
+
+    @classmethod
+    def type_name(cls):
+        return cls.WIRE_NAME
+
+
+class WorkHeader(WireStruct):
+    WIRE_NAME = "pi2cma.WorkHeader.v1"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("update", ctypes.c_uint64),
@@ -46,12 +58,9 @@ class WorkHeader(ctypes.Structure):
         ("settings", ctypes.c_double * MAX_SETTINGS),
     ]
 
-    @staticmethod
-    def type_name():
-        return "pi2cma.WorkHeader.v1"
 
-
-class CostHeader(ctypes.Structure):
+class CostHeader(WireStruct):
+    WIRE_NAME = "pi2cma.CostHeader.v1"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("update", ctypes.c_uint64),
@@ -61,12 +70,9 @@ class CostHeader(ctypes.Structure):
         ("terminal", ctypes.c_double),
     ]
 
-    @staticmethod
-    def type_name():
-        return "pi2cma.CostHeader.v1"
 
-
-class Ready(ctypes.Structure):
+class Ready(WireStruct):
+    WIRE_NAME = "pi2cma.Ready.v1"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("completed_chunk", ctypes.c_uint64),
@@ -76,12 +82,9 @@ class Ready(ctypes.Structure):
         ("reserved", ctypes.c_uint32),
     ]
 
-    @staticmethod
-    def type_name():
-        return "pi2cma.Ready.v1"
 
-
-class Lifecycle(ctypes.Structure):
+class Lifecycle(WireStruct):
+    WIRE_NAME = "pi2cma.Lifecycle.v1"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("pid", ctypes.c_uint32),
@@ -89,10 +92,6 @@ class Lifecycle(ctypes.Structure):
         ("worker", ctypes.c_uint32),
         ("incarnation", ctypes.c_uint32),
     ]
-
-    @staticmethod
-    def type_name():
-        return "pi2cma.Lifecycle.v1"
 
 
 for _t, _size in [(WorkHeader, 112), (CostHeader, 40), (Ready, 32), (Lifecycle, 24)]:

@@ -29,9 +29,10 @@ pub struct WorkerArgs {
 /// Costs are announced to the updater at least this often while a chunk is being worked on.
 const NOTIFY_INTERVAL: Duration = Duration::from_millis(1);
 
-/// The built-in `rollout-worker`: runs the config's own task (via-point, T-ball).
+/// The built-in `rollout-worker`: runs the config's own task (via-point, T-ball). That task is
+/// the one the run was sized from, so there is no shape to check.
 pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
-    serve(args, |config| Ok(session::build_task(config)?))
+    slot(args, |ctx| Ok(session::build_task(&ctx.config)?))
 }
 
 /// Runs one worker slot of a run with a task of your own — your simulator, your robot — until
@@ -46,6 +47,19 @@ pub fn serve<T: Task>(
     args: &WorkerArgs,
     make_task: impl FnOnce(&RunConfig) -> anyhow::Result<T>,
 ) -> anyhow::Result<()> {
+    slot(args, |ctx| {
+        let task = make_task(&ctx.config)?;
+        check_shape(&task, &ctx.config)?;
+        Ok(task)
+    })
+}
+
+/// The worker loop of slot `args.worker`, with the task `make_task` builds once the run's
+/// context is open.
+fn slot<T: Task>(
+    args: &WorkerArgs,
+    make_task: impl FnOnce(&Context) -> anyhow::Result<T>,
+) -> anyhow::Result<()> {
     let (w, incarnation) = (args.worker, args.incarnation);
     let ctx = Context::new(&args.process, &wire::worker_node_name(w, incarnation))?;
     if w as usize >= ctx.limits.max_workers {
@@ -54,8 +68,7 @@ pub fn serve<T: Task>(
             ctx.limits.max_workers
         );
     }
-    let mut task = make_task(&ctx.config)?;
-    check_shape(&task, &ctx.config)?;
+    let mut task = make_task(&ctx)?;
     let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
     let mut applied: Vec<f64> = task.settings().iter().map(|(_, v)| *v).collect();
     let nan_from = ctx.config.pipeline().fault_nan_from_update;

@@ -1062,6 +1062,32 @@ fn external_config(edits: &[(&str, &str)]) -> String {
     )
 }
 
+/// Edits of an external-reach config that declare P = 12 for a worker whose task has 10, and
+/// stop the run at the first worker that fails.
+const DECLARE_12_PARAMETERS: [(&str, &str); 3] = [
+    ("parameters = 10", "parameters = 12"),
+    ("initial_mean = [", "initial_mean = [0.0, 0.0, "),
+    ("workers = 2", "workers = 2\nrestart_limit = 0"),
+];
+
+/// Runs config `text` (written as `file`), which must fail (exit 1) with output containing every
+/// one of `expected`, and leave nothing behind.
+fn assert_run_fails_saying(scratch: &Scratch, id: u64, file: &str, text: &str, expected: &[&str]) {
+    let cfg = write_config(scratch, file, text);
+    let mut run = Run::start(scratch, id, &[cfg.to_str().unwrap(), "--quiet"]);
+    assert_eq!(
+        run.wait(Duration::from_secs(60)).code(),
+        Some(1),
+        "{}",
+        run.text()
+    );
+    let out = run.text();
+    for e in expected {
+        assert!(out.contains(e), "`{e}` not in:\n{out}");
+    }
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     let scratch = Scratch::exclusive("external");
@@ -1103,36 +1129,28 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
 #[test]
 fn a_worker_whose_task_does_not_match_the_config_or_is_missing_is_named() {
     let scratch = Scratch::new("external-bad");
-    // The worker's task has P = 10; the config says 12.
-    let text = external_config(&[
-        ("parameters = 10", "parameters = 12"),
-        ("initial_mean = [", "initial_mean = [0.0, 0.0, "),
-        ("workers = 2", "workers = 2\nrestart_limit = 0"),
-    ]);
-    let cfg = write_config(&scratch, "p12.toml", &text);
-    let mut run = Run::start(&scratch, 810, &[cfg.to_str().unwrap(), "--quiet"]);
-    assert_eq!(run.wait(Duration::from_secs(30)).code(), Some(1));
-    let out = run.text();
-    assert!(
-        out.contains("task `reach` has 10 parameters, but task.external.parameters = 12"),
-        "{out}"
+    assert_run_fails_saying(
+        &scratch,
+        810,
+        "p12.toml",
+        &external_config(&DECLARE_12_PARAMETERS),
+        &["task `reach` has 10 parameters, but task.external.parameters = 12"],
     );
-    assert_nothing_left(&run);
-
     // A worker program that does not exist: refused before anything starts.
     let text = external_config(&[]).replacen("worker = [\"/", "worker = [\"/nonexistent/", 1);
-    let cfg = write_config(&scratch, "missing.toml", &text);
-    let mut run = Run::start(&scratch, 811, &[cfg.to_str().unwrap(), "--quiet"]);
-    assert_eq!(run.wait(Duration::from_secs(30)).code(), Some(1));
-    let out = run.text();
-    assert!(
-        out.contains(&format!(
-            "{}: task.external.worker = \"/nonexistent/",
-            cfg.display()
-        )) && out.contains("not an executable file"),
-        "{out}"
+    assert_run_fails_saying(
+        &scratch,
+        811,
+        "missing.toml",
+        &text,
+        &[
+            &format!(
+                "{}: task.external.worker = \"/nonexistent/",
+                scratch.path("missing.toml").display()
+            ),
+            "not an executable file",
+        ],
     );
-    assert_nothing_left(&run);
 }
 
 #[test]
@@ -1244,18 +1262,11 @@ fn a_python_worker_speaks_the_wire_protocol_and_learns_its_task() {
     assert_nothing_left(&run);
 
     // Its own shape check, named as the Rust worker's is.
-    let text = python_config(&[
-        ("parameters = 10", "parameters = 12"),
-        ("initial_mean = [", "initial_mean = [0.0, 0.0, "),
-        ("workers = 2", "workers = 2\nrestart_limit = 0"),
-    ]);
-    let cfg = write_config(&scratch, "p12.toml", &text);
-    let mut run = Run::start(&scratch, 831, &[cfg.to_str().unwrap(), "--quiet"]);
-    assert_eq!(run.wait(Duration::from_secs(60)).code(), Some(1));
-    let out = run.text();
-    assert!(
-        out.contains("the task has parameters 10, but task.external.parameters = 12"),
-        "{out}"
+    assert_run_fails_saying(
+        &scratch,
+        831,
+        "p12.toml",
+        &python_config(&DECLARE_12_PARAMETERS),
+        &["the task has parameters 10, but task.external.parameters = 12"],
     );
-    assert_nothing_left(&run);
 }

@@ -105,20 +105,15 @@ impl Task for External {
         self.settings.clone()
     }
     fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
-        let known = self
-            .settings
-            .iter()
-            .map(|(n, _)| *n)
-            .collect::<Vec<_>>()
-            .join(", ");
-        let Some(slot) = self.settings.iter_mut().find(|(n, _)| *n == name) else {
+        let Some(i) = self.settings.iter().position(|(n, _)| *n == name) else {
+            let known: Vec<&str> = self.settings.iter().map(|(n, _)| *n).collect();
             return Err(TaskError::UnknownSetting {
                 task: "external",
                 name: name.to_string(),
                 known: if known.is_empty() {
                     "none".into()
                 } else {
-                    known
+                    known.join(", ")
                 },
             });
         };
@@ -130,7 +125,7 @@ impl Task for External {
                 reason: "must be finite",
             });
         }
-        slot.1 = value;
+        self.settings[i].1 = value;
         Ok(())
     }
 }
