@@ -6,14 +6,18 @@
 //! drives the same core with the same builders, so both give the same result for the same seed.
 
 mod config;
+mod start;
 
 pub use config::{
     ConfigError, ExternalConfig, Method, OptimizerSection, PipelineSection, RunConfig, RunSection,
     ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
 };
 
+pub use start::{Start, StartFileError};
+
 use pi2cma::{
-    CostBatch, CostError, Distribution, Optimizer, ParameterBatch, ParameterError, UpdateSummary,
+    CostBatch, CostError, Distribution, Optimizer, ParameterBatch, ParameterError, UpdateRule,
+    UpdateSummary,
 };
 use tasks::{Delayed, Task, TaskChange, TaskError};
 
@@ -29,6 +33,12 @@ pub enum SessionError {
     Task(#[from] TaskError),
     #[error(transparent)]
     Parameter(#[from] ParameterError),
+    #[error("{origin}: its distribution has {dim} parameters, but the task has {task_dim}")]
+    StartShape {
+        origin: String,
+        dim: usize,
+        task_dim: usize,
+    },
 }
 
 /// The task of a config, with its rollout delay if one is set, ready to run rollouts. An
@@ -73,6 +83,37 @@ pub fn build_optimizer(
         seed,
         activations.as_deref(),
     )
+}
+
+/// The optimizer of a config for session seed `seed`, resumed at `start` (see [`Start`]) or, with
+/// `None`, fresh as [`build_optimizer`] makes it.
+pub fn build_optimizer_at(
+    config: &RunConfig,
+    task: &dyn Task,
+    seed: u64,
+    start: Option<&Start>,
+) -> Result<Optimizer, SessionError> {
+    let Some(start) = start else {
+        return Ok(build_optimizer(config, task, seed)?);
+    };
+    let d = &start.distribution;
+    if d.dim() != task.initial_mean().len() {
+        return Err(SessionError::StartShape {
+            origin: start.origin.clone(),
+            dim: d.dim(),
+            task_dim: task.initial_mean().len(),
+        });
+    }
+    // Checks what a file could have damaged; keeps every bit.
+    let d = Distribution::new(d.mean.clone(), d.covariance.clone())?;
+    let activations = task.basis_activations();
+    let rule = UpdateRule::new(
+        config.hyperparameters(),
+        d.dim(),
+        task.steps(),
+        activations.as_deref(),
+    )?;
+    Ok(Optimizer::resume(rule, d, seed, start.update))
 }
 
 /// Everything about one finished update, for observers.
@@ -137,6 +178,7 @@ pub struct InProcess {
     task: Box<dyn Task>,
     optimizer: Optimizer,
     initial_settings: Vec<(&'static str, f64)>,
+    start: Option<Start>,
     costs: CostBatch,
     rollout_times: Vec<(u64, u64)>,
 }
@@ -150,8 +192,18 @@ fn wall_ns() -> u64 {
 
 impl InProcess {
     pub fn new(config: &RunConfig, seed: u64) -> Result<Self, SessionError> {
+        Self::new_at(config, seed, None)
+    }
+
+    /// A run resumed at `start` (e.g. the state a recording ended in): for the same config and
+    /// seed it goes on exactly as the stopped run would have.
+    pub fn resume(config: &RunConfig, seed: u64, start: Start) -> Result<Self, SessionError> {
+        Self::new_at(config, seed, Some(start))
+    }
+
+    fn new_at(config: &RunConfig, seed: u64, start: Option<Start>) -> Result<Self, SessionError> {
         let task = build_task(config)?;
-        let optimizer = build_optimizer(config, task.as_ref(), seed)?;
+        let optimizer = build_optimizer_at(config, task.as_ref(), seed, start.as_ref())?;
         let initial_settings = task.settings();
         let costs = optimizer.cost_batch();
         Ok(Self {
@@ -159,6 +211,7 @@ impl InProcess {
             task,
             optimizer,
             initial_settings,
+            start,
             costs,
             rollout_times: Vec::new(),
         })
@@ -177,11 +230,18 @@ impl InProcess {
     ) -> Result<(), SessionError> {
         observer.on_start(&self.config, &self.optimizer);
         let schedule = self.config.schedule();
-        schedule.configure(
-            self.task.as_mut(),
-            &self.initial_settings,
-            self.optimizer.update_index(),
-        )?;
+        match &self.start {
+            // Only where the resumed run begins; later calls find the task as the run left it.
+            Some(start) if start.update == self.optimizer.update_index() => {
+                start.configure(&schedule, self.task.as_mut(), &self.initial_settings)?
+            }
+            Some(_) => {}
+            None => schedule.configure(
+                self.task.as_mut(),
+                &self.initial_settings,
+                self.optimizer.update_index(),
+            )?,
+        }
         while self
             .config
             .run
@@ -274,6 +334,77 @@ pub fn run_session(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// (distribution after, task settings) of every update of a run.
+    fn capture(mut exec: InProcess) -> Vec<(Vec<u64>, Vec<(String, f64)>)> {
+        struct Capture(Vec<(Vec<u64>, Vec<(String, f64)>)>);
+        impl Observer for Capture {
+            fn on_update(&mut self, r: &UpdateRecord<'_>) {
+                let bits = r.after.mean.iter().chain(r.after.covariance.iter());
+                self.0.push((
+                    bits.map(|v| v.to_bits()).collect(),
+                    r.task_settings
+                        .iter()
+                        .map(|(n, v)| (n.to_string(), *v))
+                        .collect(),
+                ));
+            }
+        }
+        let mut c = Capture(Vec::new());
+        exec.run(&mut c, &|| false).unwrap();
+        c.0
+    }
+
+    #[test]
+    fn a_resumed_session_goes_on_bit_for_bit() {
+        let cfg = RunConfig::default_config();
+        let mut full_exec = InProcess::new(&cfg, 1).unwrap();
+        let mut afters = Vec::new();
+        struct Afters<'a>(&'a mut Vec<Distribution>);
+        impl Observer for Afters<'_> {
+            fn on_update(&mut self, r: &UpdateRecord<'_>) {
+                self.0.push(r.after.clone());
+            }
+        }
+        full_exec.run(&mut Afters(&mut afters), &|| false).unwrap();
+        let full = capture(InProcess::new(&cfg, 1).unwrap());
+        assert_eq!(full.len(), 40);
+        // 20: the schedule moves the via-point at the very update the run resumes at.
+        for at in [20usize, 27] {
+            let start = Start {
+                update: at as u64,
+                distribution: afters[at - 1].clone(),
+                settings: full[at - 1].1.clone(),
+                origin: "test".into(),
+            };
+            let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
+            assert_eq!(resumed, full[at..], "resumed at {at}");
+        }
+        // Settings the schedule does not know (a runtime change) are kept, not re-derived.
+        let start = Start {
+            update: 30,
+            distribution: afters[29].clone(),
+            settings: vec![("viapoint".into(), 0.2)],
+            origin: "test".into(),
+        };
+        let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
+        assert!(resumed
+            .iter()
+            .all(|(_, s)| s == &[("viapoint".into(), 0.2)]));
+        assert_ne!(resumed, full[30..]);
+        // A state of another shape is refused.
+        let wrong = Start {
+            update: 5,
+            distribution: Distribution::isotropic(nalgebra::DVector::zeros(3), 1.0).unwrap(),
+            settings: Vec::new(),
+            origin: "test".into(),
+        };
+        let e = InProcess::resume(&cfg, 1, wrong).err().unwrap().to_string();
+        assert_eq!(
+            e,
+            "test: its distribution has 3 parameters, but the task has 2"
+        );
+    }
 
     #[test]
     fn default_session_learns_and_is_reproducible() {

@@ -1,0 +1,202 @@
+//! Where a resumed run starts: the update, the distribution and the task settings a stopped run
+//! ended with. The optimizer's whole state is its distribution, seed and update index, and the
+//! samples of update u are a pure function of (seed, u, k), so a run resumed from the state after
+//! update u − 1 continues exactly as if it had never stopped.
+//!
+//! This crate only holds and applies the state; reading it out of a recording is the `record`
+//! crate's job. [`Start::write`] and [`Start::read`] carry it to another process (the pipeline's
+//! updater) with every f64 bit for bit.
+
+use std::path::Path;
+
+use nalgebra::{DMatrix, DVector};
+use pi2cma::Distribution;
+use serde::{Deserialize, Serialize};
+use tasks::{Task, TaskError, TaskSchedule};
+
+/// The state a run resumes from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Start {
+    /// The first update to run (≥ 1: the state is what update `update − 1` produced).
+    pub update: u64,
+    /// The distribution update `update` samples from.
+    pub distribution: Distribution,
+    /// The task settings update `update − 1` ran with (scheduled and runtime changes included),
+    /// by name.
+    pub settings: Vec<(String, f64)>,
+    /// Where the state came from (a recording's path), for messages and recordings.
+    pub origin: String,
+}
+
+/// Why a start file cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {reason}")]
+pub struct StartFileError {
+    pub file: String,
+    pub reason: String,
+}
+
+/// The file form: f64 values as the hex of their bits, so nothing is lost in decimal.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StartFile {
+    origin: String,
+    update: u64,
+    dim: usize,
+    mean_bits: Vec<String>,
+    /// Column-major, as nalgebra stores it.
+    covariance_bits: Vec<String>,
+    settings: Vec<SettingBits>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SettingBits {
+    name: String,
+    value_bits: String,
+}
+
+fn to_hex(v: f64) -> String {
+    format!("{:016x}", v.to_bits())
+}
+
+fn from_hex(s: &str) -> Result<f64, String> {
+    u64::from_str_radix(s, 16)
+        .map(f64::from_bits)
+        .map_err(|e| format!("`{s}` is not the hex of an f64's bits: {e}"))
+}
+
+impl Start {
+    /// Brings `task` to the state of update `self.update`: the config's `initial` settings, the
+    /// schedule up to the last run update, the settings that update ran with (which include
+    /// runtime changes the schedule does not know), then the schedule's changes at
+    /// `self.update`.
+    pub fn configure(
+        &self,
+        schedule: &TaskSchedule,
+        task: &mut dyn Task,
+        initial: &[(&'static str, f64)],
+    ) -> Result<(), TaskError> {
+        schedule.configure(task, initial, self.update.saturating_sub(1))?;
+        for (name, value) in &self.settings {
+            task.set(name, *value)?;
+        }
+        for c in schedule.at(self.update) {
+            task.set(&c.name, c.value)?;
+        }
+        Ok(())
+    }
+
+    /// Writes the state for [`Start::read`] (TOML, values as bits).
+    pub fn write(&self, path: &Path) -> Result<(), StartFileError> {
+        let file = StartFile {
+            origin: self.origin.clone(),
+            update: self.update,
+            dim: self.distribution.dim(),
+            mean_bits: self.distribution.mean.iter().map(|v| to_hex(*v)).collect(),
+            covariance_bits: self
+                .distribution
+                .covariance
+                .iter()
+                .map(|v| to_hex(*v))
+                .collect(),
+            settings: self
+                .settings
+                .iter()
+                .map(|(name, v)| SettingBits {
+                    name: name.clone(),
+                    value_bits: to_hex(*v),
+                })
+                .collect(),
+        };
+        let err = |reason: String| StartFileError {
+            file: path.display().to_string(),
+            reason,
+        };
+        let text = toml::to_string(&file).map_err(|e| err(e.to_string()))?;
+        std::fs::write(path, text).map_err(|e| err(format!("cannot write: {e}")))
+    }
+
+    /// Reads a state written by [`Start::write`].
+    pub fn read(path: &Path) -> Result<Self, StartFileError> {
+        let err = |reason: String| StartFileError {
+            file: path.display().to_string(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let file: StartFile = toml::from_str(&text).map_err(|e| err(e.to_string()))?;
+        let values = |hex: &[String]| {
+            hex.iter()
+                .map(|h| from_hex(h))
+                .collect::<Result<Vec<_>, _>>()
+        };
+        let mean = values(&file.mean_bits).map_err(err)?;
+        let covariance = values(&file.covariance_bits).map_err(err)?;
+        let p = file.dim;
+        if mean.len() != p || covariance.len() != p * p {
+            return Err(err(format!(
+                "dim = {p} but {} mean and {} covariance values",
+                mean.len(),
+                covariance.len()
+            )));
+        }
+        let settings = file
+            .settings
+            .into_iter()
+            .map(|s| Ok((s.name, from_hex(&s.value_bits)?)))
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(err)?;
+        Ok(Self {
+            update: file.update,
+            distribution: Distribution {
+                mean: DVector::from_vec(mean),
+                covariance: DMatrix::from_vec(p, p, covariance),
+            },
+            settings,
+            origin: file.origin,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_start_file_keeps_every_bit() {
+        let awkward = [0.1 + 0.2, -0.0, 5e-324, 1e-300, f64::MAX, -1.0 / 3.0];
+        let start = Start {
+            update: 21,
+            distribution: Distribution {
+                mean: DVector::from_column_slice(&awkward[..2]),
+                covariance: DMatrix::from_column_slice(2, 2, &awkward[2..]),
+            },
+            settings: vec![("viapoint_y".into(), 0.1 + 0.7), ("other".into(), -0.0)],
+            origin: "runs/a.mcap".into(),
+        };
+        let dir = std::env::temp_dir().join(format!("start-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("start.toml");
+        start.write(&path).unwrap();
+        let back = Start::read(&path).unwrap();
+        let bits = |d: &Distribution| -> Vec<u64> {
+            d.mean
+                .iter()
+                .chain(d.covariance.iter())
+                .map(|v| v.to_bits())
+                .collect()
+        };
+        assert_eq!(bits(&back.distribution), bits(&start.distribution));
+        assert_eq!(back.settings[1].1.to_bits(), (-0.0f64).to_bits());
+        assert_eq!(back.settings[0], start.settings[0]);
+        assert_eq!((back.update, back.origin.as_str()), (21, "runs/a.mcap"));
+
+        std::fs::write(&path, "origin = \"x\"\nupdate = 1\ndim = 1\nmean_bits = [\"zz\"]\ncovariance_bits = []\nsettings = []\n").unwrap();
+        let e = Start::read(&path).unwrap_err().to_string();
+        assert!(e.contains("start.toml") && e.contains("`zz`"), "{e}");
+        std::fs::write(&path, "origin = \"x\"\nupdate = 1\ndim = 2\nmean_bits = []\ncovariance_bits = []\nsettings = []\nextra = 1\n").unwrap();
+        let e = Start::read(&path).unwrap_err().to_string();
+        assert!(e.contains("extra"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
