@@ -335,19 +335,39 @@ pub fn run_session(
 mod tests {
     use super::*;
 
-    /// (distribution after, task settings) of every update of a run.
-    fn capture(mut exec: InProcess) -> Vec<(Vec<u64>, Vec<(String, f64)>)> {
-        struct Capture(Vec<(Vec<u64>, Vec<(String, f64)>)>);
+    /// What an update produced: the distribution after it, and the settings it ran with.
+    #[derive(Debug, Clone)]
+    struct Step {
+        after: Distribution,
+        settings: Vec<(String, f64)>,
+    }
+
+    impl PartialEq for Step {
+        /// Bit for bit.
+        fn eq(&self, o: &Self) -> bool {
+            let bits = |d: &Distribution| -> Vec<u64> {
+                d.mean
+                    .iter()
+                    .chain(d.covariance.iter())
+                    .map(|v| v.to_bits())
+                    .collect()
+            };
+            bits(&self.after) == bits(&o.after) && self.settings == o.settings
+        }
+    }
+
+    fn capture(mut exec: InProcess) -> Vec<Step> {
+        struct Capture(Vec<Step>);
         impl Observer for Capture {
             fn on_update(&mut self, r: &UpdateRecord<'_>) {
-                let bits = r.after.mean.iter().chain(r.after.covariance.iter());
-                self.0.push((
-                    bits.map(|v| v.to_bits()).collect(),
-                    r.task_settings
+                self.0.push(Step {
+                    after: r.after.clone(),
+                    settings: r
+                        .task_settings
                         .iter()
                         .map(|(n, v)| (n.to_string(), *v))
                         .collect(),
-                ));
+                });
             }
         }
         let mut c = Capture(Vec::new());
@@ -358,23 +378,14 @@ mod tests {
     #[test]
     fn a_resumed_session_goes_on_bit_for_bit() {
         let cfg = RunConfig::default_config();
-        let mut full_exec = InProcess::new(&cfg, 1).unwrap();
-        let mut afters = Vec::new();
-        struct Afters<'a>(&'a mut Vec<Distribution>);
-        impl Observer for Afters<'_> {
-            fn on_update(&mut self, r: &UpdateRecord<'_>) {
-                self.0.push(r.after.clone());
-            }
-        }
-        full_exec.run(&mut Afters(&mut afters), &|| false).unwrap();
         let full = capture(InProcess::new(&cfg, 1).unwrap());
         assert_eq!(full.len(), 40);
         // 20: the schedule moves the via-point at the very update the run resumes at.
         for at in [20usize, 27] {
             let start = Start {
                 update: at as u64,
-                distribution: afters[at - 1].clone(),
-                settings: full[at - 1].1.clone(),
+                distribution: full[at - 1].after.clone(),
+                settings: full[at - 1].settings.clone(),
                 origin: "test".into(),
             };
             let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
@@ -383,14 +394,14 @@ mod tests {
         // Settings the schedule does not know (a runtime change) are kept, not re-derived.
         let start = Start {
             update: 30,
-            distribution: afters[29].clone(),
+            distribution: full[29].after.clone(),
             settings: vec![("viapoint".into(), 0.2)],
             origin: "test".into(),
         };
         let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
         assert!(resumed
             .iter()
-            .all(|(_, s)| s == &[("viapoint".into(), 0.2)]));
+            .all(|s| s.settings == [("viapoint".to_string(), 0.2)]));
         assert_ne!(resumed, full[30..]);
         // A state of another shape is refused.
         let wrong = Start {
