@@ -32,6 +32,9 @@ enum Command {
         /// Override run.seed.
         #[arg(long)]
         seed: Option<u64>,
+        /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
+        #[arg(long)]
+        updates: Option<u64>,
         /// Directory for updates.csv, mean_curves.csv and fig2.svg.
         #[arg(long, default_value = "runs/latest")]
         out: PathBuf,
@@ -41,6 +44,11 @@ enum Command {
         /// Do not write the MCAP recording (OUT/run.mcap).
         #[arg(long)]
         no_record: bool,
+        /// Go on from the last update recorded in this MCAP file (a stopped, crashed or
+        /// finished run whose run.updates was raised); without CONFIG, with the config it
+        /// recorded. The result is bit for bit what the run would have given uninterrupted.
+        #[arg(long, value_name = "FILE")]
+        resume: Option<PathBuf>,
     },
     /// Run S sessions (seeds seed, seed+1, …) of each config; write CSVs, figures and the
     /// re-convergence table.
@@ -152,24 +160,117 @@ fn main() -> std::process::ExitCode {
     }
 }
 
+/// `run --resume`: goes on from where a recording ended, in-process. Its learning curve starts
+/// mid-run, so it writes the recording and final state, not the from-update-0 tables and figures
+/// (analyse both recordings for those).
+fn run_resumed(
+    cfg: &RunConfig,
+    text: String,
+    point: record::resume::ResumePoint,
+    out: &Path,
+    quiet: bool,
+    no_record: bool,
+) -> Result<()> {
+    let start = point.start;
+    println!(
+        "pi2cma: run {} ({}), seed {}, resumed at update {} of {} from {}, in-process",
+        cfg.run.name,
+        cfg.origin.display(),
+        cfg.run.seed,
+        start.update,
+        cfg.run.updates.unwrap_or(0),
+        start.origin
+    );
+    if let Some(why) = &point.truncated {
+        println!("(the recording was cut off: {why}; resuming after its last complete update)");
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mcap = out.join("run.mcap");
+    let same = |a: &Path, b: &Path| {
+        a.canonicalize()
+            .ok()
+            .is_some_and(|a| b.canonicalize().ok() == Some(a))
+    };
+    if !no_record && same(&mcap, Path::new(&start.origin)) {
+        bail!(
+            "--resume {}: the resumed run would record over it; give another --out",
+            start.origin
+        );
+    }
+    let mut recorder = if no_record {
+        None
+    } else {
+        Some(
+            record::McapRecorder::create(&mcap)
+                .with_context(|| format!("creating {}", mcap.display()))?
+                .with_config_text(text)
+                .with_resumed_from(start.origin.clone()),
+        )
+    };
+    let mut progress = Progress {
+        total: cfg.run.updates,
+    };
+    let mut exec = session::InProcess::resume(cfg, cfg.run.seed, start)?;
+    {
+        let mut observers: Vec<&mut dyn Observer> = Vec::new();
+        if !quiet {
+            observers.push(&mut progress);
+        }
+        if let Some(r) = recorder.as_mut() {
+            observers.push(r);
+        }
+        exec.run(&mut session::Observers(observers), &|| false)?;
+    }
+    if let Some(r) = recorder {
+        r.finish()
+            .with_context(|| format!("recording {}", mcap.display()))?;
+    }
+    let d = exec.optimizer().distribution();
+    println!("final mean θ = {:?}", d.mean.as_slice());
+    println!("final λ = {:.4}", exec.optimizer().lambda());
+    if !no_record {
+        println!(
+            "recording: {}\nanalyse it with: pi2cma analyze {} --out {}",
+            mcap.display(),
+            mcap.display(),
+            out.join("analysis").display()
+        );
+    }
+    Ok(())
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run {
             config,
             seed,
+            updates,
             out,
             quiet,
             no_record,
+            resume,
         } => {
-            let (mut cfg, text) = match &config {
-                Some(p) => (load(p)?, std::fs::read_to_string(p).unwrap_or_default()),
-                None => (
+            let point = resume
+                .as_deref()
+                .map(record::resume::resume_point)
+                .transpose()?;
+            let (mut cfg, mut text) = match (&config, &point) {
+                (Some(p), _) => (load(p)?, std::fs::read_to_string(p).unwrap_or_default()),
+                (None, Some(point)) => point.recorded_config()?,
+                (None, None) => (
                     RunConfig::default_config(),
                     session::DEFAULT_CONFIG.to_string(),
                 ),
             };
+            if let Some(n) = updates {
+                (cfg, text) = RunConfig::with_updates(&text, &cfg.origin.clone(), n)?;
+            }
             if let Some(s) = seed {
                 cfg.run.seed = s;
+            }
+            if let Some(point) = point {
+                point.check(&cfg)?;
+                return run_resumed(&cfg, text, point, &out, quiet, no_record);
             }
             if cfg.run.updates.is_none() {
                 bail!(

@@ -42,6 +42,9 @@ pub struct RecorderArgs {
     /// Where to write the recording; default `<run dir>/run.mcap`.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// The recording this run resumes (recorded as metadata `resumed_from`).
+    #[arg(long, value_name = "FILE")]
+    pub resumed_from: Option<String>,
 }
 
 /// A message taken from one of the subscribers.
@@ -107,7 +110,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     )?;
 
     let writer = RunWriter::create(&out)?;
-    let mut state = WriterState::new(&ctx, text, writer)?;
+    let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone())?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
     eprintln!("recording to {}", out.display());
 
@@ -239,6 +242,7 @@ struct WriterState {
     current_update: u64,
     written: u64,
     mismatches: u64,
+    resumed_from: Option<String>,
 }
 
 impl WriterState {
@@ -246,6 +250,7 @@ impl WriterState {
         ctx: &Context,
         text: String,
         writer: RunWriter<crate::writer::FileSink>,
+        resumed_from: Option<String>,
     ) -> anyhow::Result<Self> {
         let cfg = ctx.config.clone();
         let task = cfg.build_task()?;
@@ -275,6 +280,7 @@ impl WriterState {
             current_update: 0,
             written: 0,
             mismatches: 0,
+            resumed_from,
         })
     }
 
@@ -334,6 +340,7 @@ impl WriterState {
                         config_toml: &self.text,
                         executor: "pipeline",
                         task_settings: &task_settings,
+                        resumed_from: self.resumed_from.as_deref(),
                     })?;
                     self.writer.write_event(
                         h.update,

@@ -30,6 +30,7 @@ struct StartJob {
     basis: Option<Vec<f64>>,
     config_toml: String,
     settings: Vec<(String, f64)>,
+    resumed_from: Option<String>,
 }
 
 struct UpdateJob {
@@ -64,6 +65,7 @@ pub struct McapRecorder {
     thread: Option<JoinHandle<Result<(), RecordError>>>,
     path: PathBuf,
     config_text: Option<String>,
+    resumed_from: Option<String>,
     hp: Option<Hyperparameters>,
     error: Option<RecordError>,
     /// An update handed to the writer whose flush has not been confirmed.
@@ -102,6 +104,7 @@ fn write_job(
                 config_toml: &s.config_toml,
                 executor: IN_PROCESS,
                 task_settings: &settings,
+                resumed_from: s.resumed_from.as_deref(),
             })?;
             w.write_event(
                 s.update,
@@ -201,6 +204,7 @@ impl McapRecorder {
             thread: Some(thread),
             path: path.to_path_buf(),
             config_text: None,
+            resumed_from: None,
             hp: None,
             error: None,
             in_flight: false,
@@ -214,6 +218,12 @@ impl McapRecorder {
     /// (keeps the user's comments and formatting).
     pub fn with_config_text(mut self, text: impl Into<String>) -> Self {
         self.config_text = Some(text.into());
+        self
+    }
+
+    /// Names the recording this run resumes (metadata `resumed_from`).
+    pub fn with_resumed_from(mut self, recording: impl Into<String>) -> Self {
+        self.resumed_from = Some(recording.into());
         self
     }
 
@@ -349,6 +359,7 @@ impl Observer for McapRecorder {
             basis,
             config_toml: text,
             settings: settings.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
+            resumed_from: self.resumed_from.clone(),
         })));
         self.hp = Some(hp);
         self.last_ns = now_ns();

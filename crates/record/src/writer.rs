@@ -58,6 +58,8 @@ pub struct RunStart<'a> {
     /// "in-process" or "pipeline".
     pub executor: &'a str,
     pub task_settings: &'a [(&'a str, f64)],
+    /// The recording a resumed run continues (metadata `resumed_from`).
+    pub resumed_from: Option<&'a str>,
 }
 
 /// Everything about one finished update.
@@ -223,6 +225,9 @@ impl<W: Write + Seek> RunWriter<W> {
         meta.insert("executor".to_string(), start.executor.to_string());
         meta.insert("config_toml".to_string(), start.config_toml.to_string());
         meta.insert("started_ns".to_string(), now.to_string());
+        if let Some(from) = start.resumed_from {
+            meta.insert("resumed_from".to_string(), from.to_string());
+        }
         for (k, v) in &versions {
             meta.insert(format!("version.{k}"), v.clone());
         }

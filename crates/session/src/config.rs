@@ -249,6 +249,35 @@ impl RunConfig {
         Ok(cfg)
     }
 
+    /// `text` with `run.updates` set to `updates` (an `--updates` option), parsed, and that
+    /// text: what the run records and hands to its processes. Comments of `text` are lost.
+    pub fn with_updates(
+        text: &str,
+        origin: &Path,
+        updates: u64,
+    ) -> Result<(Self, String), ConfigError> {
+        let parse_error = |e: &dyn std::fmt::Display| ConfigError::Parse {
+            file: origin.to_path_buf(),
+            message: e.to_string().trim_end().replace('\n', "\n  "),
+        };
+        let mut table: toml::Table = text.parse().map_err(|e| parse_error(&e))?;
+        let run = table
+            .entry("run")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        let Some(run) = run.as_table_mut() else {
+            return Err(parse_error(&"`run` is not a table"));
+        };
+        let n = i64::try_from(updates).map_err(|_| ConfigError::Invalid {
+            file: origin.to_path_buf(),
+            field: "run.updates".into(),
+            value: updates.to_string(),
+            reason: "too large".into(),
+        })?;
+        run.insert("updates".into(), toml::Value::Integer(n));
+        let text = toml::to_string(&table).map_err(|e| parse_error(&e))?;
+        Ok((Self::parse(&text, origin)?, text))
+    }
+
     fn invalid(&self, field: &str, value: impl ToString, reason: &str) -> ConfigError {
         ConfigError::Invalid {
             file: self.origin.clone(),
@@ -587,6 +616,20 @@ mod tests {
 
     fn parse(text: &str) -> Result<RunConfig, ConfigError> {
         RunConfig::parse(text, Path::new("test.toml"))
+    }
+
+    #[test]
+    fn updates_can_be_overridden_in_the_text() {
+        let origin = Path::new("a.toml");
+        let (cfg, text) = RunConfig::with_updates(DEFAULT_CONFIG, origin, 55).unwrap();
+        assert_eq!(cfg.run.updates, Some(55));
+        let mut expected = RunConfig::default_config();
+        expected.run.updates = Some(55);
+        expected.origin = origin.into();
+        assert_eq!(cfg, expected);
+        assert_eq!(RunConfig::parse(&text, origin).unwrap(), cfg);
+        let e = RunConfig::with_updates(DEFAULT_CONFIG, origin, 0).unwrap_err();
+        assert!(e.to_string().starts_with("a.toml: run.updates = 0"), "{e}");
     }
 
     #[test]

@@ -1,0 +1,182 @@
+//! Resuming a run from its recording: the state after the last recorded update (its `after`
+//! distribution and the task settings it ran with) as a [`session::Start`], and the check that a
+//! config continues that run rather than some other one.
+//!
+//! A file whose writer was killed works as it is (its readable prefix); `recover` is not needed
+//! first. The resumed run records to a file of its own, whose metadata names this one.
+
+use std::path::Path;
+
+use pi2cma::Hyperparameters;
+use session::{RunConfig, Start};
+
+use crate::{distribution_from_proto, hyperparameters_from_proto, read_recording, RecordError};
+
+/// Where a recorded run stopped, and what it was.
+#[derive(Debug, Clone)]
+pub struct ResumePoint {
+    /// The state to resume from: the update after the last recorded one.
+    pub start: Start,
+    pub seed: u64,
+    pub hyperparameters: Hyperparameters,
+    pub dim: usize,
+    pub steps: usize,
+    /// The config the run was started with, as recorded.
+    pub config_toml: Option<String>,
+    /// Why reading stopped early (a file whose writer was killed), if it did.
+    pub truncated: Option<String>,
+}
+
+/// Reads the state after the last update recorded in `path`.
+pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
+    let rec = read_recording(path)?;
+    let Some(last) = rec.updates.last() else {
+        return Err(RecordError::invalid(
+            path,
+            "has no recorded update to resume from",
+        ));
+    };
+    let bad = |what: String| RecordError::Update {
+        file: path.to_path_buf(),
+        update: last.update,
+        what,
+    };
+    let after = last
+        .after
+        .as_ref()
+        .ok_or_else(|| bad("no `after` distribution".into()))?;
+    let distribution = distribution_from_proto(after).map_err(|w| bad(format!("after: {w}")))?;
+    let hyperparameters = hyperparameters_from_proto(
+        last.hyperparameters
+            .as_ref()
+            .ok_or_else(|| bad("no hyperparameters".into()))?,
+    )
+    .map_err(bad)?;
+    let config_toml = rec
+        .run_info()
+        .map(|r| r.config_toml.clone())
+        .filter(|t| !t.is_empty());
+    Ok(ResumePoint {
+        start: Start {
+            update: last.update + 1,
+            distribution,
+            settings: last
+                .task_settings
+                .iter()
+                .map(|s| (s.name.clone(), s.value))
+                .collect(),
+            origin: path.display().to_string(),
+        },
+        seed: last.seed,
+        hyperparameters,
+        dim: last.dim as usize,
+        steps: last.steps as usize,
+        config_toml,
+        truncated: rec.truncated,
+    })
+}
+
+impl ResumePoint {
+    /// The config the recorded run was started with, and its text: what a resume without a
+    /// config of its own continues with.
+    pub fn recorded_config(&self) -> Result<(RunConfig, String), RecordError> {
+        let file = Path::new(&self.start.origin);
+        let text = self.config_toml.clone().ok_or_else(|| {
+            RecordError::invalid(file, "has no recorded config: give the run's config file")
+        })?;
+        let origin = format!("{} (its recorded config)", self.start.origin);
+        let cfg = RunConfig::parse(&text, Path::new(&origin))
+            .map_err(|e| RecordError::invalid(file, e.to_string()))?;
+        Ok((cfg, text))
+    }
+
+    /// Whether `config` continues this run: the same task shape and setting names, seed and
+    /// hyperparameters, and updates left to run. Anything else would not be the recorded run
+    /// going on, so it is refused, naming both sides.
+    pub fn check(&self, config: &RunConfig) -> Result<(), RecordError> {
+        let file = Path::new(&self.start.origin);
+        let cfg = config.origin.display();
+        let refuse = |what: String| {
+            RecordError::invalid(
+                file,
+                format!("cannot resume with {cfg}: {what} (to start afresh, run without --resume)"),
+            )
+        };
+        let task = config.build_task().map_err(|e| refuse(e.to_string()))?;
+        let (dim, steps) = (task.initial_mean().len(), task.steps());
+        if (dim, steps) != (self.dim, self.steps) {
+            return Err(refuse(format!(
+                "the recorded task has P = {}, N = {}; the config's has P = {dim}, N = {steps}",
+                self.dim, self.steps
+            )));
+        }
+        let names: Vec<&str> = task.settings().iter().map(|(n, _)| *n).collect();
+        let recorded: Vec<&str> = self
+            .start
+            .settings
+            .iter()
+            .map(|(n, _)| n.as_str())
+            .collect();
+        if names != recorded {
+            return Err(refuse(format!(
+                "the recorded task has the settings {recorded:?}; the config's has {names:?}"
+            )));
+        }
+        if config.run.seed != self.seed {
+            return Err(refuse(format!(
+                "the recording has seed {}; the config run.seed = {}",
+                self.seed, config.run.seed
+            )));
+        }
+        let hp = config.hyperparameters();
+        let (r, c) = (&self.hyperparameters, &hp);
+        let differs: Vec<String> = [
+            (
+                "rollouts",
+                r.rollouts != c.rollouts,
+                format!("{} vs {}", r.rollouts, c.rollouts),
+            ),
+            (
+                "cost mapping",
+                r.mapping != c.mapping,
+                format!("{:?} vs {:?}", r.mapping, c.mapping),
+            ),
+            (
+                "exploration",
+                r.exploration != c.exploration,
+                format!("{:?} vs {:?}", r.exploration, c.exploration),
+            ),
+            (
+                "weighting",
+                r.weighting != c.weighting,
+                format!("{:?} vs {:?}", r.weighting, c.weighting),
+            ),
+            (
+                "evaluation_in_update",
+                r.evaluation_in_update != c.evaluation_in_update,
+                format!("{} vs {}", r.evaluation_in_update, c.evaluation_in_update),
+            ),
+        ]
+        .into_iter()
+        .filter(|(_, d, _)| *d)
+        .map(|(name, _, both)| format!("{name}: {both}"))
+        .collect();
+        if !differs.is_empty() {
+            return Err(refuse(format!(
+                "its hyperparameters differ (recording vs config): {}",
+                differs.join("; ")
+            )));
+        }
+        if let Some(n) = config.run.updates.filter(|n| *n <= self.start.update) {
+            return Err(RecordError::invalid(
+                file,
+                format!(
+                    "ends with update {}, and {cfg} has run.updates = {n}: nothing left to run \
+                     (give more updates)",
+                    self.start.update - 1
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
