@@ -41,7 +41,8 @@ pub struct RecordedChange {
     pub from_update: u64,
     pub name: String,
     pub value: f64,
-    /// "schedule" (from the config) or "runtime" (`supervisor set`).
+    /// "schedule" (from the config), "runtime" (`supervisor set`) or "resume" (in force where a
+    /// resumed run began).
     pub source: String,
 }
 

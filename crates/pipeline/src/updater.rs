@@ -18,15 +18,34 @@ use crate::{announce_ready, iox, wait_loop, Context, Exit, Flow, ProcessArgs};
 
 const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
 
-pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
-    let ctx = Context::new(args, "updater")?;
+/// The updater's arguments: the usual process arguments and, for a resumed run, its state.
+#[derive(Debug, Clone, clap::Args)]
+pub struct UpdaterArgs {
+    #[command(flatten)]
+    pub process: ProcessArgs,
+    /// Resume from this state ([`session::Start::write`]) instead of update 0.
+    #[arg(long, value_name = "FILE")]
+    pub start: Option<std::path::PathBuf>,
+}
+
+pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
+    let ctx = Context::new(&args.process, "updater")?;
     let cfg = &ctx.config;
     let seed = cfg.run.seed;
+    let start = args
+        .start
+        .as_deref()
+        .map(session::Start::read)
+        .transpose()?;
     let mut task = cfg.build_task()?;
-    let mut optimizer = session::build_optimizer(cfg, task.as_ref(), seed)?;
+    let mut optimizer = session::build_optimizer_at(cfg, task.as_ref(), seed, start.as_ref())?;
+    let first_update = optimizer.update_index();
     let initial_settings = task.settings();
     let schedule = cfg.schedule();
-    schedule.configure(task.as_mut(), &initial_settings, 0)?;
+    match &start {
+        Some(s) => s.configure(&schedule, task.as_mut(), &initial_settings)?,
+        None => schedule.configure(task.as_mut(), &initial_settings, 0)?,
+    }
     let (k_total, steps, dim) = (ctx.limits.rollouts, ctx.limits.steps, ctx.limits.dim);
 
     let dist_service = wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?;
@@ -78,10 +97,25 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     // The flags of the distribution waiting to be published (the optimizer's current one); it
     // waits while the recorder's back-pressure holds it back.
     let mut to_publish: Option<u32> = None;
-    // Scheduled changes of update 0 are in force from the start; record them.
-    for c in schedule.at(0) {
+    // What is in force from the start: a resumed run's settings, and the scheduled changes of
+    // its first update.
+    if let Some(start) = &start {
+        println!(
+            "resuming at update {first_update} from {} (task settings {:?})",
+            start.origin, start.settings
+        );
+        for (name, value) in &start.settings {
+            recorded.push(RecordedChange {
+                from_update: first_update,
+                name: name.clone(),
+                value: *value,
+                source: "resume".into(),
+            });
+        }
+    }
+    for c in schedule.at(first_update) {
         recorded.push(RecordedChange {
-            from_update: 0,
+            from_update: first_update,
             name: c.name.clone(),
             value: c.value,
             source: "schedule".into(),
@@ -237,7 +271,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 .tell(&batch)
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
-            if u == 0 {
+            if u == first_update {
                 first_eval = summary.eval_cost;
                 first_done = Some(Instant::now());
             }

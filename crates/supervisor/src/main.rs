@@ -43,6 +43,14 @@ enum Cmd {
         /// Run without the recorder (no MCAP file).
         #[arg(long, conflicts_with = "record")]
         no_record: bool,
+        /// Go on from the last update recorded in this MCAP file (a stopped, crashed or
+        /// finished run whose run.updates is raised); without CONFIG, with the config it
+        /// recorded. The result is bit for bit what the run would have given uninterrupted.
+        #[arg(long, value_name = "FILE")]
+        resume: Option<PathBuf>,
+        /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
+        #[arg(long)]
+        updates: Option<u64>,
     },
     /// Shows workers, update rate, current cost and λ of a running run.
     Status {
@@ -73,7 +81,7 @@ enum Cmd {
     #[command(hide = true)]
     Updater {
         #[command(flatten)]
-        process: pipeline::ProcessArgs,
+        args: pipeline::updater::UpdaterArgs,
     },
     /// The sampler process (what the `sampler` binary runs).
     #[command(hide = true)]
@@ -125,6 +133,8 @@ fn main() -> ExitCode {
             quiet,
             record,
             no_record,
+            resume,
+            updates,
         } => {
             let opts = supervisor::RunOptions {
                 config,
@@ -135,6 +145,8 @@ fn main() -> ExitCode {
                 quiet,
                 record,
                 no_record,
+                resume,
+                updates,
             };
             match supervisor::run(&opts) {
                 Ok(code) => ExitCode::from(code),
@@ -148,9 +160,7 @@ fn main() -> ExitCode {
         Cmd::Scale { workers, run } => remote(run, format!("scale {workers}")),
         Cmd::Set { name, value, run } => remote(run, format!("set {name} {value:?}")),
         Cmd::Stop { run } => remote(run, "stop".into()),
-        Cmd::Updater { process } => {
-            pipeline::run_main("updater", || pipeline::updater::main(&process))
-        }
+        Cmd::Updater { args } => pipeline::run_main("updater", || pipeline::updater::main(&args)),
         Cmd::Sampler { process } => {
             pipeline::run_main("sampler", || pipeline::sampler::main(&process))
         }

@@ -47,6 +47,10 @@ pub struct RunOptions {
     pub record: Option<PathBuf>,
     /// Run without the recorder.
     pub no_record: bool,
+    /// Go on from the last update recorded in this MCAP file (see `record::resume`).
+    pub resume: Option<PathBuf>,
+    /// Overrides `run.updates` (in the config the processes read and the recording keeps).
+    pub updates: Option<u64>,
 }
 
 /// Where a run's recording goes without `--record`: `runs/<run name>-<run id>.mcap` in the
@@ -277,6 +281,8 @@ struct Recording {
 
 struct Supervisor {
     cfg: RunConfig,
+    /// A resumed run's state, handed to the updater.
+    start: Option<session::Start>,
     recording: Option<Recording>,
     pipe: PipelineSection,
     run_id: u64,
@@ -326,17 +332,30 @@ fn draw_run_id() -> u64 {
 
 /// Runs a pipeline to the end and returns the process exit code (0, 1 or 130).
 pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
-    let (text, origin) = match &opts.config {
-        Some(p) => (
-            std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?,
-            p.clone(),
-        ),
-        None => (
+    let point = opts
+        .resume
+        .as_deref()
+        .map(record::resume::resume_point)
+        .transpose()?;
+    let (mut cfg, mut text) = match (&opts.config, &point) {
+        (Some(p), _) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("{}: cannot read", p.display()))?;
+            (RunConfig::parse(&text, p)?, text)
+        }
+        (None, Some(point)) => point.recorded_config()?,
+        (None, None) => (
+            RunConfig::default_config(),
             session::DEFAULT_CONFIG.to_string(),
-            PathBuf::from("<built-in default>"),
         ),
     };
-    let cfg = RunConfig::parse(&text, &origin)?;
+    let origin = cfg.origin.clone();
+    if let Some(n) = opts.updates {
+        (cfg, text) = RunConfig::with_updates(&text, &origin, n)?;
+    }
+    if let Some(point) = &point {
+        point.check(&cfg)?;
+    }
     let pipe = cfg.pipeline();
     let target_workers = opts.workers.unwrap_or(pipe.workers);
     if !(1..=pipe.max_workers).contains(&target_workers) {
@@ -364,6 +383,17 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
                     parent.display()
                 )
             })?;
+        }
+        if let Some(point) = &point {
+            let same = std::fs::canonicalize(&path)
+                .ok()
+                .is_some_and(|p| std::fs::canonicalize(&point.start.origin).ok() == Some(p));
+            if same {
+                bail!(
+                    "--resume {}: the resumed run would record over it; give another --record",
+                    point.start.origin
+                );
+            }
         }
         Some(Recording {
             path,
@@ -421,6 +451,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         total_restarts: 0,
         ports: None,
         cfg,
+        start: point.map(|p| p.start),
     };
     let result = sup.run(&text, &limits, rx);
     // Whatever happened, nothing of the run stays behind.
@@ -435,6 +466,9 @@ impl Supervisor {
     fn run(&mut self, text: &str, limits: &Limits, rx: Receiver<Event>) -> anyhow::Result<u8> {
         std::fs::write(&self.config_file, text)
             .with_context(|| format!("cannot write {}", self.config_file.display()))?;
+        if let Some(start) = &self.start {
+            start.write(&self.start_file())?;
+        }
         let bell_stop = Arc::new(AtomicBool::new(false));
         let bell = spawn_bell(self.run_id, *limits, self.tx.clone(), bell_stop.clone())?;
         let node = wire::node(self.run_id, "supervisor")?;
@@ -803,6 +837,11 @@ impl Supervisor {
         Ok(())
     }
 
+    /// Where a resumed run's state is handed to the updater.
+    fn start_file(&self) -> PathBuf {
+        self.run_dir.join("start.toml")
+    }
+
     fn spawn(&mut self, role: Role, incarnation: u32) -> anyhow::Result<()> {
         let (exe, leading) = self.launcher.program(role);
         let mut cmd = Command::new(&exe);
@@ -815,6 +854,12 @@ impl Supervisor {
             .arg(wire::run_id_hex(self.run_id));
         if let (Role::Recorder, Some(rec)) = (role, &self.recording) {
             cmd.arg("--out").arg(std::path::absolute(&rec.path)?);
+            if let Some(start) = &self.start {
+                cmd.arg("--resumed-from").arg(&start.origin);
+            }
+        }
+        if let (Role::Updater, Some(_)) = (role, &self.start) {
+            cmd.arg("--start").arg(self.start_file());
         }
         if let Role::Worker(w) = role {
             cmd.arg("--worker")
@@ -1239,13 +1284,19 @@ impl Supervisor {
                 .run
                 .updates
                 .map_or("unbounded".to_string(), |n| n.to_string());
+            // A resumed run ran updates first..r.updates; the others are in the file it resumed.
+            let first = self.start.as_ref().map_or(0, |s| s.update);
+            let ran = r.updates.saturating_sub(first);
+            let resumed = self.start.as_ref().map_or(String::new(), |s| {
+                format!(" (resumed at update {first} from {})", s.origin)
+            });
             say(&format!(
-                "summary: run {} ({}): {} updates of {of} in {:.2} s ({:.0} updates/s), {} workers at the end, {} restarts",
+                "summary: run {} ({}): {} updates of {of}{resumed} in {:.2} s ({:.0} updates/s), {} workers at the end, {} restarts",
                 wire::run_id_hex(self.run_id),
                 r.name,
                 r.updates,
                 r.elapsed_s,
-                r.updates as f64 / r.elapsed_s.max(1e-9),
+                ran as f64 / r.elapsed_s.max(1e-9),
                 self.target_workers,
                 self.total_restarts
             ));

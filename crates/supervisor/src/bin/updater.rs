@@ -5,10 +5,10 @@ use clap::Parser;
 #[derive(Parser)]
 struct Cli {
     #[command(flatten)]
-    process: pipeline::ProcessArgs,
+    args: pipeline::updater::UpdaterArgs,
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    pipeline::run_main("updater", || pipeline::updater::main(&cli.process))
+    pipeline::run_main("updater", || pipeline::updater::main(&cli.args))
 }
