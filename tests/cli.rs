@@ -110,3 +110,77 @@ fn unknown_option_is_rejected() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--lambda-min"));
 }
+
+/// Stopped after 20 updates and resumed from its recording, a run ends with the bits of the
+/// uninterrupted 40-update run; the resumed recording verifies and names its origin.
+#[test]
+fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
+    let d = scratch("resume");
+    let short = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 20");
+    std::fs::write(d.join("a20.toml"), short).expect("config");
+    let final_lines = |out: &Output| -> Vec<String> {
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{stdout}\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        stdout
+            .lines()
+            .filter(|l| l.starts_with("final "))
+            .map(str::to_string)
+            .collect()
+    };
+    let whole = final_lines(&pi2cma(&["run", "--quiet", "--out", "whole"], &d));
+    final_lines(&pi2cma(
+        &["run", "a20.toml", "--quiet", "--out", "first"],
+        &d,
+    ));
+    let refused = pi2cma(
+        &["run", "--resume", "first/run.mcap", "--out", "second"],
+        &d,
+    );
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && err.contains("nothing left to run (give more updates)"),
+        "{err}"
+    );
+    let resume_to_40 = |out: &str| {
+        let args = [
+            "run",
+            "--resume",
+            "first/run.mcap",
+            "--updates",
+            "40",
+            "--out",
+            out,
+        ];
+        pi2cma(&args, &d)
+    };
+    let over = resume_to_40("first");
+    let err = String::from_utf8_lossy(&over.stderr);
+    assert!(err.contains("would record over it"), "{err}");
+    let resumed = resume_to_40("second");
+    let stdout = String::from_utf8_lossy(&resumed.stdout).to_string();
+    assert!(stdout.contains("resumed at update 20 of 40"), "{stdout}");
+    assert_eq!(final_lines(&resumed), whole);
+    assert_eq!(whole.len(), 2, "{whole:?}");
+
+    let verify = pi2cma(
+        &[
+            "analyze",
+            "second/run.mcap",
+            "--verify",
+            "--no-plots",
+            "--no-csv",
+        ],
+        &d,
+    );
+    let text = String::from_utf8_lossy(&verify.stdout);
+    assert!(verify.status.success(), "{text}");
+    assert!(
+        text.contains("recompute: 20 updates, 0 mismatches"),
+        "{text}"
+    );
+    assert!(text.contains("resumed_from=first/run.mcap"), "{text}");
+}

@@ -180,3 +180,71 @@ impl ResumePoint {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::McapRecorder;
+
+    fn config(edits: &[(&str, &str)]) -> RunConfig {
+        let mut text = session::DEFAULT_CONFIG.to_string();
+        for (from, to) in edits {
+            assert!(text.contains(from), "{from}");
+            text = text.replacen(from, to, 1);
+        }
+        RunConfig::parse(&text, Path::new("c.toml")).unwrap()
+    }
+
+    #[test]
+    fn the_point_is_the_state_after_the_last_update_and_other_runs_are_refused() {
+        let dir = std::env::temp_dir().join(format!("resume-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let cfg = config(&[("updates = 40", "updates = 25")]);
+        let mut rec = McapRecorder::create(&path).unwrap();
+        let (_, after) = session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+
+        let point = resume_point(&path).unwrap();
+        assert_eq!(point.start.update, 25);
+        assert_eq!(point.start.distribution, after);
+        assert_eq!(point.start.settings, [("viapoint".to_string(), 0.1)]);
+        assert_eq!((point.seed, point.dim, point.steps), (1, 2, 101));
+        assert!(point.truncated.is_none());
+        let (recorded, _) = point.recorded_config().unwrap();
+        assert_eq!(recorded.run.updates, Some(25));
+
+        point.check(&config(&[])).unwrap();
+        let refused = |c: RunConfig| point.check(&c).unwrap_err().to_string();
+        let e = refused(config(&[("updates = 40", "updates = 25")]));
+        assert!(e.ends_with("ends with update 24, and c.toml has run.updates = 25: nothing left to run (give more updates)"), "{e}");
+        let e = refused(config(&[("basis_functions = 2", "basis_functions = 3")]));
+        assert!(
+            e.contains("the recorded task has P = 2, N = 101; the config's has P = 3, N = 101"),
+            "{e}"
+        );
+        let e = refused(config(&[(
+            "weighting = \"episodic\"",
+            "weighting = \"per-time-step\"",
+        )]));
+        assert!(
+            e.contains("its hyperparameters differ (recording vs config): weighting: Episodic vs"),
+            "{e}"
+        );
+        let e = refused(config(&[("eliteness = 15.0", "eliteness = 10.0")]));
+        assert!(
+            e.contains(
+                "cost mapping: Exponential { eliteness: 15.0 } vs Exponential { eliteness: 10.0 }"
+            ),
+            "{e}"
+        );
+        assert!(
+            e.starts_with(&format!("{}: cannot resume with c.toml:", path.display())),
+            "{e}"
+        );
+
+        std::fs::write(dir.join("empty.mcap"), b"").unwrap();
+        assert!(resume_point(&dir.join("empty.mcap")).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1270,3 +1270,205 @@ fn a_python_worker_speaks_the_wire_protocol_and_learns_its_task() {
         &["the task has parameters 10, but task.external.parameters = 12"],
     );
 }
+
+/// The run of a robot that loses power: the whole group is SIGKILLed mid-run, after a runtime
+/// task change, leaving an unfinished recording. The pipeline resumes from that file, as it is,
+/// and reaches the bits of an uninterrupted run with the same change; so does the in-process
+/// runner resumed from the same file.
+#[test]
+fn a_killed_run_resumes_from_its_recording_to_the_uninterrupted_result() {
+    let scratch = Scratch::new("resume");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "unbounded.toml", &text);
+    let first = scratch.path("first.mcap");
+    let mut killed = Run::start(
+        &scratch,
+        900,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            first.to_str().unwrap(),
+        ],
+    );
+    killed.wait_status("22 updates", |s| updates_in(s) >= 22);
+    let (ok, reply) = killed.ctl(&["set", "viapoint", "0.2"]);
+    assert!(ok, "{reply}");
+    // The updater prints the update the change takes effect at; the status lags (an
+    // unbounded run reports every 0.2 s), so wait well past it for the recorder to have it.
+    let end = Instant::now() + Duration::from_secs(30);
+    let from = loop {
+        let said = killed.text();
+        let from = said.lines().find_map(|l| {
+            l.strip_prefix("[updater] task change: viapoint = 0.2 from update ")
+                .and_then(|rest| rest.strip_suffix(" (runtime)"))
+                .and_then(|n| n.parse::<u64>().ok())
+        });
+        if let Some(from) = from {
+            break from;
+        }
+        assert!(
+            Instant::now() < end,
+            "the updater never took the change:\n{said}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    killed.wait_status("20 more updates", |s| updates_in(s) >= from + 20);
+    let pids = pids_in(&killed.ctl(&["status"]).1);
+    killed.child.kill().unwrap();
+    killed.wait(Duration::from_secs(10));
+    let end = Instant::now() + Duration::from_secs(10);
+    while pids.iter().any(|(_, pid)| alive(*pid)) {
+        assert!(Instant::now() < end, "children outlived their supervisor");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+
+    let rec = record::read_recording(&first).unwrap();
+    assert!(
+        !rec.indexed,
+        "a killed recorder cannot have finished the file"
+    );
+    let last = rec.updates.last().unwrap().update;
+    let viapoint = |u: &record::proto::Update| u.task_settings[0].value;
+    let changed_at = rec
+        .updates
+        .iter()
+        .find(|u| viapoint(u) == 0.2)
+        .unwrap_or_else(|| {
+            let seen: Vec<_> = rec
+                .updates
+                .iter()
+                .map(|u| (u.update, &u.task_settings))
+                .collect();
+            panic!(
+                "the runtime change is not recorded: {seen:?}\n{}",
+                killed.text()
+            )
+        })
+        .update;
+    assert_eq!(changed_at, from, "the recording and the updater disagree");
+    assert!(
+        changed_at > 20 && last < 199,
+        "changed at {changed_at}, last {last}"
+    );
+
+    // What an uninterrupted run with that change at that update gives.
+    let reference = format!(
+        "{}\n[[schedule]]\nfrom_update = {changed_at}\nset = \"viapoint\"\nvalue = 0.2\n",
+        config(&[("updates = 40", "updates = 200")])
+    );
+    let resumed_rec = scratch.path("resumed.mcap");
+    let result = scratch.path("result.toml");
+    let mut resumed = Run::start(
+        &scratch,
+        901,
+        &[
+            "--resume",
+            first.to_str().unwrap(),
+            "--updates",
+            "200",
+            "--quiet",
+            "--record",
+            resumed_rec.to_str().unwrap(),
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    assert!(
+        resumed.wait(Duration::from_secs(60)).success(),
+        "{}",
+        resumed.text()
+    );
+    let said = format!("resumed at update {} from {}", last + 1, first.display());
+    assert!(resumed.text().contains(&said), "{}", resumed.text());
+    assert_bit_identical(&reference, &result);
+    let r = record::read_recording(&resumed_rec).unwrap();
+    assert!(r.indexed && r.truncated.is_none());
+    let indices: Vec<u64> = r.updates.iter().map(|u| u.update).collect();
+    assert_eq!(indices, (last + 1..200).collect::<Vec<_>>());
+    assert!(r.updates.iter().all(|u| viapoint(u) == 0.2));
+    let v = record::recompute::verify(&r).unwrap();
+    assert!(v.mismatches.is_empty(), "{v:?}");
+    let meta = &r.metadata[record::topics::METADATA];
+    assert_eq!(meta["resumed_from"], first.display().to_string());
+
+    // The in-process runner, resumed from the same file, gives the same bits.
+    let point = record::resume::resume_point(&first).unwrap();
+    let (mut cfg200, _) = point.recorded_config().unwrap();
+    cfg200.run.updates = Some(200);
+    if let session::TaskSection::ViaPoint(v) = &mut cfg200.task {
+        v.rollout_delay_ms = 0.0;
+    }
+    point.check(&cfg200).unwrap();
+    let mut exec = session::InProcess::resume(&cfg200, 1, point.start).unwrap();
+    exec.run(&mut session::NoObserver, &|| false).unwrap();
+    let (mean, cov) = RunResult::read(&result).unwrap().exact().unwrap();
+    let d = exec.optimizer().distribution();
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&mean), bits(d.mean.as_slice()));
+    assert_eq!(bits(&cov), bits(d.covariance.as_slice()));
+    assert_nothing_left(&resumed);
+}
+
+/// A resume that would not continue the recorded run is refused before anything starts.
+#[test]
+fn a_resume_that_is_not_the_recorded_run_is_refused() {
+    let scratch = Scratch::new("resume-refused");
+    let short = write_config(
+        &scratch,
+        "short.toml",
+        &config(&[("updates = 40", "updates = 5")]),
+    );
+    let first = scratch.path("first.mcap");
+    let mut run = Run::start(
+        &scratch,
+        910,
+        &[
+            short.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            first.to_str().unwrap(),
+        ],
+    );
+    assert!(
+        run.wait(Duration::from_secs(60)).success(),
+        "{}",
+        run.text()
+    );
+    let other_seed = write_config(&scratch, "seed2.toml", &config(&[("seed = 1", "seed = 2")]));
+    let fewer_rollouts = write_config(
+        &scratch,
+        "k10.toml",
+        &config(&[("rollouts = 15", "rollouts = 10")]),
+    );
+    let first_s = first.to_str().unwrap();
+    for (id, args, expected) in [
+        (911, vec!["--resume", first_s], "nothing left to run"),
+        (
+            912,
+            vec![other_seed.to_str().unwrap(), "--resume", first_s],
+            "the recording has seed 1; the config run.seed = 2",
+        ),
+        (
+            913,
+            vec![fewer_rollouts.to_str().unwrap(), "--resume", first_s],
+            "rollouts: 15 vs 10",
+        ),
+        (
+            914,
+            vec!["--resume", first_s, "--updates", "9", "--record", first_s],
+            "would record over it",
+        ),
+        (915, vec!["--resume", "missing.mcap"], "missing.mcap"),
+    ] {
+        let mut run = Run::start(&scratch, id, &args);
+        assert!(!run.wait(Duration::from_secs(30)).success(), "{args:?}");
+        assert!(run.text().contains(expected), "{args:?}: {}", run.text());
+        assert!(!run.runs.join(&run.run_id).exists(), "{args:?}");
+    }
+    // The refused resumes left the recording as it was.
+    assert_eq!(record::read_recording(&first).unwrap().updates.len(), 5);
+}
