@@ -171,6 +171,10 @@ fn run_resumed(
     quiet: bool,
     no_record: bool,
 ) -> Result<()> {
+    let mcap = out.join("run.mcap");
+    if !no_record {
+        point.check_output(&mcap, "--out")?;
+    }
     let start = point.start;
     println!(
         "pi2cma: run {} ({}), seed {}, resumed at update {} of {} from {}, in-process",
@@ -185,18 +189,6 @@ fn run_resumed(
         println!("(the recording was cut off: {why}; resuming after its last complete update)");
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let mcap = out.join("run.mcap");
-    let same = |a: &Path, b: &Path| {
-        a.canonicalize()
-            .ok()
-            .is_some_and(|a| b.canonicalize().ok() == Some(a))
-    };
-    if !no_record && same(&mcap, Path::new(&start.origin)) {
-        bail!(
-            "--resume {}: the resumed run would record over it; give another --out",
-            start.origin
-        );
-    }
     let mut recorder = if no_record {
         None
     } else {
@@ -268,15 +260,16 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(s) = seed {
                 cfg.run.seed = s;
             }
+            if cfg.run.updates.is_none() {
+                bail!(
+                    "{}: run.updates is not set (an unbounded run): run it with the supervisor, which can be stopped{}",
+                    cfg.origin.display(),
+                    if point.is_some() { ", or give --updates" } else { "" }
+                );
+            }
             if let Some(point) = point {
                 point.check(&cfg)?;
                 return run_resumed(&cfg, text, point, &out, quiet, no_record);
-            }
-            if cfg.run.updates.is_none() {
-                bail!(
-                    "{}: run.updates is not set (an unbounded run): run it with the supervisor, which can be stopped",
-                    cfg.origin.display()
-                );
             }
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             println!(

@@ -90,6 +90,23 @@ impl ResumePoint {
         Ok((cfg, text))
     }
 
+    /// Refuses a resumed run's recording path that is the file being resumed (it would be
+    /// truncated before anything is written); `option` names the option that chose it.
+    pub fn check_output(&self, recording: &Path, option: &str) -> Result<(), RecordError> {
+        let origin = Path::new(&self.start.origin);
+        let same = recording
+            .canonicalize()
+            .ok()
+            .is_some_and(|r| origin.canonicalize().ok() == Some(r));
+        if same {
+            return Err(RecordError::invalid(
+                origin,
+                format!("the resumed run would record over it; give another {option}"),
+            ));
+        }
+        Ok(())
+    }
+
     /// Whether `config` continues this run: the same task shape and setting names, seed and
     /// hyperparameters, and updates left to run. Anything else would not be the recorded run
     /// going on, so it is refused, naming both sides.

@@ -385,15 +385,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             })?;
         }
         if let Some(point) = &point {
-            let same = std::fs::canonicalize(&path)
-                .ok()
-                .is_some_and(|p| std::fs::canonicalize(&point.start.origin).ok() == Some(p));
-            if same {
-                bail!(
-                    "--resume {}: the resumed run would record over it; give another --record",
-                    point.start.origin
-                );
-            }
+            point.check_output(&path, "--record")?;
         }
         Some(Recording {
             path,
