@@ -189,21 +189,41 @@ fn run_resumed(
         println!("(the recording was cut off: {why}; resuming after its last complete update)");
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let mut recorder = if no_record {
-        None
-    } else {
-        Some(
-            record::McapRecorder::create(&mcap)
-                .with_context(|| format!("creating {}", mcap.display()))?
-                .with_config_text(text)
-                .with_resumed_from(start.origin.clone()),
-        )
-    };
+    let recorder = (!no_record)
+        .then(|| recorder(&mcap, text).map(|r| r.with_resumed_from(start.origin.clone())))
+        .transpose()?;
+    let mut exec = session::InProcess::resume(cfg, cfg.run.seed, start)?;
+    run_observed(cfg, recorder, quiet, |observer| {
+        exec.run(observer, &|| false)
+    })?;
+    let d = exec.optimizer().distribution();
+    println!("final mean θ = {:?}", d.mean.as_slice());
+    println!("final λ = {:.4}", exec.optimizer().lambda());
+    if !no_record {
+        print_recording(&mcap, out);
+    }
+    Ok(())
+}
+
+/// The MCAP recorder of a `run` at `mcap`, recording the config as `text`.
+fn recorder(mcap: &Path, text: String) -> Result<record::McapRecorder> {
+    Ok(record::McapRecorder::create(mcap)
+        .with_context(|| format!("creating {}", mcap.display()))?
+        .with_config_text(text))
+}
+
+/// Runs `run` with the progress printer (unless `quiet`) and `recorder` as observers, then
+/// finishes the recording.
+fn run_observed<T>(
+    cfg: &RunConfig,
+    mut recorder: Option<record::McapRecorder>,
+    quiet: bool,
+    run: impl FnOnce(&mut dyn Observer) -> Result<T, session::SessionError>,
+) -> Result<T> {
     let mut progress = Progress {
         total: cfg.run.updates,
     };
-    let mut exec = session::InProcess::resume(cfg, cfg.run.seed, start)?;
-    {
+    let value = {
         let mut observers: Vec<&mut dyn Observer> = Vec::new();
         if !quiet {
             observers.push(&mut progress);
@@ -211,24 +231,23 @@ fn run_resumed(
         if let Some(r) = recorder.as_mut() {
             observers.push(r);
         }
-        exec.run(&mut session::Observers(observers), &|| false)?;
-    }
+        run(&mut session::Observers(observers))?
+    };
     if let Some(r) = recorder {
+        let path = r.path().to_path_buf();
         r.finish()
-            .with_context(|| format!("recording {}", mcap.display()))?;
+            .with_context(|| format!("recording {}", path.display()))?;
     }
-    let d = exec.optimizer().distribution();
-    println!("final mean θ = {:?}", d.mean.as_slice());
-    println!("final λ = {:.4}", exec.optimizer().lambda());
-    if !no_record {
-        println!(
-            "recording: {}\nanalyse it with: pi2cma analyze {} --out {}",
-            mcap.display(),
-            mcap.display(),
-            out.join("analysis").display()
-        );
-    }
-    Ok(())
+    Ok(value)
+}
+
+fn print_recording(mcap: &Path, out: &Path) {
+    println!(
+        "recording: {}\nanalyse it with: pi2cma analyze {} --out {}",
+        mcap.display(),
+        mcap.display(),
+        out.join("analysis").display()
+    );
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -280,32 +299,10 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.run.updates.unwrap_or(0)
             );
             let mcap = out.join("run.mcap");
-            let mut recorder = if no_record {
-                None
-            } else {
-                Some(
-                    record::McapRecorder::create(&mcap)
-                        .with_context(|| format!("creating {}", mcap.display()))?
-                        .with_config_text(text),
-                )
-            };
-            let mut progress = Progress {
-                total: cfg.run.updates,
-            };
-            let session = {
-                let mut observers: Vec<&mut dyn Observer> = Vec::new();
-                if !quiet {
-                    observers.push(&mut progress);
-                }
-                if let Some(r) = recorder.as_mut() {
-                    observers.push(r);
-                }
-                experiment::run_one(&cfg, cfg.run.seed, &mut session::Observers(observers))?
-            };
-            if let Some(r) = recorder {
-                r.finish()
-                    .with_context(|| format!("recording {}", mcap.display()))?;
-            }
+            let recorder = (!no_record).then(|| recorder(&mcap, text)).transpose()?;
+            let session = run_observed(&cfg, recorder, quiet, |observer| {
+                experiment::run_one(&cfg, cfg.run.seed, observer)
+            })?;
             let result = experiment::summarize(&cfg, vec![session])?;
             let table = write_outputs(&out, std::slice::from_ref(&result))?;
             println!("\n{table}");
@@ -320,12 +317,7 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
             if !no_record {
-                println!(
-                    "recording: {}\nanalyse it with: pi2cma analyze {} --out {}",
-                    mcap.display(),
-                    mcap.display(),
-                    out.join("analysis").display()
-                );
+                print_recording(&mcap, &out);
             }
         }
         Command::Experiment {

@@ -145,38 +145,20 @@ impl ResumePoint {
                 self.seed, config.run.seed
             )));
         }
-        let hp = config.hyperparameters();
-        let (r, c) = (&self.hyperparameters, &hp);
+        let (r, c) = (&self.hyperparameters, &config.hyperparameters());
         let differs: Vec<String> = [
-            (
-                "rollouts",
-                r.rollouts != c.rollouts,
-                format!("{} vs {}", r.rollouts, c.rollouts),
-            ),
-            (
-                "cost mapping",
-                r.mapping != c.mapping,
-                format!("{:?} vs {:?}", r.mapping, c.mapping),
-            ),
-            (
-                "exploration",
-                r.exploration != c.exploration,
-                format!("{:?} vs {:?}", r.exploration, c.exploration),
-            ),
-            (
-                "weighting",
-                r.weighting != c.weighting,
-                format!("{:?} vs {:?}", r.weighting, c.weighting),
-            ),
-            (
+            differ("rollouts", &r.rollouts, &c.rollouts),
+            differ("cost mapping", &r.mapping, &c.mapping),
+            differ("exploration", &r.exploration, &c.exploration),
+            differ("weighting", &r.weighting, &c.weighting),
+            differ(
                 "evaluation_in_update",
-                r.evaluation_in_update != c.evaluation_in_update,
-                format!("{} vs {}", r.evaluation_in_update, c.evaluation_in_update),
+                &r.evaluation_in_update,
+                &c.evaluation_in_update,
             ),
         ]
         .into_iter()
-        .filter(|(_, d, _)| *d)
-        .map(|(name, _, both)| format!("{name}: {both}"))
+        .flatten()
         .collect();
         if !differs.is_empty() {
             return Err(refuse(format!(
@@ -196,6 +178,11 @@ impl ResumePoint {
         }
         Ok(())
     }
+}
+
+/// `name: recorded vs configured` if they differ.
+fn differ<T: PartialEq + std::fmt::Debug>(name: &str, recorded: &T, config: &T) -> Option<String> {
+    (recorded != config).then(|| format!("{name}: {recorded:?} vs {config:?}"))
 }
 
 #[cfg(test)]

@@ -331,6 +331,16 @@ pub fn run_session(
     Ok((collect.out, exec.optimizer().distribution().clone()))
 }
 
+/// Mean and covariance as bits, for tests that compare distributions exactly.
+#[cfg(test)]
+pub(crate) fn bits(d: &Distribution) -> Vec<u64> {
+    d.mean
+        .iter()
+        .chain(d.covariance.iter())
+        .map(|v| v.to_bits())
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -345,13 +355,6 @@ mod tests {
     impl PartialEq for Step {
         /// Bit for bit.
         fn eq(&self, o: &Self) -> bool {
-            let bits = |d: &Distribution| -> Vec<u64> {
-                d.mean
-                    .iter()
-                    .chain(d.covariance.iter())
-                    .map(|v| v.to_bits())
-                    .collect()
-            };
             bits(&self.after) == bits(&o.after) && self.settings == o.settings
         }
     }

@@ -161,6 +161,7 @@ impl Start {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bits;
 
     #[test]
     fn a_start_file_keeps_every_bit() {
@@ -179,13 +180,6 @@ mod tests {
         let path = dir.join("start.toml");
         start.write(&path).unwrap();
         let back = Start::read(&path).unwrap();
-        let bits = |d: &Distribution| -> Vec<u64> {
-            d.mean
-                .iter()
-                .chain(d.covariance.iter())
-                .map(|v| v.to_bits())
-                .collect()
-        };
         assert_eq!(bits(&back.distribution), bits(&start.distribution));
         assert_eq!(back.settings[1].1.to_bits(), (-0.0f64).to_bits());
         assert_eq!(back.settings[0], start.settings[0]);
