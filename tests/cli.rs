@@ -111,6 +111,21 @@ fn unknown_option_is_rejected() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("--lambda-min"));
 }
 
+/// The lines a successful `pi2cma run` ends with (final θ and λ).
+fn final_lines(out: &Output) -> Vec<String> {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+        .lines()
+        .filter(|l| l.starts_with("final "))
+        .map(str::to_string)
+        .collect()
+}
+
 /// Stopped after 20 updates and resumed from its recording, a run ends with the bits of the
 /// uninterrupted 40-update run; the resumed recording verifies and names its origin.
 #[test]
@@ -118,19 +133,6 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
     let d = scratch("resume");
     let short = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 20");
     std::fs::write(d.join("a20.toml"), short).expect("config");
-    let final_lines = |out: &Output| -> Vec<String> {
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        assert!(
-            out.status.success(),
-            "{stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        stdout
-            .lines()
-            .filter(|l| l.starts_with("final "))
-            .map(str::to_string)
-            .collect()
-    };
     let whole = final_lines(&pi2cma(&["run", "--quiet", "--out", "whole"], &d));
     final_lines(&pi2cma(
         &["run", "a20.toml", "--quiet", "--out", "first"],
@@ -183,4 +185,25 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
         "{text}"
     );
     assert!(text.contains("resumed_from=first/run.mcap"), "{text}");
+}
+
+/// `--seed` and `--updates` go into the config the recording keeps, so the recorded config is
+/// the run that was made: resumed with it, a run started with `--seed 5` goes on as seed 5.
+#[test]
+fn command_line_overrides_are_part_of_the_recorded_config() {
+    let d = scratch("overrides");
+    let run = |args: &[&str]| final_lines(&pi2cma(&[&["run", "--quiet"], args].concat(), &d));
+    run(&["--seed", "5", "--updates", "12", "--out", "first"]);
+    let resumed = run(&[
+        "--resume",
+        "first/run.mcap",
+        "--updates",
+        "25",
+        "--out",
+        "second",
+    ]);
+    let whole = run(&["--seed", "5", "--updates", "25", "--out", "whole"]);
+    assert_eq!(resumed, whole);
+    let default_seed = run(&["--updates", "25", "--out", "seed1"]);
+    assert_ne!(default_seed, whole, "the seed changes the run");
 }

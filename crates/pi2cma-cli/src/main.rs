@@ -273,11 +273,14 @@ fn run(cli: Cli) -> Result<()> {
                     session::DEFAULT_CONFIG.to_string(),
                 ),
             };
-            if let Some(n) = updates {
-                (cfg, text) = RunConfig::with_updates(&text, &cfg.origin.clone(), n)?;
-            }
-            if let Some(s) = seed {
-                cfg.run.seed = s;
+            // Into the text too, so that the recording's config reruns this run.
+            let overrides: Vec<_> = [("updates", updates), ("seed", seed)]
+                .into_iter()
+                .filter_map(|(field, value)| value.map(|v| (field, v)))
+                .collect();
+            if !overrides.is_empty() {
+                (cfg, text) =
+                    RunConfig::with_run_overrides(&text, &cfg.origin.clone(), &overrides)?;
             }
             if cfg.run.updates.is_none() {
                 bail!(

@@ -249,12 +249,14 @@ impl RunConfig {
         Ok(cfg)
     }
 
-    /// `text` with `run.updates` set to `updates` (an `--updates` option), parsed, and that
-    /// text: what the run records and hands to its processes. Comments of `text` are lost.
-    pub fn with_updates(
+    /// `text` with the `run` table's integer fields set as given (command-line options such as
+    /// `--updates` and `--seed`), parsed, and that text: what the run records and hands to its
+    /// processes, so a recorded config reruns the run that was made. Comments of `text` are
+    /// lost.
+    pub fn with_run_overrides(
         text: &str,
         origin: &Path,
-        updates: u64,
+        overrides: &[(&str, u64)],
     ) -> Result<(Self, String), ConfigError> {
         let parse_error = |e: &dyn std::fmt::Display| ConfigError::Parse {
             file: origin.to_path_buf(),
@@ -267,13 +269,16 @@ impl RunConfig {
         let Some(run) = run.as_table_mut() else {
             return Err(parse_error(&"`run` is not a table"));
         };
-        let n = i64::try_from(updates).map_err(|_| ConfigError::Invalid {
-            file: origin.to_path_buf(),
-            field: "run.updates".into(),
-            value: updates.to_string(),
-            reason: "too large".into(),
-        })?;
-        run.insert("updates".into(), toml::Value::Integer(n));
+        for &(field, value) in overrides {
+            // TOML integers are i64; a larger value cannot be written, so it is refused here.
+            let n = i64::try_from(value).map_err(|_| ConfigError::Invalid {
+                file: origin.to_path_buf(),
+                field: format!("run.{field}"),
+                value: value.to_string(),
+                reason: "too large for a TOML integer".into(),
+            })?;
+            run.insert(field.into(), toml::Value::Integer(n));
+        }
         let text = toml::to_string(&table).map_err(|e| parse_error(&e))?;
         Ok((Self::parse(&text, origin)?, text))
     }
@@ -619,17 +624,28 @@ mod tests {
     }
 
     #[test]
-    fn updates_can_be_overridden_in_the_text() {
+    fn run_fields_can_be_overridden_in_the_text() {
         let origin = Path::new("a.toml");
-        let (cfg, text) = RunConfig::with_updates(DEFAULT_CONFIG, origin, 55).unwrap();
+        let (cfg, text) =
+            RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("updates", 55), ("seed", 7)])
+                .unwrap();
         assert_eq!(cfg.run.updates, Some(55));
         let mut expected = RunConfig::default_config();
         expected.run.updates = Some(55);
+        expected.run.seed = 7;
         expected.origin = origin.into();
         assert_eq!(cfg, expected);
         assert_eq!(RunConfig::parse(&text, origin).unwrap(), cfg);
-        let e = RunConfig::with_updates(DEFAULT_CONFIG, origin, 0).unwrap_err();
+        let e =
+            RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("updates", 0)]).unwrap_err();
         assert!(e.to_string().starts_with("a.toml: run.updates = 0"), "{e}");
+        let e = RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("seed", u64::MAX)])
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("a.toml: run.seed = 18446744073709551615"),
+            "{e}"
+        );
     }
 
     #[test]
