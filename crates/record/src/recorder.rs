@@ -336,7 +336,12 @@ impl Observer for McapRecorder {
         true
     }
 
-    fn on_start(&mut self, config: &RunConfig, optimizer: &Optimizer) {
+    fn on_start(
+        &mut self,
+        config: &RunConfig,
+        optimizer: &Optimizer,
+        settings: &[(&'static str, f64)],
+    ) {
         let text = self
             .config_text
             .clone()
@@ -344,10 +349,7 @@ impl Observer for McapRecorder {
         let hp = optimizer.hyperparameters().clone();
         // Basis activations are a property of the policy; rebuilding the task is cheap and keeps
         // the recording self-contained for recomputing basis-activation averaging.
-        let (basis, settings) = match config.build_task() {
-            Ok(t) => (t.basis_activations(), t.settings()),
-            Err(_) => (None, Vec::new()),
-        };
+        let basis = config.build_task().ok().and_then(|t| t.basis_activations());
         self.update_index = optimizer.update_index();
         self.send(Job::Start(Box::new(StartJob {
             name: config.run.name.clone(),

@@ -247,6 +247,22 @@ mod tests {
             "{e}"
         );
 
+        // Resumed in-process, the new recording's `/run` holds the settings the run resumed
+        // with (the via-point moved at update 20), not the config's initial ones (0.3).
+        let resumed = dir.join("b.mcap");
+        let cfg30 = config(&[("updates = 40", "updates = 30")]);
+        let mut exec = session::InProcess::resume(&cfg30, 1, point.start.clone()).unwrap();
+        let mut rec = McapRecorder::create(&resumed).unwrap();
+        exec.run(&mut rec, &|| false).unwrap();
+        rec.finish().unwrap();
+        let b = read_recording(&resumed).unwrap();
+        let names = |s: &[crate::proto::Setting]| -> Vec<(String, f64)> {
+            s.iter().map(|s| (s.name.clone(), s.value)).collect()
+        };
+        let run = b.run_info().unwrap();
+        assert_eq!(names(&run.task_settings), point.start.settings);
+        assert_eq!(names(&b.updates[0].task_settings), point.start.settings);
+
         std::fs::write(dir.join("empty.mcap"), b"").unwrap();
         assert!(resume_point(&dir.join("empty.mcap")).is_err());
         std::fs::remove_dir_all(&dir).unwrap();

@@ -137,7 +137,15 @@ pub trait Observer {
     fn wants_rollout_times(&self) -> bool {
         false
     }
-    fn on_start(&mut self, _config: &RunConfig, _optimizer: &Optimizer) {}
+    /// `task_settings`: the task's settings for the first update this run makes (for a resumed
+    /// run, those in force where it resumed, not the config's initial ones).
+    fn on_start(
+        &mut self,
+        _config: &RunConfig,
+        _optimizer: &Optimizer,
+        _task_settings: &[(&'static str, f64)],
+    ) {
+    }
     fn on_task_change(&mut self, _update: u64, _change: &TaskChange) {}
     fn on_update(&mut self, _record: &UpdateRecord<'_>) {}
     fn on_finish(&mut self, _optimizer: &Optimizer) {}
@@ -154,10 +162,15 @@ impl Observer for Observers<'_> {
     fn wants_rollout_times(&self) -> bool {
         self.0.iter().any(|o| o.wants_rollout_times())
     }
-    fn on_start(&mut self, config: &RunConfig, optimizer: &Optimizer) {
+    fn on_start(
+        &mut self,
+        config: &RunConfig,
+        optimizer: &Optimizer,
+        task_settings: &[(&'static str, f64)],
+    ) {
         self.0
             .iter_mut()
-            .for_each(|o| o.on_start(config, optimizer));
+            .for_each(|o| o.on_start(config, optimizer, task_settings));
     }
     fn on_task_change(&mut self, update: u64, change: &TaskChange) {
         self.0
@@ -228,7 +241,6 @@ impl InProcess {
         observer: &mut dyn Observer,
         stop: &dyn Fn() -> bool,
     ) -> Result<(), SessionError> {
-        observer.on_start(&self.config, &self.optimizer);
         let schedule = self.config.schedule();
         match &self.start {
             // Only where the resumed run begins; later calls find the task as the run left it.
@@ -242,6 +254,15 @@ impl InProcess {
                 self.optimizer.update_index(),
             )?,
         }
+        // The settings of the first update: the task's, with the changes due at it (applied in
+        // the loop, after on_start, so that observers see the start before any change).
+        let mut first = self.task.settings();
+        for change in schedule.at(self.optimizer.update_index()) {
+            if let Some(s) = first.iter_mut().find(|(n, _)| *n == change.name) {
+                s.1 = change.value;
+            }
+        }
+        observer.on_start(&self.config, &self.optimizer, &first);
         while self
             .config
             .run
@@ -308,8 +329,8 @@ pub fn run_session(
         fn wants_rollout_times(&self) -> bool {
             self.inner.wants_rollout_times()
         }
-        fn on_start(&mut self, c: &RunConfig, o: &Optimizer) {
-            self.inner.on_start(c, o)
+        fn on_start(&mut self, c: &RunConfig, o: &Optimizer, s: &[(&'static str, f64)]) {
+            self.inner.on_start(c, o, s)
         }
         fn on_task_change(&mut self, u: u64, c: &TaskChange) {
             self.inner.on_task_change(u, c)
