@@ -165,6 +165,10 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
     let resumed = resume_to_40("second");
     let stdout = String::from_utf8_lossy(&resumed.stdout).to_string();
     assert!(stdout.contains("resumed at update 20 of 40"), "{stdout}");
+    assert!(
+        stdout.contains("analyse it with: pi2cma analyze first/run.mcap second/run.mcap"),
+        "{stdout}"
+    );
     assert_eq!(final_lines(&resumed), whole);
     assert_eq!(whole.len(), 2, "{whole:?}");
 
@@ -185,6 +189,38 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
         "{text}"
     );
     assert!(text.contains("resumed_from=first/run.mcap"), "{text}");
+
+    // Analysed together, in any order, the two files are one run: its per-rollout table is the
+    // uninterrupted run's, byte for byte.
+    let analyze = |files: &[&str], out: &str| {
+        let args = [&["analyze"], files, &["--no-plots", "--out", out]].concat();
+        let o = pi2cma(&args, &d);
+        let text = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(
+            o.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        text
+    };
+    let text = analyze(&["second/run.mcap", "first/run.mcap"], "joined");
+    assert!(
+        text.contains(
+            "first/run.mcap + second/run.mcap: one run of 40 updates (0..=39), resumed at update 20"
+        ),
+        "{text}"
+    );
+    assert!(!text.contains("Experiment"), "{text}");
+    analyze(&["whole/run.mcap"], "whole-analysis");
+    let table = |dir: &str| {
+        std::fs::read_to_string(d.join(dir).join("run/update_rollouts.csv")).expect("csv")
+    };
+    let joined = table("joined");
+    assert_eq!(joined.lines().count(), 1 + 40 * 15);
+    assert!(
+        joined == table("whole-analysis"),
+        "the joined table differs"
+    );
 }
 
 /// `--seed` and `--updates` go into the config the recording keeps, so the recorded config is

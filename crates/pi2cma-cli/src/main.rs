@@ -161,8 +161,8 @@ fn main() -> std::process::ExitCode {
 }
 
 /// `run --resume`: goes on from where a recording ended, in-process. Its learning curve starts
-/// mid-run, so it writes the recording and final state, not the from-update-0 tables and figures
-/// (analyse both recordings for those).
+/// mid-run, so it writes the recording and final state, not the from-update-0 tables and figures;
+/// analysing both recordings together (as it prints) gives those for the whole run.
 fn run_resumed(
     cfg: &RunConfig,
     text: String,
@@ -192,6 +192,7 @@ fn run_resumed(
     let recorder = (!no_record)
         .then(|| recorder(&mcap, text).map(|r| r.with_resumed_from(start.origin.clone())))
         .transpose()?;
+    let origin = start.origin.clone();
     let mut exec = session::InProcess::resume(cfg, cfg.run.seed, start)?;
     run_observed(cfg, recorder, quiet, |observer| {
         exec.run(observer, &|| false)
@@ -200,7 +201,7 @@ fn run_resumed(
     println!("final mean θ = {:?}", d.mean.as_slice());
     println!("final λ = {:.4}", exec.optimizer().lambda());
     if !no_record {
-        print_recording(&mcap, out);
+        print_recording(&mcap, out, Some(&origin));
     }
     Ok(())
 }
@@ -241,10 +242,13 @@ fn run_observed<T>(
     Ok(value)
 }
 
-fn print_recording(mcap: &Path, out: &Path) {
+/// Where the recording is and how to analyse it; a resumed run's analysis joins the file it
+/// resumed (`resumed_from`), for the whole learning curve.
+fn print_recording(mcap: &Path, out: &Path, resumed_from: Option<&str>) {
     println!(
-        "recording: {}\nanalyse it with: pi2cma analyze {} --out {}",
+        "recording: {}\nanalyse it with: pi2cma analyze {}{} --out {}",
         mcap.display(),
+        resumed_from.map(|f| format!("{f} ")).unwrap_or_default(),
         mcap.display(),
         out.join("analysis").display()
     );
@@ -320,7 +324,7 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
             if !no_record {
-                print_recording(&mcap, &out);
+                print_recording(&mcap, &out, None);
             }
         }
         Command::Experiment {

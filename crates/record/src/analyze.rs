@@ -13,14 +13,15 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::recompute::verify;
-use crate::{distribution_from_proto, proto, read_recording, RecordError, Recording};
+use crate::{distribution_from_proto, join_resumed, proto, read_recording, RecordError, Recording};
 
 /// `analyze FILES… [--out DIR]`: prints the info summary of every file; with `--out`, writes CSV
 /// and figures per file into `DIR/<file stem>/`, and with several files the experiment's mean
 /// curves and re-convergence table into `DIR/`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct AnalyzeArgs {
-    /// MCAP recordings: one run, or the sessions of an experiment (grouped by run name).
+    /// MCAP recordings: one run, or the sessions of an experiment (grouped by run name). The
+    /// files of a run that was stopped and resumed are joined into one run.
     #[arg(required = true)]
     pub files: Vec<PathBuf>,
     /// Directory for CSV files and SVG figures; without it only the summary is printed.
@@ -62,23 +63,48 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
                 }
             );
         }
+        out.push('\n');
+        recs.push(rec);
+    }
+    // A run stopped and resumed is one run in two (or more) files: one curve, one session.
+    let runs = join_resumed(recs);
+    for (rec, parts) in &runs {
+        if parts.len() > 1 {
+            let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+            let resumed: Vec<String> = rec
+                .run
+                .iter()
+                .skip(1)
+                .map(|r| r.update.to_string())
+                .collect();
+            let _ = writeln!(
+                out,
+                "{}: one run of {} updates{}, resumed at update {}",
+                names.join(" + "),
+                rec.updates.len(),
+                match (rec.updates.first(), rec.updates.last()) {
+                    (Some(a), Some(b)) => format!(" ({}..={})", a.update, b.update),
+                    _ => String::new(),
+                },
+                resumed.join(", ")
+            );
+        }
         if let Some(dir) = &args.out {
-            let sub = dir.join(stem(f));
+            let sub = dir.join(stem(&parts[0]));
             if !args.no_csv {
-                for p in export_csv(&rec, &sub)? {
+                for p in export_csv(rec, &sub)? {
                     let _ = writeln!(out, "  wrote {}", p.display());
                 }
             }
             if !args.no_plots {
-                for p in plot(&rec, &sub)? {
+                for p in plot(rec, &sub)? {
                     let _ = writeln!(out, "  wrote {}", p.display());
                 }
             }
         }
-        out.push('\n');
-        recs.push(rec);
     }
-    if recs.len() > 1 {
+    if runs.len() > 1 {
+        let recs: Vec<Recording> = runs.into_iter().map(|(r, _)| r).collect();
         let exp = experiment(&recs, args.out.as_deref(), args.tolerance, !args.no_plots)?;
         out.push_str(&exp.table);
         for p in &exp.files {

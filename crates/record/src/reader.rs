@@ -78,6 +78,85 @@ impl Recording {
     }
 }
 
+impl Recording {
+    /// Whether `next` goes on exactly where this recording ends, as a run resumed from it does
+    /// (`--resume`): same seed, task shape and hyperparameters, its first update is the one
+    /// after this recording's last, drawn from this recording's last new distribution, bit for
+    /// bit. Judged by content, not by file name, so renamed or moved files still join.
+    pub fn is_continued_by(&self, next: &Recording) -> bool {
+        let (Some(last), Some(first)) = (self.updates.last(), next.updates.first()) else {
+            return false;
+        };
+        first.update == last.update + 1
+            && first.seed == last.seed
+            && (first.dim, first.steps, first.rollouts) == (last.dim, last.steps, last.rollouts)
+            && first.hyperparameters == last.hyperparameters
+            && first.before.is_some()
+            && first.before == last.after
+    }
+
+    /// This recording followed by `next` ([`Recording::is_continued_by`]), as one run: the
+    /// messages of both in order, each `/run` kept (the second says where the run resumed),
+    /// the metadata of the first, and the damage of the second (the first's end was resumed
+    /// from, so nothing of it is missing).
+    pub fn join(mut self, next: Recording) -> Recording {
+        // A part without /summary still has its curve in /update.
+        self.summaries = self.curve();
+        self.summaries.extend(next.curve());
+        self.file_bytes += next.file_bytes;
+        self.indexed &= next.indexed;
+        self.truncated = next.truncated;
+        self.run.extend(next.run);
+        self.updates.extend(next.updates);
+        self.rollouts.extend(next.rollouts);
+        self.task_changes.extend(next.task_changes);
+        self.logs.extend(next.logs);
+        for (topic, n) in next.topic_counts {
+            *self.topic_counts.entry(topic).or_insert(0) += n;
+        }
+        self.time_range = match (self.time_range, next.time_range) {
+            (Some((a, b)), Some((c, d))) => Some((a.min(c), b.max(d))),
+            (a, b) => a.or(b),
+        };
+        self
+    }
+}
+
+/// Recordings grouped into runs: each run is a recording followed by those that resume it
+/// ([`Recording::is_continued_by`]), in any order given; runs are in the order of their first
+/// file. Returns each run with the files it was joined from.
+pub fn join_resumed(recs: Vec<Recording>) -> Vec<(Recording, Vec<PathBuf>)> {
+    let n = recs.len();
+    // The predecessor of each recording, if another one given ends where it starts.
+    let mut successor: Vec<Option<usize>> = vec![None; n];
+    let mut has_predecessor = vec![false; n];
+    for (j, next) in recs.iter().enumerate() {
+        if let Some(i) =
+            (0..n).find(|&i| i != j && successor[i].is_none() && recs[i].is_continued_by(next))
+        {
+            successor[i] = Some(j);
+            has_predecessor[j] = true;
+        }
+    }
+    let mut slots: Vec<Option<Recording>> = recs.into_iter().map(Some).collect();
+    let mut runs = Vec::new();
+    for head in (0..n).filter(|&i| !has_predecessor[i]) {
+        let Some(mut run) = slots[head].take() else {
+            continue;
+        };
+        let mut parts = vec![run.path.clone()];
+        let mut at = head;
+        while let Some(j) = successor[at] {
+            let Some(next) = slots[j].take() else { break };
+            parts.push(next.path.clone());
+            run = run.join(next);
+            at = j;
+        }
+        runs.push((run, parts));
+    }
+    runs
+}
+
 fn decode<M: Message + Default>(
     file: &Path,
     topic: &str,
@@ -162,4 +241,67 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
         }
     }
     Ok(rec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recording of updates `from..to` of a 1-D run whose mean after update u is u + 1.
+    fn part(name: &str, seed: u64, from: u64, to: u64) -> Recording {
+        let d = |m: f64| proto::Distribution {
+            dim: 1,
+            mean: vec![m],
+            covariance: vec![1.0],
+        };
+        Recording {
+            path: name.into(),
+            run: vec![proto::RunInfo {
+                update: from,
+                ..Default::default()
+            }],
+            updates: (from..to)
+                .map(|u| proto::Update {
+                    update: u,
+                    seed,
+                    before: Some(d(u as f64)),
+                    after: Some(d(u as f64 + 1.0)),
+                    ..Default::default()
+                })
+                .collect(),
+            topic_counts: [("/update".to_string(), to - from)].into(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn resumed_parts_join_into_one_run_in_any_order() {
+        let runs = join_resumed(vec![
+            part("c", 1, 20, 30),
+            part("other-seed", 2, 10, 20),
+            part("a", 1, 0, 10),
+            part("b", 1, 10, 20),
+        ]);
+        let parts: Vec<Vec<String>> = runs
+            .iter()
+            .map(|(_, p)| p.iter().map(|p| p.display().to_string()).collect())
+            .collect();
+        assert_eq!(parts, [vec!["other-seed"], vec!["a", "b", "c"]]);
+        let (run, _) = &runs[1];
+        let updates: Vec<u64> = run.updates.iter().map(|u| u.update).collect();
+        assert_eq!(updates, (0..30).collect::<Vec<_>>());
+        assert_eq!(run.curve().len(), 30);
+        assert_eq!(run.run.len(), 3);
+        assert_eq!(run.topic_counts["/update"], 30);
+
+        // A part that does not start from the last distribution is another run.
+        let mut moved = part("b", 1, 10, 20);
+        moved.updates[0].before = Some(proto::Distribution {
+            dim: 1,
+            mean: vec![10.5],
+            covariance: vec![1.0],
+        });
+        assert!(!part("a", 1, 0, 10).is_continued_by(&moved));
+        assert_eq!(join_resumed(vec![part("a", 1, 0, 10), moved]).len(), 2);
+    }
 }

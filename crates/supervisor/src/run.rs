@@ -1313,6 +1313,11 @@ impl Supervisor {
         }
         if let Some(rec) = self.recording.as_ref().filter(|r| r.path.exists()) {
             let path = rec.path.display();
+            // A resumed run's analysis joins the file it resumed, for the whole learning curve.
+            let analyse = match &self.start {
+                Some(s) => format!("pi2cma analyze {} {path}", s.origin),
+                None => format!("pi2cma analyze {path}"),
+            };
             let place = if rec.defaulted {
                 " (the default place: runs/<run name>-<run id>.mcap in the current directory; \
                  --record FILE to choose)"
@@ -1322,7 +1327,7 @@ impl Supervisor {
             match &rec.lost {
                 None => {
                     say(&format!("recording: {path}{place}"));
-                    say(&format!("  analyse it with: pi2cma analyze {path}"));
+                    say(&format!("  analyse it with: {analyse}"));
                 }
                 Some(cause) => {
                     say(&format!(
@@ -1331,7 +1336,7 @@ impl Supervisor {
                     say(&format!(
                         "  complete it with: pi2cma recover {path}   (or: mcap-tool recover {path})"
                     ));
-                    say(&format!("  then analyse it with: pi2cma analyze {path}"));
+                    say(&format!("  then analyse it with: {analyse}"));
                 }
             }
         }

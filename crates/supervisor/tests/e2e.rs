@@ -1394,6 +1394,18 @@ fn a_killed_run_resumes_from_its_recording_to_the_uninterrupted_result() {
     assert!(v.mismatches.is_empty(), "{v:?}");
     let meta = &r.metadata[record::topics::METADATA];
     assert_eq!(meta["resumed_from"], first.display().to_string());
+    // The killed file and the resumed one analyse as one run of 200 updates.
+    let analyse = format!(
+        "analyse it with: pi2cma analyze {} {}",
+        first.display(),
+        resumed_rec.display()
+    );
+    assert!(resumed.text().contains(&analyse), "{}", resumed.text());
+    let killed = record::read_recording(&first).unwrap();
+    let runs = record::join_resumed(vec![r.clone(), killed]);
+    assert_eq!(runs.len(), 1);
+    let joined: Vec<u64> = runs[0].0.updates.iter().map(|u| u.update).collect();
+    assert_eq!(joined, (0..200).collect::<Vec<_>>());
 
     // The in-process runner, resumed from the same file, gives the same bits.
     let point = record::resume::resume_point(&first).unwrap();
