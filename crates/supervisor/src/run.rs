@@ -400,6 +400,12 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
              iceoryx2 directory and {files} shared-memory files"
         ));
     }
+    for (id, files) in sweep_orphaned_ipc(run_id) {
+        say(&format!(
+            "removed the shared memory and iceoryx2 files run {id} left behind ({files} files; \
+             all its processes are gone)"
+        ));
+    }
     if run_dir.exists() {
         bail!(
             "run directory {} exists: run {} is active or was killed (remove the directory)",
@@ -1403,6 +1409,77 @@ fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize)> {
         removed.push((name, remove_run(&e.path(), run_id)));
     }
     removed
+}
+
+/// Removes the inter-process files of runs whose run directory is gone, which
+/// [`sweep_abandoned_runs`] cannot find: a killed run whose directory was deleted by hand, or
+/// that lived under another `PI2CMA_RUN_DIR` (a test's). Left alone, its shared memory holds RAM
+/// until reboot. Removed: an iceoryx2 directory `/tmp/p2c-<run>/` none of whose processes is alive
+/// ([`wire::run_alive`]) with the run's shared memory, and shared memory whose iceoryx2 directory
+/// is gone. Only what is older than a minute, so a run that is starting is never touched; never
+/// the run `own`. Returns the runs and how many files each had.
+fn sweep_orphaned_ipc(own: u64) -> Vec<(String, usize)> {
+    const MIN_AGE: Duration = Duration::from_secs(60);
+    let old = |p: &Path| {
+        std::fs::symlink_metadata(p)
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| t.elapsed().is_ok_and(|age| age > MIN_AGE))
+    };
+    let run_id = |hex: &str| {
+        (hex.len() == 16 && hex.bytes().all(|b| b.is_ascii_hexdigit()))
+            .then(|| u64::from_str_radix(hex, 16).ok())
+            .flatten()
+    };
+    let mut runs = std::collections::BTreeSet::new();
+    for entry in std::fs::read_dir("/tmp").into_iter().flatten().flatten() {
+        let name = entry.file_name().to_string_lossy().to_string();
+        // `/tmp/p2c-<run>/`
+        if let Some(id) = name.strip_prefix("p2c-").and_then(run_id) {
+            if id != own && old(&entry.path()) && !wire::run_alive(id) {
+                runs.insert(id);
+            }
+        }
+    }
+    for entry in std::fs::read_dir("/dev/shm")
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        let name = entry.file_name().to_string_lossy().to_string();
+        // `/dev/shm/p2c<run>_…`
+        let id = name
+            .strip_prefix("p2c")
+            .and_then(|rest| rest.split_once('_'))
+            .and_then(|(hex, _)| run_id(hex));
+        if let Some(id) = id {
+            if id != own && !wire::iceoryx_root(id).exists() && old(&entry.path()) {
+                runs.insert(id);
+            }
+        }
+    }
+    runs.into_iter()
+        .map(|id| {
+            let files = count_files(&wire::iceoryx_root(id));
+            let _ = std::fs::remove_dir_all(wire::iceoryx_root(id));
+            (
+                wire::run_id_hex(id),
+                files + remove_prefixed(&wire::file_prefix(id)),
+            )
+        })
+        .collect()
+}
+
+/// Files under `dir`, recursively (0 if it cannot be read).
+fn count_files(dir: &Path) -> usize {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => count_files(&e.path()),
+            _ => 1,
+        })
+        .sum()
 }
 
 fn run_abandoned(run_dir: &Path) -> bool {

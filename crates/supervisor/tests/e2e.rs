@@ -643,6 +643,108 @@ fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
     assert_nothing_left(&run);
 }
 
+/// SIGKILLs a run's supervisor after its third update (no clean-up of its own) and waits until
+/// its four processes have died with it.
+fn sigkill_after_3_updates(run: &mut Run) {
+    let s = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let pids = pids_in(&s);
+    assert_eq!(pids.len(), 5, "{s}");
+    run.child.kill().unwrap();
+    run.wait(Duration::from_secs(10));
+    let end = Instant::now() + Duration::from_secs(10);
+    while pids.iter().any(|(_, pid)| alive(*pid)) {
+        assert!(
+            Instant::now() < end,
+            "children outlived their supervisor: {pids:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The run that comes next (a 5-update run), run to its successful end.
+fn next_short_run(scratch: &Scratch, id: u64) -> Run {
+    let short = write_config(
+        scratch,
+        "short.toml",
+        &config(&[("updates = 40", "updates = 5")]),
+    );
+    let mut next = Run::start_quiet(scratch, id, &short, &scratch.path("result.toml"));
+    assert!(
+        next.wait(Duration::from_secs(60)).success(),
+        "{}",
+        next.text()
+    );
+    next
+}
+
+/// The files of a run's iceoryx2 directory and shared memory, made two minutes old.
+fn backdate_ipc(run: &Run) {
+    let then = std::time::SystemTime::now() - Duration::from_secs(120);
+    let prefix = format!("p2c{}_", run.run_id);
+    let shm = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .map(|e| e.path());
+    let root = PathBuf::from(format!("/tmp/p2c-{}", run.run_id));
+    for p in shm
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with(&prefix)
+        })
+        .chain([root])
+    {
+        std::fs::File::open(&p).unwrap().set_modified(then).unwrap();
+    }
+}
+
+/// A killed run whose run directory was removed (by hand, or it was under another
+/// PI2CMA_RUN_DIR) leaves shared memory nobody's sweep finds by run directory; the next run
+/// finds it by iceoryx2's registry of dead processes and removes it, and leaves a live run's,
+/// however old, alone.
+#[test]
+fn shared_memory_of_a_dead_run_without_its_directory_is_removed_and_a_live_runs_kept() {
+    let scratch = Scratch::new("orphans");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "unbounded.toml", &text);
+    let args = [cfg.to_str().unwrap(), "--quiet", "--no-record"];
+    let mut killed = Run::start(&scratch, 720, &args);
+    sigkill_after_3_updates(&mut killed);
+    std::fs::remove_dir_all(killed.runs.join(&killed.run_id)).unwrap();
+    let mut live = Run::start(&scratch, 721, &args);
+    live.wait_status("3 updates", |s| updates_in(s) >= 3);
+    backdate_ipc(&killed);
+    backdate_ipc(&live);
+
+    let next = next_short_run(&scratch, 722);
+    let said = |run: &Run| {
+        format!(
+            "removed the shared memory and iceoryx2 files run {} left behind",
+            run.run_id
+        )
+    };
+    assert!(next.text().contains(&said(&killed)), "{}", next.text());
+    assert!(!next.text().contains(&said(&live)), "{}", next.text());
+    assert_nothing_left(&killed);
+
+    // The live run goes on: its status still grows, and it stops cleanly.
+    let before = updates_in(&live.ctl(&["status"]).1);
+    live.wait_status("more updates", |s| updates_in(s) > before + 2);
+    let (ok, reply) = live.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    assert!(
+        live.wait(Duration::from_secs(30)).success(),
+        "{}",
+        live.text()
+    );
+    assert_nothing_left(&live);
+    assert_nothing_left(&next);
+}
+
 #[test]
 fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
     let scratch = Scratch::new("sweep");
@@ -656,19 +758,7 @@ fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
         700,
         &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
     );
-    let s = killed.wait_status("3 updates", |s| updates_in(s) >= 3);
-    let pids = pids_in(&s);
-    assert_eq!(pids.len(), 5, "{s}");
-    killed.child.kill().unwrap(); // SIGKILL: no clean-up of its own
-    killed.wait(Duration::from_secs(10));
-    let end = Instant::now() + Duration::from_secs(10);
-    while pids.iter().any(|(_, pid)| alive(*pid)) {
-        assert!(
-            Instant::now() < end,
-            "children outlived their supervisor: {pids:?}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    sigkill_after_3_updates(&mut killed);
     let prefix = format!("p2c{}_", killed.run_id);
     let shm = || {
         std::fs::read_dir("/dev/shm")
@@ -682,18 +772,7 @@ fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
     let (ok, reply) = killed.ctl(&["status"]);
     assert!(!ok && reply.contains("supervisor was killed"), "{reply}");
 
-    let short = write_config(
-        &scratch,
-        "short.toml",
-        &config(&[("updates = 40", "updates = 5")]),
-    );
-    let result = scratch.path("result.toml");
-    let mut next = Run::start_quiet(&scratch, 701, &short, &result);
-    assert!(
-        next.wait(Duration::from_secs(60)).success(),
-        "{}",
-        next.text()
-    );
+    let next = next_short_run(&scratch, 701);
     let said = format!("removed what run {} left behind", killed.run_id);
     assert!(next.text().contains(&said), "{}", next.text());
     assert_nothing_left(&killed);

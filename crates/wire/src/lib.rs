@@ -487,6 +487,26 @@ pub fn iceoryx_config(run_id: u64) -> Result<Config, WireError> {
     Ok(config)
 }
 
+/// Whether a process of run `run_id` is alive, by iceoryx2's node registry under the run's root
+/// ([`iceoryx_root`]): its nodes' owners hold a lock that dies with them. A node whose state
+/// cannot be read counts as alive, and so does a registry that cannot be listed: only a run
+/// known to be dead may be cleaned up.
+pub fn run_alive(run_id: u64) -> bool {
+    let Ok(config) = iceoryx_config(run_id) else {
+        return true;
+    };
+    let mut alive = false;
+    let listed = Node::<Service>::list(&config, |state| {
+        if matches!(state, NodeState::Dead(_)) {
+            CallbackProgression::Continue
+        } else {
+            alive = true;
+            CallbackProgression::Stop
+        }
+    });
+    alive || listed.is_err()
+}
+
 /// Creates a named node with the run's config.
 pub fn node(run_id: u64, name: &str) -> Result<Node<Service>, WireError> {
     let config = iceoryx_config(run_id)?;
