@@ -3,7 +3,9 @@
 //! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts, pending as at the start of the hand-out:
 //! equal shares at the start of an update, smaller ones while some workers are still busy
 //! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. Rollouts of a
-//! lost worker go back to the pending queue.
+//! lost worker go back to the pending queue. A worker that holds its chunk for longer than
+//! `pipeline.rollout_timeout_ms` per rollout is reported to the supervisor (`overdue`), which
+//! kills and restarts it.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -26,6 +28,8 @@ struct Assignment {
     chunk: u64,
     update: u64,
     rollouts: Vec<u32>,
+    /// When it was handed out, for `pipeline.rollout_timeout_ms`.
+    since: Instant,
 }
 
 struct WorkerPort {
@@ -33,6 +37,8 @@ struct WorkerPort {
     inbox: Publisher<Service, [f64], WorkHeader>,
     bell: Notifier<Service>,
     assignment: Option<Assignment>,
+    /// Reported on `overdue`: once per incarnation, the supervisor does the rest.
+    reported_overdue: bool,
 }
 
 struct Current {
@@ -63,6 +69,18 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             .create(),
         "control subscriber",
     )?;
+    let overdue = iox(
+        wire::overdue(&ctx.node, ctx.run_id, &ctx.limits)?
+            .publisher_builder()
+            .create(),
+        "overdue publisher",
+    )?;
+    let supervisor_bell = ctx.notifier("supervisor")?;
+    let rollout_timeout = ctx
+        .config
+        .pipeline()
+        .rollout_timeout_ms
+        .map(Duration::from_millis);
     let doorbell = ctx.listener("sampler")?;
     let _announced = announce_ready(&ctx, wire::role::SAMPLER, 0, 0)?;
 
@@ -109,6 +127,30 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 }
                 requeue(w.assignment, &current, &mut pending);
                 idle.retain(|i| *i != worker);
+            }
+        }
+        // Workers that hold their chunk too long (checked at least every wait_loop TICK).
+        if let Some(per_rollout) = rollout_timeout {
+            for (&worker, w) in workers.iter_mut().filter(|(_, w)| !w.reported_overdue) {
+                let Some(a) = &w.assignment else { continue };
+                let held = a.since.elapsed();
+                if held <= per_rollout * a.rollouts.len() as u32 {
+                    continue;
+                }
+                let report = wire::Overdue {
+                    run_id: ctx.run_id,
+                    update: a.update,
+                    chunk: a.chunk,
+                    held_ms: held.as_millis() as u64,
+                    worker,
+                    incarnation: w.incarnation,
+                    rollouts: a.rollouts.len() as u32,
+                    _reserved: 0,
+                };
+                iox(overdue.send_copy(report), "send overdue")?;
+                // The supervisor gone too is no reason to fail; it sees the report when it can.
+                let _ = supervisor_bell.notify_with_custom_event_id(wire::WAKE);
+                w.reported_overdue = true;
             }
         }
         // The newest distribution starts a new update.
@@ -190,6 +232,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                             inbox,
                             bell,
                             assignment: None,
+                            reported_overdue: false,
                         },
                     );
                     idle.retain(|i| *i != r.worker);
@@ -267,6 +310,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 chunk,
                 update: cur.update,
                 rollouts,
+                since: Instant::now(),
             });
             to_ring.push(id);
         }

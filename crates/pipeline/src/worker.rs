@@ -72,6 +72,11 @@ fn slot<T: Task>(
     let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
     let mut applied: Vec<f64> = task.settings().iter().map(|(_, v)| *v).collect();
     let nan_from = ctx.config.pipeline().fault_nan_from_update;
+    let hang_at = ctx
+        .config
+        .pipeline()
+        .fault_hang_at_update
+        .filter(|_| incarnation == 0);
     let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
 
     let inbox = iox(
@@ -151,6 +156,14 @@ fn slot<T: Task>(
                     task.set(names[i], *v)?;
                     applied[i] = *v;
                 }
+            }
+            if hang_at == Some(h.update) {
+                // Fault injection (pipeline.fault_hang_at_update): a simulator or robot that
+                // stops answering. Only a signal ends it.
+                while !crate::termination_requested() {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                return Ok(Flow::Stop);
             }
             let start = Instant::now();
             let sample = iox(costs.loan_slice_uninit(steps), "loan cost sample")?;

@@ -239,8 +239,15 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
         t.insert("restart_window_s".into(), Value::Float(p.restart_window_s));
         t.insert("startup_timeout_ms".into(), int(p.startup_timeout_ms));
         t.insert("shutdown_timeout_ms".into(), int(p.shutdown_timeout_ms));
+        t.insert("worker_spin_us".into(), int(p.worker_spin_us));
+        if let Some(ms) = p.rollout_timeout_ms {
+            t.insert("rollout_timeout_ms".into(), int(ms));
+        }
         if let Some(u) = p.fault_nan_from_update {
             t.insert("fault_nan_from_update".into(), int(u));
+        }
+        if let Some(u) = p.fault_hang_at_update {
+            t.insert("fault_hang_at_update".into(), int(u));
         }
         root.insert("pipeline".into(), Value::Table(t));
     }

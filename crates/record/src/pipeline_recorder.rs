@@ -388,6 +388,10 @@ impl WriterState {
                         wire::lost::SCALED_DOWN => (Event::Scale, "stopped by a scale-down"),
                         wire::lost::STOPPED => (Event::Exit, "stopped with the run"),
                         wire::lost::EXITED => (Event::Exit, "exited unasked"),
+                        wire::lost::HUNG => (
+                            Event::Crash,
+                            "hung (it held its chunk past pipeline.rollout_timeout_ms) and was killed",
+                        ),
                         _ => (Event::Crash, "crashed"),
                     };
                     self.writer.write_event(

@@ -198,8 +198,15 @@ pub struct PipelineSection {
     /// Longest a rollout worker polls for its next work before it blocks (adaptive, see
     /// `pipeline::Spin`); 0 never polls.
     pub worker_spin_us: u64,
+    /// Longest a worker may hold a chunk, per rollout in it; a worker over it is taken to hang
+    /// (a simulator or robot that stopped answering), is killed and restarted, and its
+    /// rollouts go to the others. Unset: no limit (a rollout may take any time).
+    pub rollout_timeout_ms: Option<u64>,
     /// FAULT INJECTION, for tests only: from this update on, workers report NaN costs.
     pub fault_nan_from_update: Option<u64>,
+    /// FAULT INJECTION, for tests only: at this update, the first incarnation of every worker
+    /// stops answering (it sleeps instead of running its chunk); restarted workers do not.
+    pub fault_hang_at_update: Option<u64>,
 }
 
 impl PipelineSection {
@@ -217,7 +224,9 @@ impl Default for PipelineSection {
             startup_timeout_ms: 10_000,
             shutdown_timeout_ms: 5_000,
             worker_spin_us: 200,
+            rollout_timeout_ms: None,
             fault_nan_from_update: None,
+            fault_hang_at_update: None,
         }
     }
 }
@@ -432,6 +441,13 @@ impl RunConfig {
                 if v == 0 {
                     return Err(self.invalid(&format!("pipeline.{field}"), v, "must be > 0"));
                 }
+            }
+            if p.rollout_timeout_ms == Some(0) {
+                return Err(self.invalid(
+                    "pipeline.rollout_timeout_ms",
+                    0,
+                    "must be > 0 (leave it out for no limit)",
+                ));
             }
         }
         let mut task = self
@@ -679,6 +695,17 @@ mod tests {
         assert_eq!(
             e,
             "test.toml: pipeline.worker_spin_us = 200000: must be at most 100000 (0.1 s)"
+        );
+        let text = DEFAULT_CONFIG.replace("[pipeline]", "[pipeline]\nrollout_timeout_ms = 0");
+        let e = parse(&text).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "test.toml: pipeline.rollout_timeout_ms = 0: must be > 0 (leave it out for no limit)"
+        );
+        let text = DEFAULT_CONFIG.replace("[pipeline]", "[pipeline]\nrollout_timeout_ms = 500");
+        assert_eq!(
+            parse(&text).unwrap().pipeline().rollout_timeout_ms,
+            Some(500)
         );
     }
 

@@ -23,7 +23,7 @@ use iceoryx2::prelude::*;
 use pipeline::iox;
 use pipeline::result::RunResult;
 use session::{PipelineSection, RunConfig};
-use wire::{Control, Lifecycle, Limits, Progress, Service};
+use wire::{Control, Lifecycle, Limits, Overdue, Progress, Service};
 
 use crate::control::{self, Command as Cmd, Request};
 use crate::EXIT_INTERRUPTED;
@@ -225,6 +225,8 @@ struct Proc {
     incarnation: u32,
     ready: bool,
     stopping: bool,
+    /// Killed because it held its chunk too long (`pipeline.rollout_timeout_ms`): why.
+    hung: Option<String>,
     last_line: Arc<Mutex<String>>,
 }
 
@@ -256,6 +258,7 @@ enum Phase {
 
 struct Ports {
     lifecycle: Subscriber<Service, Lifecycle, ()>,
+    overdue: Subscriber<Service, Overdue, ()>,
     progress: Subscriber<Service, Progress, ()>,
     control: Publisher<Service, Control, ()>,
     sampler_bell: Notifier<Service>,
@@ -482,6 +485,12 @@ impl Supervisor {
                     .subscriber_builder()
                     .create(),
                 "progress subscriber",
+            )?,
+            overdue: iox(
+                wire::overdue(&node, self.run_id, limits)?
+                    .subscriber_builder()
+                    .create(),
+                "overdue subscriber",
             )?,
             control: iox(
                 wire::control(&node, self.run_id, limits)?
@@ -907,6 +916,7 @@ impl Supervisor {
                 incarnation,
                 ready: false,
                 stopping: false,
+                hung: None,
                 last_line,
             },
         );
@@ -945,6 +955,14 @@ impl Supervisor {
         while let Some(s) = iox(ports.progress.receive(), "receive progress")? {
             progress.push(*s.payload());
         }
+        let mut overdue = Vec::new();
+        while let Some(s) = iox(ports.overdue.receive(), "receive overdue")? {
+            overdue.push(*s.payload());
+        }
+        let run_id = self.run_id;
+        for o in overdue.into_iter().filter(|o| o.run_id == run_id) {
+            self.kill_hung(o);
+        }
         for l in ready {
             if l.run_id != self.run_id {
                 continue;
@@ -982,6 +1000,31 @@ impl Supervisor {
             }
         }
         Ok(())
+    }
+
+    /// Kills the worker incarnation the sampler reports as hung; [`Self::exited`] then reports it
+    /// lost (reason HUNG) and restarts it like a crashed one.
+    fn kill_hung(&mut self, o: Overdue) {
+        let Some(pid) = self.slots.get(&o.worker).and_then(|s| s.pid) else {
+            return;
+        };
+        let Some(p) = self.procs.get_mut(&pid) else {
+            return;
+        };
+        if p.incarnation != o.incarnation || p.stopping || p.hung.is_some() {
+            return; // already gone, going, or being killed
+        }
+        let per_rollout = self.pipe.rollout_timeout_ms.unwrap_or(0);
+        let why = format!(
+            "hung: held {} rollout(s) of update {} for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} per rollout",
+            o.rollouts, o.update, o.held_ms
+        );
+        say(&format!(
+            "worker-{} (pid {pid}) {why}; killing it",
+            o.worker
+        ));
+        p.hung = Some(why);
+        signal_group(pid, libc::SIGKILL);
     }
 
     fn progress_line(&self) -> String {
@@ -1150,10 +1193,10 @@ impl Supervisor {
             return;
         };
         let last = p.last_line.lock().map(|l| l.clone()).unwrap_or_default();
-        let cause = if last.is_empty() {
-            status.to_string()
-        } else {
-            format!("{status}: {last}")
+        let cause = match (&p.hung, last.is_empty()) {
+            (Some(_), _) => format!("{status}, killed after it hung"),
+            (None, true) => status.to_string(),
+            (None, false) => format!("{status}: {last}"),
         };
         match p.role {
             Role::Worker(w) => {
@@ -1161,18 +1204,15 @@ impl Supervisor {
                     wire::lost::SCALED_DOWN
                 } else if p.stopping || self.phase == Phase::Stopping {
                     wire::lost::STOPPED
+                } else if p.hung.is_some() {
+                    wire::lost::HUNG
                 } else if status.success() {
                     wire::lost::EXITED
                 } else {
                     wire::lost::CRASHED
                 };
-                let lost = Control::worker_lost(
-                    self.run_id,
-                    w,
-                    p.incarnation,
-                    reason,
-                    &status.to_string(),
-                );
+                let how = status.to_string();
+                let lost = Control::worker_lost(self.run_id, w, p.incarnation, reason, &how);
                 let _ = self.send_control(lost, false);
                 let Some(slot) = self.slots.get_mut(&w) else {
                     return; // scaled away

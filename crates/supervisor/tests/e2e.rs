@@ -469,6 +469,51 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
     assert_nothing_left(&run);
 }
 
+/// A worker whose simulator or robot stops answering holds its chunk forever. With
+/// `pipeline.rollout_timeout_ms` the sampler reports it, the supervisor kills and restarts it,
+/// its rollouts go to the others, and the run ends as if nothing had happened.
+#[test]
+fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
+    let scratch = Scratch::new("hung");
+    let text = config(&[
+        ("updates = 40", "updates = 30"),
+        ("viapoint_weight = 1000.0", DELAYED),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 100\nfault_hang_at_update = 4",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "hung.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 730, &cfg, &result);
+    let exit = run.wait(Duration::from_secs(60));
+    let out = run.text();
+    assert!(exit.success(), "{out}");
+    for w in 0..3 {
+        let said = format!("worker-{w} (pid ");
+        assert!(
+            out.lines().any(|l| l.contains(&said)
+                && l.contains("hung: held")
+                && l.contains("of update 4")),
+            "{out}"
+        );
+    }
+    assert!(out.contains("3 restarts"), "{out}");
+    assert_bit_identical(&text, &result);
+    let rec = record::read_recording(&scratch.recording("A1", 730)).unwrap();
+    for w in 0..3 {
+        let name = format!("worker-{w}");
+        let hung = rec
+            .logs
+            .iter()
+            .any(|l| l.event == "crash" && l.name == name && l.message.contains("hung"));
+        assert!(hung, "{:#?}", rec.logs);
+        assert!(logged(&rec, "restart", &name), "{:#?}", rec.logs);
+    }
+    assert_recorded(&rec, 30);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn exhausted_restart_limit_stops_the_run_with_the_reason() {
     let scratch = Scratch::new("limit");

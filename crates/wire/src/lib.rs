@@ -24,6 +24,7 @@
 //! | `recorded` | [`RecorderAck`] | – | recorder → updater |
 //! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
 //! | `control` | [`Control`] | – | supervisor → sampler, updater |
+//! | `overdue` | [`Overdue`] | – | sampler → supervisor |
 //!
 //! Every receiving process owns one event service, its doorbell: `wake/updater`,
 //! `wake/sampler`, `wake/supervisor`, `wake/recorder`, `wake/worker/<w>`. A sender publishes its samples, then
@@ -67,6 +68,10 @@
 //! millisecond ago; a busy recorder looks for new samples before it sleeps. The
 //! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits, and an updater held for
 //! a second also looks for a dead `recorder` node, so a dead recorder never stalls the run.
+//!
+//! A worker that holds its chunk for longer than `pipeline.rollout_timeout_ms` per rollout is
+//! reported by the sampler on `overdue` ([`Overdue`], once per incarnation, ringing
+//! `wake/supervisor`); the supervisor kills it and reports it lost with [`lost::HUNG`].
 //!
 //! A worker that dies (or is scaled away) is reported by the supervisor on `control`
 //! ([`Control::WORKER_LOST`]), announces a higher incarnation when restarted, or is found by the
@@ -261,6 +266,24 @@ pub struct Lifecycle {
     pub incarnation: u32,
 }
 
+/// The sampler's report of a worker that holds its chunk for longer than
+/// `pipeline.rollout_timeout_ms` per rollout: it has held `rollouts` rollouts of update `update`
+/// for `held_ms`. The supervisor kills that incarnation and restarts it; its rollouts go to the
+/// other workers as any lost worker's do.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.Overdue.v1")]
+pub struct Overdue {
+    pub run_id: u64,
+    pub update: u64,
+    pub chunk: u64,
+    pub held_ms: u64,
+    pub worker: u32,
+    pub incarnation: u32,
+    pub rollouts: u32,
+    pub _reserved: u32,
+}
+
 /// A command from the supervisor.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
@@ -293,6 +316,8 @@ pub mod lost {
     pub const SCALED_DOWN: u32 = 2;
     /// Stopped by the supervisor because the run is stopping.
     pub const STOPPED: u32 = 3;
+    /// Killed by the supervisor because it held its chunk too long ([`super::Overdue`]).
+    pub const HUNG: u32 = 4;
 }
 
 impl Control {
@@ -689,6 +714,24 @@ pub fn lifecycle(
         l.worker_ports() + 4,
         2,
         2 * l.max_workers + 8,
+        l.nodes(),
+    )
+}
+
+/// `overdue`: 2 publishers (the sampler), 2 subscribers (the supervisor), a buffer of
+/// 2·max_workers + 4: each worker incarnation is reported once.
+pub fn overdue(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<Overdue>, WireError> {
+    fixed_service(
+        node,
+        run_id,
+        "overdue",
+        2,
+        2,
+        2 * l.max_workers + 4,
         l.nodes(),
     )
 }
