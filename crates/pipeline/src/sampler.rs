@@ -37,8 +37,9 @@ struct WorkerPort {
     inbox: Publisher<Service, [f64], WorkHeader>,
     bell: Notifier<Service>,
     assignment: Option<Assignment>,
-    /// Reported on `overdue`: once per incarnation, the supervisor does the rest.
-    reported_overdue: bool,
+    /// The chunk it held too long (reported on `overdue`, its rollouts handed to the others):
+    /// the worker is idle again if it ever finishes it.
+    overdue_chunk: Option<u64>,
 }
 
 struct Current {
@@ -131,7 +132,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         }
         // Workers that hold their chunk too long (checked at least every wait_loop TICK).
         if let Some(per_rollout) = rollout_timeout {
-            for (&worker, w) in workers.iter_mut().filter(|(_, w)| !w.reported_overdue) {
+            for (&worker, w) in workers.iter_mut() {
                 let Some(a) = &w.assignment else { continue };
                 let held = a.since.elapsed();
                 if held <= per_rollout * a.rollouts.len() as u32 {
@@ -150,7 +151,19 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 iox(overdue.send_copy(report), "send overdue")?;
                 // The supervisor gone too is no reason to fail; it sees the report when it can.
                 let _ = supervisor_bell.notify_with_custom_event_id(wire::WAKE);
-                w.reported_overdue = true;
+                if trace {
+                    eprintln!(
+                        "{} overdue w{worker}.{} chunk {}",
+                        us(),
+                        w.incarnation,
+                        a.chunk
+                    );
+                }
+                // Its rollouts go to the others now, whether or not the supervisor can kill it
+                // (a worker it did not start): should it answer after all, the updater keeps
+                // whichever result of a rollout comes first, and they are the same.
+                w.overdue_chunk = Some(a.chunk);
+                requeue(w.assignment.take(), &current, &mut pending);
             }
         }
         // The newest distribution starts a new update.
@@ -204,15 +217,20 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             match workers.get_mut(&r.worker) {
                 Some(w) if r.incarnation < w.incarnation => {} // from a lost predecessor
                 Some(w) if r.incarnation == w.incarnation => {
-                    if r.completed_chunk != Ready::NO_CHUNK
+                    let done = r.completed_chunk != Ready::NO_CHUNK;
+                    let assigned = done
                         && w.assignment
                             .as_ref()
-                            .is_some_and(|a| a.chunk == r.completed_chunk)
-                    {
+                            .is_some_and(|a| a.chunk == r.completed_chunk);
+                    let late = done && w.overdue_chunk == Some(r.completed_chunk);
+                    if assigned {
                         w.assignment = None;
-                        if !idle.contains(&r.worker) {
-                            idle.push_back(r.worker);
-                        }
+                    }
+                    if late {
+                        w.overdue_chunk = None;
+                    }
+                    if (assigned || late) && !idle.contains(&r.worker) {
+                        idle.push_back(r.worker);
                     }
                 }
                 _ => {
@@ -232,7 +250,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                             inbox,
                             bell,
                             assignment: None,
-                            reported_overdue: false,
+                            overdue_chunk: None,
                         },
                     );
                     idle.retain(|i| *i != r.worker);

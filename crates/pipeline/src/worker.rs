@@ -157,7 +157,7 @@ fn slot<T: Task>(
                     applied[i] = *v;
                 }
             }
-            if hang_at == Some(h.update) {
+            if hang_at.is_some_and(|n| h.update >= n) {
                 // Fault injection (pipeline.fault_hang_at_update): a simulator or robot that
                 // stops answering. Only a signal ends it.
                 while !crate::termination_requested() {

@@ -204,8 +204,9 @@ pub struct PipelineSection {
     pub rollout_timeout_ms: Option<u64>,
     /// FAULT INJECTION, for tests only: from this update on, workers report NaN costs.
     pub fault_nan_from_update: Option<u64>,
-    /// FAULT INJECTION, for tests only: at this update, the first incarnation of every worker
-    /// stops answering (it sleeps instead of running its chunk); restarted workers do not.
+    /// FAULT INJECTION, for tests only: the first incarnation of every worker stops answering
+    /// (sleeps instead of running its chunk) at its first chunk of this update or a later one;
+    /// restarted workers do not.
     pub fault_hang_at_update: Option<u64>,
 }
 

@@ -1005,20 +1005,26 @@ impl Supervisor {
     /// Kills the worker incarnation the sampler reports as hung; [`Self::exited`] then reports it
     /// lost (reason HUNG) and restarts it like a crashed one.
     fn kill_hung(&mut self, o: Overdue) {
-        let Some(pid) = self.slots.get(&o.worker).and_then(|s| s.pid) else {
+        let per_rollout = self.pipe.rollout_timeout_ms.unwrap_or(0);
+        let why = format!(
+            "hung: held {} rollout(s) of update {} for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} per rollout",
+            o.rollouts, o.update, o.held_ms
+        );
+        let Some(slot) = self.slots.get(&o.worker) else {
+            // A worker that joined the run by itself: the sampler has handed its rollouts on.
+            say(&format!(
+                "worker-{} (incarnation {}, not started by this supervisor) {why}; its rollouts went to the other workers",
+                o.worker, o.incarnation
+            ));
             return;
         };
+        let Some(pid) = slot.pid else { return };
         let Some(p) = self.procs.get_mut(&pid) else {
             return;
         };
         if p.incarnation != o.incarnation || p.stopping || p.hung.is_some() {
             return; // already gone, going, or being killed
         }
-        let per_rollout = self.pipe.rollout_timeout_ms.unwrap_or(0);
-        let why = format!(
-            "hung: held {} rollout(s) of update {} for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} per rollout",
-            o.rollouts, o.update, o.held_ms
-        );
         say(&format!(
             "worker-{} (pid {pid}) {why}; killing it",
             o.worker

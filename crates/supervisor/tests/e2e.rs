@@ -545,6 +545,33 @@ fn exhausted_restart_limit_stops_the_run_with_the_reason() {
     assert_nothing_left(&run);
 }
 
+/// `run CONFIG --quiet --result RESULT` with the sampler's trace (PI2CMA_TRACE) in its output.
+fn start_traced(scratch: &Scratch, id: u64, config: &Path, result: &Path) -> Run {
+    let args = [
+        config.to_str().unwrap(),
+        "--quiet",
+        "--result",
+        result.to_str().unwrap(),
+    ];
+    Run::start_with_env(scratch, id, &args, &[("PI2CMA_TRACE", "1")])
+}
+
+/// A rollout worker the supervisor does not manage (as one written in another language would
+/// be), joining `run` as worker 5 with `config`.
+fn join_as_worker_5(run: &Run, config: &Path) -> Child {
+    let run_dir = run.runs.join(&run.run_id);
+    Command::new(env!("CARGO_BIN_EXE_rollout-worker"))
+        .arg("--config")
+        .arg(config)
+        .arg("--run-dir")
+        .arg(&run_dir)
+        .args(["--run-id", &run.run_id, "--worker", "5"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
 #[test]
 fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     // A worker the supervisor does not manage (as one written in another language would be):
@@ -557,29 +584,10 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     ]);
     let cfg = write_config(&scratch, "foreign.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start_with_env(
-        &scratch,
-        250,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--result",
-            result.to_str().unwrap(),
-        ],
-        &[("PI2CMA_TRACE", "1")],
-    );
+    let mut run = start_traced(&scratch, 250, &cfg, &result);
     run.wait_status("3 updates", |s| updates_in(s) >= 3);
-    let run_dir = run.runs.join(&run.run_id);
-    let mut foreign = Command::new(env!("CARGO_BIN_EXE_rollout-worker"))
-        .arg("--config")
-        .arg(run_dir.join("config.toml"))
-        .arg("--run-dir")
-        .arg(&run_dir)
-        .args(["--run-id", &run.run_id, "--worker", "5"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let run_config = run.runs.join(&run.run_id).join("config.toml");
+    let mut foreign = join_as_worker_5(&run, &run_config);
     // The sampler's trace shows when the foreign worker got a chunk; kill it while it works.
     let end = Instant::now() + Duration::from_secs(30);
     while !run.text().contains("-> w5:") {
@@ -591,6 +599,53 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     let exit = run.wait(Duration::from_secs(60));
     assert!(exit.success(), "{}", run.text());
     assert!(run.text().contains("lost w5.0"), "{}", run.text());
+    assert_eq!(RunResult::read(&result).unwrap().updates, 100);
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
+/// A worker that joined the run by itself and hangs cannot be killed by the supervisor; its
+/// rollouts go to the others once it is overdue, and the run ends with the same bits.
+#[test]
+fn a_hung_unsupervised_worker_loses_its_rollouts_to_the_others() {
+    let scratch = Scratch::new("foreign-hung");
+    let text = config(&[
+        ("updates = 40", "updates = 100"),
+        ("viapoint_weight = 1000.0", DELAYED),
+        ("workers = 3", "workers = 1"),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 100",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "foreign.toml", &text);
+    // The joining worker's own config: the run's, and it hangs at its first chunk.
+    let hanging = write_config(
+        &scratch,
+        "hanging.toml",
+        &text.replace(
+            "rollout_timeout_ms = 100",
+            "rollout_timeout_ms = 100\nfault_hang_at_update = 0",
+        ),
+    );
+    let result = scratch.path("result.toml");
+    let mut run = start_traced(&scratch, 260, &cfg, &result);
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let mut foreign = join_as_worker_5(&run, &hanging);
+    let exit = run.wait(Duration::from_secs(60));
+    let out = run.text();
+    assert!(exit.success(), "{out}");
+    assert!(out.contains("-> w5:"), "w5 never got work:\n{out}");
+    assert!(
+        out.contains("worker-5 (incarnation 0, not started by this supervisor) hung: held"),
+        "{out}"
+    );
+    assert!(
+        foreign.try_wait().unwrap().is_none(),
+        "the hung worker is not the supervisor's to kill"
+    );
+    foreign.kill().unwrap();
+    foreign.wait().unwrap();
     assert_eq!(RunResult::read(&result).unwrap().updates, 100);
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
