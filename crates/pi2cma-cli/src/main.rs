@@ -278,14 +278,8 @@ fn run(cli: Cli) -> Result<()> {
                 ),
             };
             // Into the text too, so that the recording's config reruns this run.
-            let overrides: Vec<_> = [("updates", updates), ("seed", seed)]
-                .into_iter()
-                .filter_map(|(field, value)| value.map(|v| (field, v)))
-                .collect();
-            if !overrides.is_empty() {
-                (cfg, text) =
-                    RunConfig::with_run_overrides(&text, &cfg.origin.clone(), &overrides)?;
-            }
+            let overrides = [("updates", updates), ("seed", seed)];
+            (cfg, text) = RunConfig::with_run_overrides(&text, &cfg.origin.clone(), &overrides)?;
             if cfg.run.updates.is_none() {
                 bail!(
                     "{}: run.updates is not set (an unbounded run): run it with the supervisor, which can be stopped{}",

@@ -63,3 +63,24 @@ fn analyze_writes_csv_figures_and_the_experiment_table() {
     assert_eq!(reconv.lines().count(), 1 + 3 * 2);
     assert!(out.join("mean_curves.svg").is_file());
 }
+
+/// `mcap-tool record --seed --updates` records the config it ran: its text has both.
+#[test]
+fn the_recorded_config_has_the_command_line_seed_and_updates() {
+    let dir = std::env::temp_dir().join(format!("record-seed-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("s3.mcap");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .args(["record", "--seed", "3", "--updates", "5", "--out"])
+        .arg(&out)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let rec = record::read_recording(&out).unwrap();
+    let run = rec.run_info().unwrap();
+    assert_eq!(run.seed, 3);
+    let recorded = RunConfig::parse(&run.config_toml, &out).unwrap();
+    assert_eq!((recorded.run.seed, recorded.run.updates), (3, Some(5)));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -260,14 +260,17 @@ impl RunConfig {
     }
 
     /// `text` with the `run` table's integer fields set as given (command-line options such as
-    /// `--updates` and `--seed`), parsed, and that text: what the run records and hands to its
-    /// processes, so a recorded config reruns the run that was made. Comments of `text` are
-    /// lost.
+    /// `--updates` and `--seed`; `None` leaves a field as it is), parsed, and that text: what the
+    /// run records and hands to its processes, so a recorded config reruns the run that was
+    /// made. Comments of `text` are lost if anything is set.
     pub fn with_run_overrides(
         text: &str,
         origin: &Path,
-        overrides: &[(&str, u64)],
+        overrides: &[(&str, Option<u64>)],
     ) -> Result<(Self, String), ConfigError> {
+        if overrides.iter().all(|(_, v)| v.is_none()) {
+            return Ok((Self::parse(text, origin)?, text.to_string()));
+        }
         let parse_error = |e: &dyn std::fmt::Display| ConfigError::Parse {
             file: origin.to_path_buf(),
             message: e.to_string().trim_end().replace('\n', "\n  "),
@@ -280,6 +283,7 @@ impl RunConfig {
             return Err(parse_error(&"`run` is not a table"));
         };
         for &(field, value) in overrides {
+            let Some(value) = value else { continue };
             // TOML integers are i64; a larger value cannot be written, so it is refused here.
             let n = i64::try_from(value).map_err(|_| ConfigError::Invalid {
                 file: origin.to_path_buf(),
@@ -643,9 +647,12 @@ mod tests {
     #[test]
     fn run_fields_can_be_overridden_in_the_text() {
         let origin = Path::new("a.toml");
-        let (cfg, text) =
-            RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("updates", 55), ("seed", 7)])
-                .unwrap();
+        let (cfg, text) = RunConfig::with_run_overrides(
+            DEFAULT_CONFIG,
+            origin,
+            &[("updates", Some(55)), ("seed", Some(7))],
+        )
+        .unwrap();
         assert_eq!(cfg.run.updates, Some(55));
         let mut expected = RunConfig::default_config();
         expected.run.updates = Some(55);
@@ -653,10 +660,10 @@ mod tests {
         expected.origin = origin.into();
         assert_eq!(cfg, expected);
         assert_eq!(RunConfig::parse(&text, origin).unwrap(), cfg);
-        let e =
-            RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("updates", 0)]).unwrap_err();
+        let e = RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("updates", Some(0))])
+            .unwrap_err();
         assert!(e.to_string().starts_with("a.toml: run.updates = 0"), "{e}");
-        let e = RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("seed", u64::MAX)])
+        let e = RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("seed", Some(u64::MAX))])
             .unwrap_err();
         assert!(
             e.to_string()

@@ -353,9 +353,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         ),
     };
     let origin = cfg.origin.clone();
-    if let Some(n) = opts.updates {
-        (cfg, text) = RunConfig::with_run_overrides(&text, &origin, &[("updates", n)])?;
-    }
+    (cfg, text) = RunConfig::with_run_overrides(&text, &origin, &[("updates", opts.updates)])?;
     if let Some(point) = &point {
         point.check(&cfg)?;
     }

@@ -174,23 +174,23 @@ fn record_run(
     out: &Path,
     progress: bool,
 ) -> Result<()> {
-    let (mut cfg, text) = match config {
+    let (mut cfg, mut text) = match config {
         Some(p) => {
             let text =
                 std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            (RunConfig::parse(&text, p)?, Some(text))
+            (RunConfig::parse(&text, p)?, text)
         }
         None => (
             RunConfig::default_config(),
-            Some(session::DEFAULT_CONFIG.to_string()),
+            session::DEFAULT_CONFIG.to_string(),
         ),
     };
-    // Overrides make the recorded text differ from the file: record the rendered config then.
-    let mut text = text;
-    if let Some(u) = updates {
-        cfg.run.updates = Some(u);
-        text = None;
-    }
+    // Into the recorded text too, so that the recording's config reruns this run.
+    let overrides = [("updates", updates), ("seed", seed)];
+    let origin = cfg.origin.clone();
+    (cfg, text) = RunConfig::with_run_overrides(&text, &origin, &overrides)?;
+    // An override the text cannot take: record the rendered config then.
+    let mut text = Some(text);
     if let Some(d) = delay {
         match &mut cfg.task {
             session::TaskSection::ViaPoint(v) => v.rollout_delay_ms = d,
@@ -199,7 +199,7 @@ fn record_run(
         text = None;
     }
     cfg.validate()?;
-    let seed = seed.unwrap_or(cfg.run.seed);
+    let seed = cfg.run.seed;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
