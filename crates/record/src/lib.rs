@@ -41,7 +41,7 @@ pub mod proto {
 
 pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_proto};
 pub use error::RecordError;
-pub use reader::{join_resumed, read_recording, Recording};
+pub use reader::{join_resumed, read_ends, read_recording, Ends, Recording};
 pub use recorder::McapRecorder;
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 

@@ -78,6 +78,75 @@ impl Recording {
     }
 }
 
+/// The first `/run` message and the last complete `/update` of a recording.
+#[derive(Debug, Clone, Default)]
+pub struct Ends {
+    pub run: Option<proto::RunInfo>,
+    pub last_update: Option<proto::Update>,
+    /// How many `/update` messages the file holds.
+    pub updates: u64,
+    /// Why reading stopped early (a file whose writer was killed), if it did.
+    pub truncated: Option<String>,
+}
+
+/// [`Ends`] of the recording at `path`, read as a stream: memory stays at about one chunk,
+/// whatever the size of the file (a continual run's recording can outgrow the RAM that
+/// [`read_recording`] needs). A file whose writer was killed gives its readable prefix.
+pub fn read_ends(path: &Path) -> Result<Ends, RecordError> {
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
+    let mut reader = LinearReader::new();
+    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
+    let mut ends = Ends::default();
+    // Only the last one is decoded.
+    let mut last_update: Vec<u8> = Vec::new();
+    while let Some(event) = reader.next_event() {
+        let event = match event {
+            Ok(event) => event,
+            Err(e) => {
+                ends.truncated = Some(format!("records end early: {e}"));
+                break;
+            }
+        };
+        match event {
+            LinearReadEvent::ReadRequest(wanted) => {
+                let buf = reader.insert(wanted.max(1 << 16));
+                let read = file.read(buf).map_err(|e| RecordError::io(path, e))?;
+                reader.notify_read(read);
+            }
+            LinearReadEvent::Record { opcode, data } => match mcap::parse_record(opcode, data) {
+                Ok(mcap::records::Record::Channel(c)) => {
+                    topics.insert(c.id, c.topic);
+                }
+                Ok(mcap::records::Record::Message { header, data }) => {
+                    match topics.get(&header.channel_id).map(String::as_str) {
+                        Some(topics::RUN) if ends.run.is_none() => {
+                            ends.run = Some(decode(path, topics::RUN, 0, "RunInfo", &data)?);
+                        }
+                        Some(topics::UPDATE) => {
+                            ends.updates += 1;
+                            last_update.clear();
+                            last_update.extend_from_slice(&data);
+                        }
+                        _ => {}
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    ends.truncated = Some(format!("records end early: {e}"));
+                    break;
+                }
+            },
+        }
+    }
+    if ends.updates > 0 {
+        let index = ends.updates - 1;
+        ends.last_update = Some(decode(path, topics::UPDATE, index, "Update", &last_update)?);
+    }
+    Ok(ends)
+}
+
 impl Recording {
     /// Whether `next` goes on exactly where this recording ends, as a run resumed from it does
     /// (`--resume`): same seed, task shape and hyperparameters, its first update is the one
@@ -272,6 +341,46 @@ mod tests {
             topic_counts: [("/update".to_string(), to - from)].into(),
             ..Default::default()
         }
+    }
+
+    /// Streamed, the ends of a recording are those of the whole read, for a finished file and
+    /// for every prefix a killed writer can leave.
+    #[test]
+    fn streamed_ends_are_those_of_the_whole_recording() {
+        let dir = std::env::temp_dir().join(format!("reader-ends-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(25);
+        let mut rec = crate::McapRecorder::create(&path).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let cut = dir.join("cut.mcap");
+        let mut checked = 0;
+        for end in [
+            bytes.len(),
+            bytes.len() - 9,
+            bytes.len() * 9 / 10,
+            bytes.len() / 2,
+            bytes.len() / 5,
+        ] {
+            std::fs::write(&cut, &bytes[..end]).unwrap();
+            let whole = read_recording(&cut).unwrap();
+            let ends = read_ends(&cut).unwrap();
+            assert_eq!(ends.run.as_ref(), whole.run_info());
+            assert_eq!(ends.last_update.as_ref(), whole.updates.last());
+            assert_eq!(ends.updates, whole.updates.len() as u64);
+            assert_eq!(
+                ends.truncated.is_some(),
+                end < bytes.len(),
+                "{:?}",
+                ends.truncated
+            );
+            checked += ends.updates;
+        }
+        assert!(checked > 25, "the prefixes hold updates");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -10,7 +10,7 @@ use std::path::Path;
 use pi2cma::Hyperparameters;
 use session::{RunConfig, Start};
 
-use crate::{distribution_from_proto, hyperparameters_from_proto, read_recording, RecordError};
+use crate::{distribution_from_proto, hyperparameters_from_proto, read_ends, RecordError};
 
 /// Where a recorded run stopped, and what it was.
 #[derive(Debug, Clone)]
@@ -29,8 +29,9 @@ pub struct ResumePoint {
 
 /// Reads the state after the last update recorded in `path`.
 pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
-    let rec = read_recording(path)?;
-    let Some(last) = rec.updates.last() else {
+    // Streamed: the recording of a long continual run may not fit in memory.
+    let rec = read_ends(path)?;
+    let Some(last) = rec.last_update.as_ref() else {
         return Err(RecordError::invalid(
             path,
             "has no recorded update to resume from",
@@ -53,7 +54,8 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
     )
     .map_err(bad)?;
     let config_toml = rec
-        .run_info()
+        .run
+        .as_ref()
         .map(|r| r.config_toml.clone())
         .filter(|t| !t.is_empty());
     Ok(ResumePoint {
@@ -188,7 +190,7 @@ fn differ<T: PartialEq + std::fmt::Debug>(name: &str, recorded: &T, config: &T) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::McapRecorder;
+    use crate::{read_recording, McapRecorder};
 
     fn config(edits: &[(&str, &str)]) -> RunConfig {
         let mut text = session::DEFAULT_CONFIG.to_string();
