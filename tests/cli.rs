@@ -206,7 +206,7 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
     let text = analyze(&["second/run.mcap", "first/run.mcap"], "joined");
     assert!(
         text.contains(
-            "first/run.mcap + second/run.mcap: one run of 40 updates (0..=39), resumed at update 20"
+            "first/run.mcap + second/run.mcap: one run of 40 updates (0..=39), its files beginning at updates 0, 20"
         ),
         "{text}"
     );

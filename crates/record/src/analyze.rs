@@ -71,22 +71,18 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
     for (rec, parts) in &runs {
         if parts.len() > 1 {
             let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
-            let resumed: Vec<String> = rec
-                .run
-                .iter()
-                .skip(1)
-                .map(|r| r.update.to_string())
-                .collect();
+            // A resumed run's files, or the parts of a split recording (or both).
+            let begins: Vec<String> = rec.run.iter().map(|r| r.update.to_string()).collect();
             let _ = writeln!(
                 out,
-                "{}: one run of {} updates{}, resumed at update {}",
+                "{}: one run of {} updates{}, its files beginning at updates {}",
                 names.join(" + "),
                 rec.updates.len(),
                 match (rec.updates.first(), rec.updates.last()) {
                     (Some(a), Some(b)) => format!(" ({}..={})", a.update, b.update),
                     _ => String::new(),
                 },
-                resumed.join(", ")
+                begins.join(", ")
             );
         }
         if let Some(dir) = &args.out {

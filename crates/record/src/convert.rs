@@ -231,6 +231,13 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
             .collect();
         root.insert("schedule".into(), Value::Array(entries));
     }
+    if let Some(r) = &cfg.recording {
+        let mut t = Table::new();
+        if let Some(mb) = r.split_mb {
+            t.insert("split_mb".into(), int(mb));
+        }
+        root.insert("recording".into(), Value::Table(t));
+    }
     if let Some(p) = &cfg.pipeline {
         let mut t = Table::new();
         t.insert("workers".into(), int(p.workers as u64));

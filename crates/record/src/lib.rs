@@ -23,6 +23,7 @@ mod recorder;
 pub mod recover;
 pub mod resume;
 mod seek_buffer;
+mod split;
 mod writer;
 
 /// Generated protobuf types (prost) of `proto/`.
@@ -43,6 +44,7 @@ pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_
 pub use error::RecordError;
 pub use reader::{join_resumed, read_ends, read_recording, Ends, Recording};
 pub use recorder::McapRecorder;
+pub use split::{describe_parts, first_part, last_part, part_path, recording_parts, RunFiles};
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 
 /// The FileDescriptorSet of every schema (with `google/protobuf/timestamp.proto`), stored as the

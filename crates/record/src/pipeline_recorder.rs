@@ -26,7 +26,7 @@
 use std::path::PathBuf;
 
 use crate::assemble::{Assembler, CostOutcome};
-use crate::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
+use crate::{now_ns, Event, RolloutTiming, RunFiles, RunStart, UpdateData};
 use anyhow::Context as _;
 use pipeline::{announce_ready, iox, Context};
 use wire::{Control, CostHeader, DistributionHeader, Lifecycle};
@@ -109,7 +109,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         "recorded publisher",
     )?;
 
-    let writer = RunWriter::create(&out)?;
+    let mut writer = RunFiles::create(&out)?;
+    writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb))?;
     let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone())?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
     eprintln!("recording to {}", out.display());
@@ -227,7 +228,9 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
 
 /// Assembles updates, recomputes and writes them.
 struct WriterState {
-    writer: RunWriter<crate::writer::FileSink>,
+    writer: RunFiles,
+    /// The part being written (`recording.split_mb`).
+    part: std::path::PathBuf,
     assembler: Assembler,
     config: session::RunConfig,
     text: String,
@@ -249,7 +252,7 @@ impl WriterState {
     fn new(
         ctx: &Context,
         text: String,
-        writer: RunWriter<crate::writer::FileSink>,
+        writer: RunFiles,
         resumed_from: Option<String>,
     ) -> anyhow::Result<Self> {
         let cfg = ctx.config.clone();
@@ -265,6 +268,7 @@ impl WriterState {
             names.clone(),
         );
         Ok(Self {
+            part: writer.file(),
             writer,
             assembler,
             config: cfg,
@@ -341,6 +345,7 @@ impl WriterState {
                         executor: "pipeline",
                         task_settings: &task_settings,
                         resumed_from: self.resumed_from.as_deref(),
+                        part: None,
                     })?;
                     self.writer.write_event(
                         h.update,
@@ -495,6 +500,10 @@ impl WriterState {
                     default_worker: "unknown",
                 })?;
                 self.written += 1;
+                if self.writer.file() != self.part {
+                    self.part = self.writer.file();
+                    eprintln!("recording continues in {}", self.part.display());
+                }
                 if !a.recomputed_matches {
                     self.mismatches += 1;
                     self.writer.write_event(

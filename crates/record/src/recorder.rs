@@ -14,7 +14,8 @@ use pi2cma::{CostBatch, Distribution, Hyperparameters, Optimizer, ParameterBatch
 use session::{Observer, RunConfig, UpdateRecord};
 use tasks::TaskChange;
 
-use crate::writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
+use crate::writer::{now_ns, Event, RolloutTiming, RunStart, UpdateData};
+use crate::RunFiles;
 use crate::{config_to_toml, RecordError};
 
 /// Worker name of every rollout of the in-process runner.
@@ -31,6 +32,8 @@ struct StartJob {
     config_toml: String,
     settings: Vec<(String, f64)>,
     resumed_from: Option<String>,
+    /// `recording.split_mb`.
+    split_mb: Option<u64>,
 }
 
 struct UpdateJob {
@@ -84,13 +87,10 @@ enum Ack {
     Failed(RecordError),
 }
 
-fn write_job(
-    w: &mut RunWriter<crate::writer::FileSink>,
-    job: Job,
-    progress: bool,
-) -> Result<(), RecordError> {
+fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordError> {
     match job {
         Job::Start(s) => {
+            w.split_at_mb(s.split_mb)?;
             let settings: Vec<(&str, f64)> =
                 s.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
             w.write_start(&RunStart {
@@ -105,6 +105,7 @@ fn write_job(
                 executor: IN_PROCESS,
                 task_settings: &settings,
                 resumed_from: s.resumed_from.as_deref(),
+                part: None,
             })?;
             w.write_event(
                 s.update,
@@ -148,7 +149,7 @@ fn write_job(
 /// Writes jobs until the recorder drops its sender, then finishes the file. After the first
 /// error nothing more is written (update jobs are answered `Skipped`) and the error is returned.
 fn writer_thread(
-    mut w: RunWriter<crate::writer::FileSink>,
+    mut w: RunFiles,
     jobs: Receiver<Job>,
     acks: Sender<Ack>,
     progress: bool,
@@ -191,7 +192,7 @@ impl McapRecorder {
     /// As [`McapRecorder::create`]; with `progress`, the writer prints `recorded update U` on
     /// stdout once update U is flushed to the file.
     pub fn create_with_progress(path: &Path, progress: bool) -> Result<Self, RecordError> {
-        let w = RunWriter::create(path)?;
+        let w = RunFiles::create(path)?;
         let (jobs_tx, jobs_rx) = channel();
         let (acks_tx, acks_rx) = channel();
         let thread = std::thread::Builder::new()
@@ -362,6 +363,7 @@ impl Observer for McapRecorder {
             config_toml: text,
             settings: settings.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
             resumed_from: self.resumed_from.clone(),
+            split_mb: config.recording.as_ref().and_then(|r| r.split_mb),
         })));
         self.hp = Some(hp);
         self.last_ns = now_ns();

@@ -10,7 +10,10 @@ use std::path::Path;
 use pi2cma::Hyperparameters;
 use session::{RunConfig, Start};
 
-use crate::{distribution_from_proto, hyperparameters_from_proto, read_ends, RecordError};
+use crate::{
+    distribution_from_proto, first_part, hyperparameters_from_proto, last_part, read_ends,
+    RecordError,
+};
 
 /// Where a recorded run stopped, and what it was.
 #[derive(Debug, Clone)]
@@ -27,8 +30,11 @@ pub struct ResumePoint {
     pub truncated: Option<String>,
 }
 
-/// Reads the state after the last update recorded in `path`.
+/// Reads the state after the last update recorded in `path`; of a recording split into parts
+/// (`recording.split_mb`), in its last part, whichever part `path` names.
 pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
+    let last = last_part(path);
+    let path = last.as_path();
     // Streamed: the recording of a long continual run may not fit in memory.
     let rec = read_ends(path)?;
     let Some(last) = rec.last_update.as_ref() else {
@@ -92,14 +98,13 @@ impl ResumePoint {
         Ok((cfg, text))
     }
 
-    /// Refuses a resumed run's recording path that is the file being resumed (it would be
-    /// truncated before anything is written); `option` names the option that chose it.
+    /// Refuses a resumed run's recording path that is the file being resumed or a part of its
+    /// recording (it would be truncated, or the parts after it removed, before anything is
+    /// written); `option` names the option that chose it.
     pub fn check_output(&self, recording: &Path, option: &str) -> Result<(), RecordError> {
         let origin = Path::new(&self.start.origin);
-        let same = recording
-            .canonicalize()
-            .ok()
-            .is_some_and(|r| origin.canonicalize().ok() == Some(r));
+        let first = |p: &Path| first_part(p).canonicalize().ok();
+        let same = first(recording).is_some_and(|r| first(origin) == Some(r));
         if same {
             return Err(RecordError::invalid(
                 origin,

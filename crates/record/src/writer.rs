@@ -60,6 +60,9 @@ pub struct RunStart<'a> {
     pub task_settings: &'a [(&'a str, f64)],
     /// The recording a resumed run continues (metadata `resumed_from`).
     pub resumed_from: Option<&'a str>,
+    /// For a part after the first of a split recording ([`crate::RunFiles`]): its number (2, 3,
+    /// …) and the file of the part before it (metadata `part`, `previous_part`).
+    pub part: Option<(u32, &'a str)>,
 }
 
 /// Everything about one finished update.
@@ -136,6 +139,8 @@ pub struct RunWriter<W: Write + Seek> {
     channels: Channels,
     sequence: u32,
     buf: Vec<u8>,
+    /// Bytes of messages written, before compression.
+    bytes: u64,
 }
 
 /// What [`RunWriter::create`] writes to: the file behind a buffer that serves the `mcap`
@@ -181,11 +186,17 @@ impl<W: Write + Seek> RunWriter<W> {
             channels: Channels(ids),
             sequence: 0,
             buf: Vec::new(),
+            bytes: 0,
         })
     }
 
     pub fn file(&self) -> &Path {
         &self.file
+    }
+
+    /// Bytes of messages written so far, before compression (what `recording.split_mb` bounds).
+    pub fn bytes_written(&self) -> u64 {
+        self.bytes
     }
 
     fn mcap_err(&self, e: mcap::McapError) -> RecordError {
@@ -202,6 +213,7 @@ impl<W: Write + Seek> RunWriter<W> {
         msg.encode(&mut self.buf)
             .map_err(|e| RecordError::invalid(self.file.clone(), format!("encode: {e}")))?;
         self.sequence = self.sequence.wrapping_add(1);
+        self.bytes += self.buf.len() as u64;
         let header = MessageHeader {
             channel_id: self.channels.0[channel],
             sequence: self.sequence,
@@ -227,6 +239,10 @@ impl<W: Write + Seek> RunWriter<W> {
         meta.insert("started_ns".to_string(), now.to_string());
         if let Some(from) = start.resumed_from {
             meta.insert("resumed_from".to_string(), from.to_string());
+        }
+        if let Some((part, previous)) = start.part {
+            meta.insert("part".to_string(), part.to_string());
+            meta.insert("previous_part".to_string(), previous.to_string());
         }
         for (k, v) in &versions {
             meta.insert(format!("version.{k}"), v.clone());

@@ -38,6 +38,9 @@ pub struct RunConfig {
     /// ignores it. Absent means [`PipelineSection::default`].
     #[serde(default)]
     pub pipeline: Option<PipelineSection>,
+    /// How the run's MCAP recording is written (both executors). Absent: one file.
+    #[serde(default)]
+    pub recording: Option<RecordingSection>,
     /// Where the file came from, for error messages; not a TOML key.
     #[serde(skip)]
     pub origin: PathBuf,
@@ -178,6 +181,16 @@ pub struct ScheduleEntry {
     pub from_update: u64,
     pub set: String,
     pub value: f64,
+}
+
+/// Settings of the run's MCAP recording (crate `record`).
+#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecordingSection {
+    /// Split the recording into parts of about this many MB (messages before compression): a
+    /// continual run's recording is then a series of finished, indexed files rather than one
+    /// that grows without end. Unset: one file.
+    pub split_mb: Option<u64>,
 }
 
 /// Settings of the multiprocess pipeline (crates `wire`, `pipeline`, `supervisor`).
@@ -406,6 +419,13 @@ impl RunConfig {
         };
         if !(delay_ms.is_finite() && (0.0..=3.6e6).contains(&delay_ms)) {
             return Err(self.invalid(delay_field, delay_ms, "must be between 0 and 3600000"));
+        }
+        if self.recording.as_ref().and_then(|r| r.split_mb) == Some(0) {
+            return Err(self.invalid(
+                "recording.split_mb",
+                0,
+                "must be > 0 (leave it out for one file)",
+            ));
         }
         if let Some(p) = &self.pipeline {
             if !(1..=PipelineSection::WORKER_LIMIT).contains(&p.max_workers) {

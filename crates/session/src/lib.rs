@@ -9,8 +9,9 @@ mod config;
 mod start;
 
 pub use config::{
-    ConfigError, ExternalConfig, Method, OptimizerSection, PipelineSection, RunConfig, RunSection,
-    ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
+    ConfigError, ExternalConfig, Method, OptimizerSection, PipelineSection, RecordingSection,
+    RunConfig, RunSection, ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName,
+    DEFAULT_CONFIG,
 };
 
 pub use start::{Start, StartFileError};

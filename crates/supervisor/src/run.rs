@@ -1278,7 +1278,8 @@ impl Supervisor {
                 let Some(rec) = self.recording.as_mut() else {
                     return;
                 };
-                let path = rec.path.display().to_string();
+                // The part being written (the only one a split recording leaves unfinished).
+                let path = record::last_part(&rec.path).display().to_string();
                 if !starting {
                     // Whatever its exit status, the updater must stop waiting for its
                     // acknowledgements.
@@ -1362,11 +1363,11 @@ impl Supervisor {
             None => {}
         }
         if let Some(rec) = self.recording.as_ref().filter(|r| r.path.exists()) {
-            let path = rec.path.display();
+            let (path, parts) = record::describe_parts(&rec.path);
             // A resumed run's analysis joins the file it resumed, for the whole learning curve.
             let analyse = match &self.start {
-                Some(s) => format!("pi2cma analyze {} {path}", s.origin),
-                None => format!("pi2cma analyze {path}"),
+                Some(s) => format!("pi2cma analyze {} {parts}", s.origin),
+                None => format!("pi2cma analyze {parts}"),
             };
             let place = if rec.defaulted {
                 " (the default place: runs/<run name>-<run id>.mcap in the current directory; \
@@ -1380,11 +1381,15 @@ impl Supervisor {
                     say(&format!("  analyse it with: {analyse}"));
                 }
                 Some(cause) => {
+                    // Only the last part can be unfinished; the others were finished as they
+                    // filled.
+                    let last = record::last_part(&rec.path);
+                    let last = last.display();
                     say(&format!(
-                        "recording: {path}{place} is NOT finished (the recorder died: {cause})"
+                        "recording: {path}{place}: {last} is NOT finished (the recorder died: {cause})"
                     ));
                     say(&format!(
-                        "  complete it with: pi2cma recover {path}   (or: mcap-tool recover {path})"
+                        "  complete it with: pi2cma recover {last}   (or: mcap-tool recover {last})"
                     ));
                     say(&format!("  then analyse it with: {analyse}"));
                 }

@@ -1057,6 +1057,70 @@ fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
     assert_nothing_left(&run);
 }
 
+/// `run CONFIG --quiet --record MCAP --result RESULT`.
+fn start_recorded(scratch: &Scratch, id: u64, config: &Path, mcap: &Path, result: &Path) -> Run {
+    let args = [
+        config.to_str().unwrap(),
+        "--quiet",
+        "--record",
+        mcap.to_str().unwrap(),
+        "--result",
+        result.to_str().unwrap(),
+    ];
+    Run::start(scratch, id, &args)
+}
+
+/// `recording.split_mb`: the pipeline's recording is a series of finished parts, each one a
+/// recording that verifies by itself; together they are the run, and the summary names them all.
+#[test]
+fn a_split_pipeline_recording_is_finished_parts_that_make_the_run() {
+    let scratch = Scratch::new("rec-split");
+    let text = format!(
+        "{}\n[recording]\nsplit_mb = 1\n",
+        config(&[
+            ("updates = 40", "updates = 200"),
+            ("viapoint_weight = 1000.0", DELAYED),
+        ])
+    );
+    let cfg = write_config(&scratch, "split.toml", &text);
+    let mcap = scratch.path("split.mcap");
+    let result = scratch.path("result.toml");
+    let mut run = start_recorded(&scratch, 740, &cfg, &mcap, &result);
+    assert!(
+        run.wait(Duration::from_secs(60)).success(),
+        "{}",
+        run.text()
+    );
+    let parts = record::recording_parts(&mcap);
+    assert_eq!(parts.len(), 3, "{parts:?}");
+    let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    let out = run.text();
+    assert!(
+        out.contains(&format!("split into 3 parts: {}", names.join(", "))),
+        "{out}"
+    );
+    assert!(
+        out.contains(&format!("pi2cma analyze {}", names.join(" "))),
+        "{out}"
+    );
+    let mut recs = Vec::new();
+    for p in &parts {
+        let rec = record::read_recording(p).unwrap();
+        assert!(rec.indexed && rec.truncated.is_none(), "{}", p.display());
+        assert!(record::recompute::verify(&rec)
+            .unwrap()
+            .mismatches
+            .is_empty());
+        recs.push(rec);
+    }
+    let runs = record::join_resumed(recs);
+    assert_eq!(runs.len(), 1);
+    let updates: Vec<u64> = runs[0].0.updates.iter().map(|u| u.update).collect();
+    assert_eq!(updates, (0..200).collect::<Vec<_>>());
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn sigint_mid_run_leaves_a_finished_recording_with_every_completed_update() {
     let scratch = Scratch::new("rec-sigint");
@@ -1067,18 +1131,7 @@ fn sigint_mid_run_leaves_a_finished_recording_with_every_completed_update() {
     let cfg = write_config(&scratch, "sigint.toml", &text);
     let mcap = scratch.path("chosen/interrupted.mcap");
     let result = scratch.path("result.toml");
-    let mut run = Run::start(
-        &scratch,
-        700,
-        &[
-            cfg.to_str().unwrap(),
-            "--quiet",
-            "--record",
-            mcap.to_str().unwrap(),
-            "--result",
-            result.to_str().unwrap(),
-        ],
-    );
+    let mut run = start_recorded(&scratch, 705, &cfg, &mcap, &result);
     run.wait_status("5 updates", |s| updates_in(s) >= 5);
     let interrupted = Command::new("kill")
         .args(["-INT", &run.child.id().to_string()])

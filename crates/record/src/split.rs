@@ -1,0 +1,321 @@
+//! A run's recording as one file, or as a series of parts of bounded size (`recording.split_mb`):
+//! a continual run that learns for days then leaves finished, indexed files that any tool opens,
+//! instead of one file that grows without end and is indexed only when the run stops. The first
+//! part is the file asked for; part n ≥ 2 is `<stem>.part-<n>.mcap` beside it. Each part is a
+//! recording of its own — its `/run` names the update it begins at and the distribution that
+//! update samples from — so every part verifies by itself, and the parts join into one run
+//! ([`crate::join_resumed`]) as a resumed run's files do.
+
+use std::path::{Path, PathBuf};
+
+use pi2cma::Hyperparameters;
+
+use crate::writer::{FileSink, RunStart, RunWriter, UpdateData};
+use crate::{Event, RecordError};
+
+/// Part `n` (≥ 2) of the split recording whose first part is `first`.
+pub fn part_path(first: &Path, n: u32) -> PathBuf {
+    let stem = first
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    first.with_file_name(format!("{stem}.part-{n}.mcap"))
+}
+
+/// The first part of the recording `path` belongs to (`path` itself unless it is a part).
+pub fn first_part(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let first = name
+        .strip_suffix(".mcap")
+        .and_then(|s| s.rsplit_once(".part-"))
+        .filter(|(_, n)| n.parse::<u32>().is_ok_and(|n| n >= 2))
+        .map(|(stem, _)| format!("{stem}.mcap"));
+    match first {
+        Some(f) => path.with_file_name(f),
+        None => path.to_path_buf(),
+    }
+}
+
+/// Every part of the recording `path` belongs to, in order: the first, then each
+/// `<stem>.part-<n>.mcap` that exists, n = 2, 3, … without a gap.
+pub fn recording_parts(path: &Path) -> Vec<PathBuf> {
+    let first = first_part(path);
+    let mut parts = vec![first.clone()];
+    for n in 2.. {
+        let p = part_path(&first, n);
+        if !p.exists() {
+            break;
+        }
+        parts.push(p);
+    }
+    parts
+}
+
+/// The last part of the recording `path` belongs to: the one a run goes on from, and the only one
+/// a killed writer can leave unfinished.
+pub fn last_part(path: &Path) -> PathBuf {
+    recording_parts(path)
+        .pop()
+        .unwrap_or_else(|| path.to_path_buf())
+}
+
+/// How the binaries name a finished recording: `FILE`, or `FILE (split into n parts: FILE, …)`;
+/// and the files of all parts, space-separated, for an `analyze` command line.
+pub fn describe_parts(path: &Path) -> (String, String) {
+    let parts = recording_parts(path);
+    let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    let all = names.join(" ");
+    if parts.len() == 1 {
+        return (path.display().to_string(), all);
+    }
+    let shown = format!(
+        "{} (split into {} parts: {})",
+        path.display(),
+        parts.len(),
+        names.join(", ")
+    );
+    (shown, all)
+}
+
+/// What every part's `/run` repeats.
+#[derive(Debug, Clone)]
+struct Run {
+    name: String,
+    seed: u64,
+    steps: usize,
+    hyperparameters: Hyperparameters,
+    basis_activations: Option<Vec<f64>>,
+    config_toml: String,
+    executor: String,
+    resumed_from: Option<String>,
+}
+
+/// Writes a run's recording: [`RunWriter`]'s calls, and a new part once the current one holds
+/// `split_mb` (see [`RunFiles::split_at_mb`]). A part is finished (indexed) when the update
+/// after its last arrives; the new part begins with that update.
+pub struct RunFiles {
+    writer: Option<RunWriter<FileSink>>,
+    first: PathBuf,
+    part: u32,
+    split_bytes: Option<u64>,
+    run: Option<Run>,
+}
+
+impl RunFiles {
+    /// Creates (truncates) `path`, the first part.
+    pub fn create(path: &Path) -> Result<Self, RecordError> {
+        Ok(Self {
+            writer: Some(RunWriter::create(path)?),
+            first: path.to_path_buf(),
+            part: 1,
+            split_bytes: None,
+            run: None,
+        })
+    }
+
+    /// Splits into parts of about `mb` MB of messages before compression (`recording.split_mb`);
+    /// `None`: one file. Parts that a previous recording to the same path left are removed,
+    /// since the first part, which they continue, has just been overwritten.
+    pub fn split_at_mb(&mut self, mb: Option<u64>) -> Result<(), RecordError> {
+        self.split_bytes = mb.map(|mb| mb.saturating_mul(1 << 20));
+        if self.split_bytes.is_some() {
+            for stale in recording_parts(&self.first).into_iter().skip(1) {
+                std::fs::remove_file(&stale).map_err(|e| RecordError::io(&stale, e))?;
+            }
+        }
+        Ok(())
+    }
+
+    fn writer(&mut self) -> Result<&mut RunWriter<FileSink>, RecordError> {
+        self.writer
+            .as_mut()
+            .ok_or_else(|| RecordError::invalid(self.first.clone(), "the writer has failed"))
+    }
+
+    /// The part being written.
+    pub fn file(&self) -> PathBuf {
+        match self.part {
+            1 => self.first.clone(),
+            n => part_path(&self.first, n),
+        }
+    }
+
+    pub fn write_start(&mut self, start: &RunStart<'_>) -> Result<(), RecordError> {
+        self.run = Some(Run {
+            name: start.name.to_string(),
+            seed: start.seed,
+            steps: start.steps,
+            hyperparameters: start.hyperparameters.clone(),
+            basis_activations: start.basis_activations.map(<[f64]>::to_vec),
+            config_toml: start.config_toml.to_string(),
+            executor: start.executor.to_string(),
+            resumed_from: start.resumed_from.map(str::to_string),
+        });
+        self.writer()?.write_start(start)
+    }
+
+    /// As [`RunWriter::write_update`], into a new part first if the current one is full.
+    pub fn write_update(&mut self, u: &UpdateData<'_>) -> Result<(), RecordError> {
+        let full = self.split_bytes.is_some_and(|max| {
+            self.writer
+                .as_ref()
+                .is_some_and(|w| w.bytes_written() >= max)
+        });
+        if full {
+            self.next_part(u)?;
+        }
+        self.writer()?.write_update(u)
+    }
+
+    /// Finishes the current part and starts the next with `u`'s update: its `/run` holds the
+    /// distribution `u` samples from and the settings it runs with.
+    fn next_part(&mut self, u: &UpdateData<'_>) -> Result<(), RecordError> {
+        let Some(run) = self.run.clone() else {
+            return Ok(());
+        };
+        let previous = self.file();
+        if let Some(w) = self.writer.take() {
+            w.finish()?;
+        }
+        self.part += 1;
+        let path = self.file();
+        let mut w = RunWriter::create(&path)?;
+        let previous = previous.display().to_string();
+        w.write_start(&RunStart {
+            name: &run.name,
+            seed: run.seed,
+            update: u.summary.update,
+            steps: run.steps,
+            hyperparameters: &run.hyperparameters,
+            initial: u.before,
+            basis_activations: run.basis_activations.as_deref(),
+            config_toml: &run.config_toml,
+            executor: &run.executor,
+            task_settings: u.task_settings,
+            resumed_from: run.resumed_from.as_deref(),
+            part: Some((self.part, &previous)),
+        })?;
+        w.write_event(
+            u.summary.update,
+            Event::Info,
+            "recorder",
+            std::process::id(),
+            &format!(
+                "part {} of the recording; updates before {} are in {previous} and the parts before it",
+                self.part, u.summary.update
+            ),
+        )?;
+        self.writer = Some(w);
+        Ok(())
+    }
+
+    pub fn write_task_change(
+        &mut self,
+        update: u64,
+        name: &str,
+        value: f64,
+    ) -> Result<(), RecordError> {
+        self.writer()?.write_task_change(update, name, value)
+    }
+
+    pub fn write_event(
+        &mut self,
+        update: u64,
+        event: Event,
+        name: &str,
+        pid: u32,
+        message: &str,
+    ) -> Result<(), RecordError> {
+        self.writer()?
+            .write_event(update, event, name, pid, message)
+    }
+
+    pub fn flush(&mut self) -> Result<(), RecordError> {
+        self.writer()?.flush()
+    }
+
+    /// Finishes the part being written; the earlier ones were finished when they filled.
+    pub fn finish(mut self) -> Result<(), RecordError> {
+        match self.writer.take() {
+            Some(w) => w.finish().map(|_| ()),
+            None => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{join_resumed, read_recording, recompute::verify, McapRecorder};
+
+    fn record(path: &Path, updates: u64, split_mb: Option<u64>) -> pi2cma::Distribution {
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(updates);
+        cfg.recording = Some(session::RecordingSection { split_mb });
+        let mut rec = McapRecorder::create(path).unwrap();
+        let (_, last) = session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        last
+    }
+
+    /// 200 A1 updates of ~14 kB in parts of 1 MB: three finished parts, each a recording that
+    /// verifies by itself, which join into the run; a later, shorter recording to the same
+    /// path leaves no stale part behind.
+    #[test]
+    fn a_split_recording_is_finished_parts_that_join_into_the_run() {
+        let dir = std::env::temp_dir().join(format!("split-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("run.mcap");
+        let last = record(&first, 200, Some(1));
+        let parts = recording_parts(&first);
+        assert_eq!(parts.len(), 3, "{parts:?}");
+        let mut recs = Vec::new();
+        for (i, p) in parts.iter().enumerate() {
+            let rec = read_recording(p).unwrap();
+            assert!(rec.indexed && rec.truncated.is_none(), "{}", p.display());
+            assert!(verify(&rec).unwrap().mismatches.is_empty());
+            let meta = &rec.metadata[crate::topics::METADATA];
+            let first_update = rec.updates[0].update;
+            assert_eq!(meta["first_update"], first_update.to_string());
+            assert_eq!(rec.run_info().unwrap().update, first_update);
+            if i > 0 {
+                assert_eq!(meta["part"], (i + 1).to_string());
+                assert_eq!(meta["previous_part"], parts[i - 1].display().to_string());
+                assert!(rec.logs.iter().any(|l| l.message.starts_with("part ")));
+            }
+            recs.push(rec);
+        }
+        let runs = join_resumed(recs);
+        assert_eq!(runs.len(), 1);
+        let updates: Vec<u64> = runs[0].0.updates.iter().map(|u| u.update).collect();
+        assert_eq!(updates, (0..200).collect::<Vec<_>>());
+        // Resuming from any part goes on from the last.
+        let point = crate::resume::resume_point(&first).unwrap();
+        assert_eq!(point.start.update, 200);
+        assert_eq!(point.start.distribution, last);
+        assert_eq!(point.start.origin, parts[2].display().to_string());
+
+        record(&first, 50, Some(1));
+        assert_eq!(recording_parts(&first), std::slice::from_ref(&first));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn parts_are_named_after_the_first() {
+        let first = Path::new("runs/day.mcap");
+        assert_eq!(part_path(first, 2), Path::new("runs/day.part-2.mcap"));
+        assert_eq!(first_part(Path::new("runs/day.part-12.mcap")), first);
+        assert_eq!(first_part(first), first);
+        assert_eq!(
+            first_part(Path::new("a.part-x.mcap")),
+            Path::new("a.part-x.mcap")
+        );
+        assert_eq!(
+            first_part(Path::new("a.part-1.mcap")),
+            Path::new("a.part-1.mcap")
+        );
+    }
+}
