@@ -110,7 +110,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     )?;
 
     let mut writer = RunFiles::create(&out)?;
-    writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb))?;
+    writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb));
     let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone())?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
     eprintln!("recording to {}", out.display());

@@ -90,7 +90,7 @@ enum Ack {
 fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordError> {
     match job {
         Job::Start(s) => {
-            w.split_at_mb(s.split_mb)?;
+            w.split_at_mb(s.split_mb);
             let settings: Vec<(&str, f64)> =
                 s.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
             w.write_start(&RunStart {

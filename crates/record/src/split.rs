@@ -105,8 +105,12 @@ pub struct RunFiles {
 }
 
 impl RunFiles {
-    /// Creates (truncates) `path`, the first part.
+    /// Creates (truncates) `path`, the first part. Parts that an earlier recording to the same
+    /// path left are removed: they continued the file just overwritten.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
+        for stale in recording_parts(path).into_iter().skip(1) {
+            std::fs::remove_file(&stale).map_err(|e| RecordError::io(&stale, e))?;
+        }
         Ok(Self {
             writer: Some(RunWriter::create(path)?),
             first: path.to_path_buf(),
@@ -117,16 +121,9 @@ impl RunFiles {
     }
 
     /// Splits into parts of about `mb` MB of messages before compression (`recording.split_mb`);
-    /// `None`: one file. Parts that a previous recording to the same path left are removed,
-    /// since the first part, which they continue, has just been overwritten.
-    pub fn split_at_mb(&mut self, mb: Option<u64>) -> Result<(), RecordError> {
+    /// `None`: one file.
+    pub fn split_at_mb(&mut self, mb: Option<u64>) {
         self.split_bytes = mb.map(|mb| mb.saturating_mul(1 << 20));
-        if self.split_bytes.is_some() {
-            for stale in recording_parts(&self.first).into_iter().skip(1) {
-                std::fs::remove_file(&stale).map_err(|e| RecordError::io(&stale, e))?;
-            }
-        }
-        Ok(())
     }
 
     fn writer(&mut self) -> Result<&mut RunWriter<FileSink>, RecordError> {
@@ -298,7 +295,7 @@ mod tests {
         assert_eq!(point.start.distribution, last);
         assert_eq!(point.start.origin, parts[2].display().to_string());
 
-        record(&first, 50, Some(1));
+        record(&first, 50, None);
         assert_eq!(recording_parts(&first), std::slice::from_ref(&first));
         std::fs::remove_dir_all(&dir).unwrap();
     }
