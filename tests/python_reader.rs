@@ -3,18 +3,23 @@
 //! `pi2cma` binary recorded, checks its invariants and draws the learning curve.
 //! Needs `python3 -m pip install -r tools/requirements.txt` (the README's test command does it).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
-#[test]
-fn python_reader_decodes_every_topic_of_a_run() {
-    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let dir = std::env::temp_dir().join(format!("pi2cma-python-reader-{}", std::process::id()));
+/// An empty scratch directory `name`.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("pi2cma-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+/// `pi2cma run ARGS` in `dir`, which must succeed.
+fn pi2cma_run(dir: &Path, args: &[&str]) {
     let run = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
-        .args(["run", "--quiet", "--out"])
-        .arg(&dir)
+        .arg("run")
+        .args(args)
+        .current_dir(dir)
         .output()
         .expect("pi2cma starts");
     assert!(
@@ -22,6 +27,13 @@ fn python_reader_decodes_every_topic_of_a_run() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
+}
+
+#[test]
+fn python_reader_decodes_every_topic_of_a_run() {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = scratch("python-reader");
+    pi2cma_run(&dir, &["--quiet", "--out", "."]);
     let mcap = dir.join("run.mcap");
     let svg = dir.join("curve.svg");
     let out = Command::new("python3")
@@ -60,5 +72,44 @@ fn python_reader_decodes_every_topic_of_a_run() {
         svg.metadata().map(|m| m.len() > 1000).unwrap_or(false),
         "no figure written"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The parts of a split recording (`recording.split_mb`), read by the Python tool as one run
+/// (`--join`): every part checks by itself, each goes on where the one before ends, and one
+/// curve is drawn; given out of order, the seams fail.
+#[test]
+fn python_reader_joins_the_parts_of_a_split_recording() {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = scratch("python-join");
+    let config = format!(
+        "{}\n[recording]\nsplit_mb = 1\n",
+        session::DEFAULT_CONFIG.replace("updates = 40", "updates = 200")
+    );
+    std::fs::write(dir.join("split.toml"), config).expect("config");
+    pi2cma_run(&dir, &["split.toml", "--quiet", "--out", "out"]);
+    let parts = ["out/run.mcap", "out/run.part-2.mcap", "out/run.part-3.mcap"];
+    let python = |files: &[&str]| {
+        let out = Command::new("python3")
+            .arg(repo.join("tools/plot_learning_curve.py"))
+            .args(["--join", "--check", "-o", "joined.svg"])
+            .args(files)
+            .current_dir(&dir)
+            .output()
+            .expect("python3 starts");
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    };
+    let (ok, text) = python(&parts);
+    assert!(ok, "{text}");
+    assert!(text.contains("joined 3 files: updates 0..199"), "{text}");
+    assert!(text.contains("3 passed, 0 failed"), "{text}");
+    assert!(dir.join("joined.svg").is_file());
+    let (ok, text) = python(&[parts[1], parts[0], parts[2]]);
+    assert!(!ok && text.contains("does not go on where"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -6,11 +6,17 @@ the protobuf schemas are embedded in the recording. Draws the evaluation cost, t
 cost mean ± std band and λ on a log axis, with task changes marked.
 
     python3 tools/plot_learning_curve.py RUN.mcap [-o curve.svg] [--check]
+    python3 tools/plot_learning_curve.py --join RUN.mcap RUN.part-2.mcap … [-o curve.svg] [--check]
 
 --check decodes every message of every topic and checks the recording's invariants (one
 /summary and K /rollout messages per /update, an update index on every message, consecutive
 updates, the distribution after one update is the one the next samples from); it exits non-zero
 on any failure. Files whose writer was killed (no summary section) are read as a stream.
+
+--join takes the files as one run, in order: the parts of a split recording (`recording.split_mb`)
+or a run and the runs resumed from it (`--resume`). It checks that each file goes on exactly where
+the one before ends (the next update, sampled from the distribution the last update left) and
+draws one learning curve.
 """
 
 import argparse
@@ -142,28 +148,66 @@ def plot(path, by_topic, out):
     plt.close(fig)
 
 
+def join(paths, read_files):
+    """Concatenates the files' messages as one run; returns it and the failures of the seams."""
+    joined = collections.defaultdict(list)
+    failures = []
+    last, last_path = None, None
+    for path, by_topic in zip(paths, read_files):
+        updates = [m for _, m in by_topic.get("/update", [])]
+        if last is not None and updates:
+            first = updates[0]
+            goes_on = first.update == last.update + 1 and list(first.before.mean) == list(
+                last.after.mean
+            ) and list(first.before.covariance) == list(last.after.covariance)
+            if not goes_on:
+                failures.append(
+                    f"{path}: does not go on where {last_path} ends (its first update is "
+                    f"{first.update}, {last_path}'s last {last.update})"
+                )
+        for topic, msgs in by_topic.items():
+            joined[topic] += msgs
+        if updates:
+            last, last_path = updates[-1], path
+    return joined, failures
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("files", nargs="+", help="MCAP recordings of pi2cma runs")
-    ap.add_argument("-o", "--out", help="figure file (one input) or suffix-free prefix (several)")
+    ap.add_argument("-o", "--out", help="figure file (one input or --join) or suffix-free prefix (several)")
     ap.add_argument("--check", action="store_true", help="decode every topic and check invariants")
+    ap.add_argument("--join", action="store_true", help="the files are one run, in order (parts, resumptions)")
     args = ap.parse_args(argv)
     failures = []
     failed_files = 0
+    read_files = []
     for i, path in enumerate(args.files):
         by_topic, indexed = read(path)
+        read_files.append(by_topic)
         counts = ", ".join(f"{t} {len(m)}" for t, m in sorted(by_topic.items()))
         print(f"{path}: {'indexed' if indexed else 'NOT indexed (stream read)'}; decoded {counts}")
         if args.check:
             f = check(path, by_topic)
             failed_files += bool(f)
             failures += f
+        if args.join:
+            continue
         out = args.out
         if out and len(args.files) > 1:
             out = f"{out}-{i}.svg"
         if out:
             plot(path, by_topic, out)
             print(f"wrote {out}")
+    if args.join:
+        joined, seams = join(args.files, read_files)
+        failures += seams
+        updates = [m for _, m in joined.get("/update", [])]
+        if updates:
+            print(f"joined {len(args.files)} files: updates {updates[0].update}..{updates[-1].update}")
+        if args.out:
+            plot(" + ".join(args.files), joined, args.out)
+            print(f"wrote {args.out}")
     for f in failures:
         print(f"FAIL {f}", file=sys.stderr)
     if args.check:
