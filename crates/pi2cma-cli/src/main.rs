@@ -268,17 +268,11 @@ fn run(cli: Cli) -> Result<()> {
                 .as_deref()
                 .map(record::resume::resume_point)
                 .transpose()?;
-            let (mut cfg, mut text) = match (&config, &point) {
-                (Some(p), _) => (load(p)?, std::fs::read_to_string(p).unwrap_or_default()),
-                (None, Some(point)) => point.recorded_config()?,
-                (None, None) => (
-                    RunConfig::default_config(),
-                    session::DEFAULT_CONFIG.to_string(),
-                ),
-            };
-            // Into the text too, so that the recording's config reruns this run.
-            let overrides = [("updates", updates), ("seed", seed)];
-            (cfg, text) = RunConfig::with_run_overrides(&text, &cfg.origin.clone(), &overrides)?;
+            let (cfg, text) = record::resume::run_config(
+                config.as_deref(),
+                point.as_ref(),
+                &[("updates", updates), ("seed", seed)],
+            )?;
             if cfg.run.updates.is_none() {
                 bail!(
                     "{}: run.updates is not set (an unbounded run): run it with the supervisor, which can be stopped{}",

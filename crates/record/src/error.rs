@@ -25,6 +25,9 @@ pub enum RecordError {
         schema: &'static str,
         error: prost::DecodeError,
     },
+    /// A run config that cannot be read or is not valid (its message names file and field).
+    #[error("{0}")]
+    Config(session::ConfigError),
     #[error("{file}: {what}")]
     Invalid { file: PathBuf, what: String },
     #[error("{file}: update {update}: {what}")]
@@ -59,5 +62,11 @@ impl RecordError {
             file: file.into(),
             what: what.into(),
         }
+    }
+}
+
+impl From<session::ConfigError> for RecordError {
+    fn from(e: session::ConfigError) -> Self {
+        Self::Config(e)
     }
 }

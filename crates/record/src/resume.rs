@@ -15,6 +15,30 @@ use crate::{
     RecordError,
 };
 
+/// The config a run uses, and its text as the recording keeps it: the file `given`, else the
+/// config `point` recorded (a resumed run), else the built-in default; with the command line's
+/// `run` overrides written into the text too, so that the recorded config reruns the run
+/// ([`RunConfig::with_run_overrides`]).
+pub fn run_config(
+    given: Option<&Path>,
+    point: Option<&ResumePoint>,
+    overrides: &[(&str, Option<u64>)],
+) -> Result<(RunConfig, String), RecordError> {
+    let (cfg, text) = match (given, point) {
+        (Some(p), _) => RunConfig::load_with_text(p)?,
+        (None, Some(point)) => point.recorded_config()?,
+        (None, None) => (
+            RunConfig::default_config(),
+            session::DEFAULT_CONFIG.to_string(),
+        ),
+    };
+    Ok(RunConfig::with_run_overrides(
+        &text,
+        &cfg.origin,
+        overrides,
+    )?)
+}
+
 /// Where a recorded run stopped, and what it was.
 #[derive(Debug, Clone)]
 pub struct ResumePoint {

@@ -250,11 +250,16 @@ pub const DEFAULT_CONFIG: &str = include_str!("default.toml");
 
 impl RunConfig {
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        Self::load_with_text(path).map(|(cfg, _)| cfg)
+    }
+
+    /// [`RunConfig::load`], and the file's text (which a recording keeps as it is).
+    pub fn load_with_text(path: &Path) -> Result<(Self, String), ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
             file: path.to_path_buf(),
             reason: e.to_string(),
         })?;
-        Self::parse(&text, path)
+        Ok((Self::parse(&text, path)?, text))
     }
 
     pub fn default_config() -> Self {

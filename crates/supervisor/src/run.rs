@@ -340,20 +340,12 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         .as_deref()
         .map(record::resume::resume_point)
         .transpose()?;
-    let (mut cfg, mut text) = match (&opts.config, &point) {
-        (Some(p), _) => {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("{}: cannot read", p.display()))?;
-            (RunConfig::parse(&text, p)?, text)
-        }
-        (None, Some(point)) => point.recorded_config()?,
-        (None, None) => (
-            RunConfig::default_config(),
-            session::DEFAULT_CONFIG.to_string(),
-        ),
-    };
+    let (cfg, text) = record::resume::run_config(
+        opts.config.as_deref(),
+        point.as_ref(),
+        &[("updates", opts.updates)],
+    )?;
     let origin = cfg.origin.clone();
-    (cfg, text) = RunConfig::with_run_overrides(&text, &origin, &[("updates", opts.updates)])?;
     if let Some(point) = &point {
         point.check(&cfg)?;
     }

@@ -11,7 +11,7 @@ use clap::{Parser, Subcommand};
 use record::analyze::{self, AnalyzeArgs};
 use record::recover::{self, RecoverArgs};
 use record::{read_recording, McapRecorder};
-use session::{InProcess, RunConfig};
+use session::InProcess;
 
 #[derive(Parser)]
 #[command(
@@ -174,21 +174,8 @@ fn record_run(
     out: &Path,
     progress: bool,
 ) -> Result<()> {
-    let (mut cfg, mut text) = match config {
-        Some(p) => {
-            let text =
-                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            (RunConfig::parse(&text, p)?, text)
-        }
-        None => (
-            RunConfig::default_config(),
-            session::DEFAULT_CONFIG.to_string(),
-        ),
-    };
-    // Into the recorded text too, so that the recording's config reruns this run.
-    let overrides = [("updates", updates), ("seed", seed)];
-    let origin = cfg.origin.clone();
-    (cfg, text) = RunConfig::with_run_overrides(&text, &origin, &overrides)?;
+    let (mut cfg, text) =
+        record::resume::run_config(config, None, &[("updates", updates), ("seed", seed)])?;
     // An override the text cannot take: record the rendered config then.
     let mut text = Some(text);
     if let Some(d) = delay {
