@@ -39,13 +39,12 @@ pub fn first_part(path: &Path) -> PathBuf {
     }
 }
 
-/// Every part of the recording `path` belongs to, in order: the first, then each
+/// Every part of the recording whose first part is `first`, in order: `first`, then each
 /// `<stem>.part-<n>.mcap` that exists, n = 2, 3, … without a gap.
-pub fn recording_parts(path: &Path) -> Vec<PathBuf> {
-    let first = first_part(path);
-    let mut parts = vec![first.clone()];
+pub fn recording_parts(first: &Path) -> Vec<PathBuf> {
+    let mut parts = vec![first.to_path_buf()];
     for n in 2.. {
-        let p = part_path(&first, n);
+        let p = part_path(first, n);
         if !p.exists() {
             break;
         }
@@ -54,10 +53,10 @@ pub fn recording_parts(path: &Path) -> Vec<PathBuf> {
     parts
 }
 
-/// The last part of the recording `path` belongs to: the one a run goes on from, and the only one
-/// a killed writer can leave unfinished.
+/// The last part of the recording `path` (its first part or any other) belongs to: the one a run
+/// goes on from, and the only one a killed writer can leave unfinished.
 pub fn last_part(path: &Path) -> PathBuf {
-    recording_parts(path)
+    recording_parts(&first_part(path))
         .pop()
         .unwrap_or_else(|| path.to_path_buf())
 }
