@@ -1140,9 +1140,18 @@ impl Supervisor {
         s += &match &self.recording {
             Some(r) if r.lost.is_some() => format!(
                 "recording: {} (recorder died; recover the file after the run)\n",
-                r.path.display()
+                record::last_part(&r.path).display()
             ),
-            Some(r) => format!("recording: {}\n", r.path.display()),
+            // A split recording: the part being written is the last that exists.
+            Some(r) => match record::recording_parts(&r.path).as_slice() {
+                [one] => format!("recording: {}\n", one.display()),
+                parts => format!(
+                    "recording: {}, part {} of the recording begun in {}\n",
+                    parts[parts.len() - 1].display(),
+                    parts.len(),
+                    r.path.display()
+                ),
+            },
             None => "recording: off (--no-record)\n".to_string(),
         };
         for (pid, p) in &self.procs {

@@ -1086,6 +1086,9 @@ fn a_split_pipeline_recording_is_finished_parts_that_make_the_run() {
     let mcap = scratch.path("split.mcap");
     let result = scratch.path("result.toml");
     let mut run = start_recorded(&scratch, 740, &cfg, &mcap, &result);
+    // Status names the part being written (part 2 holds updates 76..=151).
+    let said = format!("part 2 of the recording begun in {}", mcap.display());
+    run.wait_status("part 2", |s| s.contains(&said));
     assert!(
         run.wait(Duration::from_secs(60)).success(),
         "{}",
