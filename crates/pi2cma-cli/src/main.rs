@@ -245,10 +245,10 @@ fn run_observed<T>(
 /// Where the recording is and how to analyse it; a resumed run's analysis joins the file it
 /// resumed (`resumed_from`), for the whole learning curve.
 fn print_recording(mcap: &Path, out: &Path, resumed_from: Option<&str>) {
-    let (shown, parts) = record::describe_parts(mcap);
     println!(
-        "recording: {shown}\nanalyse it with: pi2cma analyze {}{parts} --out {}",
-        resumed_from.map(|f| format!("{f} ")).unwrap_or_default(),
+        "recording: {}\nanalyse it with: {} --out {}",
+        record::describe_parts(mcap),
+        record::analyze_command(mcap, resumed_from.map(Path::new)),
         out.join("analysis").display()
     );
 }

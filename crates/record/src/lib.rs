@@ -44,7 +44,9 @@ pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_
 pub use error::RecordError;
 pub use reader::{join_resumed, read_ends, read_recording, Ends, Recording};
 pub use recorder::McapRecorder;
-pub use split::{describe_parts, first_part, last_part, part_path, recording_parts, RunFiles};
+pub use split::{
+    analyze_command, describe_parts, first_part, last_part, part_path, recording_parts, RunFiles,
+};
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 
 /// The FileDescriptorSet of every schema (with `google/protobuf/timestamp.proto`), stored as the

@@ -61,22 +61,31 @@ pub fn last_part(path: &Path) -> PathBuf {
         .unwrap_or_else(|| path.to_path_buf())
 }
 
-/// How the binaries name a finished recording: `FILE`, or `FILE (split into n parts: FILE, …)`;
-/// and the files of all parts, space-separated, for an `analyze` command line.
-pub fn describe_parts(path: &Path) -> (String, String) {
+/// The `analyze` command line for a run's recording `first` (all its parts) that resumed the
+/// recording `resumed_from` (all of its parts, whichever one it names): one learning curve
+/// from the run's very start.
+pub fn analyze_command(first: &Path, resumed_from: Option<&Path>) -> String {
+    let mut files = resumed_from
+        .map(|r| recording_parts(&first_part(r)))
+        .unwrap_or_default();
+    files.extend(recording_parts(first));
+    let files: Vec<String> = files.iter().map(|p| p.display().to_string()).collect();
+    format!("pi2cma analyze {}", files.join(" "))
+}
+
+/// How the binaries name a finished recording: `FILE`, or `FILE (split into n parts: FILE, …)`.
+pub fn describe_parts(path: &Path) -> String {
     let parts = recording_parts(path);
-    let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
-    let all = names.join(" ");
     if parts.len() == 1 {
-        return (path.display().to_string(), all);
+        return path.display().to_string();
     }
-    let shown = format!(
+    let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    format!(
         "{} (split into {} parts: {})",
         path.display(),
         parts.len(),
         names.join(", ")
-    );
-    (shown, all)
+    )
 }
 
 /// What every part's `/run` repeats.
@@ -296,6 +305,31 @@ mod tests {
 
         record(&first, 50, None);
         assert_eq!(recording_parts(&first), std::slice::from_ref(&first));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A resumed run's analyze command names every part of both recordings, whichever part the
+    /// run resumed from.
+    #[test]
+    fn the_analyze_command_names_every_part_of_both_recordings() {
+        let dir = std::env::temp_dir().join(format!("split-cmd-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let names = ["a.mcap", "a.part-2.mcap", "b.mcap", "b.part-2.mcap"];
+        for n in names {
+            std::fs::write(dir.join(n), b"").unwrap();
+        }
+        let files: Vec<String> = names
+            .iter()
+            .map(|n| dir.join(n).display().to_string())
+            .collect();
+        assert_eq!(
+            analyze_command(&dir.join("b.mcap"), Some(&dir.join("a.part-2.mcap"))),
+            format!("pi2cma analyze {}", files.join(" "))
+        );
+        assert_eq!(
+            analyze_command(&dir.join("a.mcap"), None),
+            format!("pi2cma analyze {} {}", files[0], files[1])
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

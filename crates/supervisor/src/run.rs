@@ -1364,12 +1364,10 @@ impl Supervisor {
             None => {}
         }
         if let Some(rec) = self.recording.as_ref().filter(|r| r.path.exists()) {
-            let (path, parts) = record::describe_parts(&rec.path);
-            // A resumed run's analysis joins the file it resumed, for the whole learning curve.
-            let analyse = match &self.start {
-                Some(s) => format!("pi2cma analyze {} {parts}", s.origin),
-                None => format!("pi2cma analyze {parts}"),
-            };
+            let path = record::describe_parts(&rec.path);
+            // A resumed run's analysis joins the recording it resumed, for the whole curve.
+            let resumed = self.start.as_ref().map(|s| PathBuf::from(&s.origin));
+            let analyse = record::analyze_command(&rec.path, resumed.as_deref());
             let place = if rec.defaulted {
                 " (the default place: runs/<run name>-<run id>.mcap in the current directory; \
                  --record FILE to choose)"
