@@ -26,6 +26,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use iceoryx2_bb_posix::signal::SignalHandler;
 use session::RunConfig;
+use std::sync::atomic::{AtomicBool, Ordering};
 use wire::{Limits, Service};
 
 /// Arguments every pipeline process takes (the supervisor passes them).
@@ -260,8 +261,20 @@ impl Spin {
 
 /// Whether SIGINT or SIGTERM has arrived (iceoryx2's flag, installed by [`Context::new`]).
 /// Not `node.wait(0)`: that is a nanosleep, which sleeps for the timer slack (~50 µs).
+///
+/// Sticky: iceoryx2's `SignalHandler::termination_requested` reads its flag by swapping it out,
+/// so a second caller (the spin loop, then the wait loop) would find nothing and the process
+/// would never stop; the first true is kept here for every later call.
 pub fn termination_requested() -> bool {
-    SignalHandler::termination_requested()
+    static SEEN: AtomicBool = AtomicBool::new(false);
+    if SEEN.load(Ordering::Relaxed) {
+        return true;
+    }
+    let now = SignalHandler::termination_requested();
+    if now {
+        SEEN.store(true, Ordering::Relaxed);
+    }
+    now
 }
 
 /// Keeps the lifecycle port alive: a sample of a dropped publisher may never be received.

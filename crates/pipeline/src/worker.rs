@@ -138,6 +138,11 @@ fn slot<T: Task>(
             std::thread::yield_now();
         }
         while let Some(item) = iox(inbox.receive(), "receive work")? {
+            // A worker with a steady stream of work (the last one left while the others stop)
+            // may never find its inbox empty: without this it would not see SIGTERM.
+            if crate::termination_requested() {
+                return Ok(Flow::Continue);
+            }
             let h = *item.user_header();
             if h.run_id != ctx.run_id {
                 continue;

@@ -480,7 +480,7 @@ fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
         ("viapoint_weight = 1000.0", DELAYED),
         (
             "max_workers = 16",
-            "max_workers = 16\nrollout_timeout_ms = 100\nfault_hang_at_update = 4",
+            "max_workers = 16\nrollout_timeout_ms = 400\nfault_hang_at_update = 4",
         ),
     ]);
     let cfg = write_config(&scratch, "hung.toml", &text);
@@ -498,7 +498,15 @@ fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
             "{out}"
         );
     }
-    assert!(out.contains("3 restarts"), "{out}");
+    // At least the three hung ones; on a loaded machine a restarted worker's first chunk may
+    // also run over (the limit counts from the hand-out), which costs a restart, not the result.
+    let restarts: u32 = out
+        .split(" restarts")
+        .next()
+        .and_then(|s| s.rsplit(", ").next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0);
+    assert!(restarts >= 3, "{out}");
     assert_bit_identical(&text, &result);
     let rec = record::read_recording(&scratch.recording("A1", 730)).unwrap();
     for w in 0..3 {
