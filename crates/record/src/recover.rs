@@ -24,6 +24,9 @@ pub struct RecoverReport {
     pub dropped_bytes: u64,
     /// Why reading stopped, if the input was damaged.
     pub stopped_by: Option<String>,
+    /// The last part of the split recording the input belongs to, if that is another file:
+    /// the only part a killed writer leaves unfinished.
+    pub last_part: Option<PathBuf>,
 }
 
 /// Copies every readable schema, channel, message, metadata and attachment record of `input`
@@ -235,7 +238,10 @@ pub struct RecoverArgs {
 
 /// Runs `recover` as given on a command line.
 pub fn run(args: &RecoverArgs) -> Result<RecoverReport, RecordError> {
-    recover(&args.file, args.out.as_deref().unwrap_or(&args.file))
+    let mut report = recover(&args.file, args.out.as_deref().unwrap_or(&args.file))?;
+    let last = crate::last_part(&args.file);
+    report.last_part = (last != args.file).then_some(last);
+    Ok(report)
 }
 
 impl RecoverReport {
@@ -254,6 +260,14 @@ impl RecoverReport {
             s.push_str(&format!(
                 "; dropped the unreadable last {} bytes ({why})",
                 self.dropped_bytes
+            ));
+        }
+        if let Some(last) = &self.last_part {
+            s.push_str(&format!(
+                ". {} is a part of a split recording whose last part is {}: that is the one a \
+                 killed writer leaves unfinished",
+                self.input.display(),
+                last.display()
             ));
         }
         s

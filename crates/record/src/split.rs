@@ -297,6 +297,16 @@ mod tests {
         assert_eq!(runs.len(), 1);
         let updates: Vec<u64> = runs[0].0.updates.iter().map(|u| u.update).collect();
         assert_eq!(updates, (0..200).collect::<Vec<_>>());
+        // `recover` of an earlier part points at the last, the only one a killed writer leaves
+        // unfinished.
+        let report = crate::recover::run(&crate::recover::RecoverArgs {
+            file: first.clone(),
+            out: Some(dir.join("recovered.mcap")),
+        })
+        .unwrap();
+        assert_eq!(report.last_part.as_ref(), Some(&parts[2]));
+        assert!(report.describe().contains("whose last part is"));
+        std::fs::remove_file(dir.join("recovered.mcap")).unwrap();
         // Resuming from any part goes on from the last.
         let point = crate::resume::resume_point(&first).unwrap();
         assert_eq!(point.start.update, 200);
