@@ -66,6 +66,31 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
         out.push('\n');
         recs.push(rec);
     }
+    // Parts of a split recording left out would cut the run short; say which.
+    let mut firsts: Vec<PathBuf> = Vec::new();
+    for f in args.files.iter().map(|f| crate::first_part(f)) {
+        if !firsts.contains(&f) {
+            firsts.push(f);
+        }
+    }
+    for f in &firsts {
+        let parts = crate::recording_parts(f);
+        let missing: Vec<String> = parts
+            .iter()
+            .filter(|p| !args.files.contains(p))
+            .map(|p| p.display().to_string())
+            .collect();
+        if !missing.is_empty() && parts.len() > 1 {
+            let _ = writeln!(
+                out,
+                "note: the split recording {} has {} parts; not given: {} (give every part to \
+                 analyse the whole run)\n",
+                f.display(),
+                parts.len(),
+                missing.join(", ")
+            );
+        }
+    }
     // A run stopped and resumed is one run in two (or more) files: one curve, one session.
     let runs = join_resumed(recs);
     for (rec, parts) in &runs {

@@ -307,6 +307,28 @@ mod tests {
         assert_eq!(report.last_part.as_ref(), Some(&parts[2]));
         assert!(report.describe().contains("whose last part is"));
         std::fs::remove_file(dir.join("recovered.mcap")).unwrap();
+        // `analyze` of some of the parts says which are missing; of all of them, one run.
+        let analyze = |files: &[PathBuf]| {
+            crate::analyze::run(&crate::analyze::AnalyzeArgs {
+                files: files.to_vec(),
+                out: None,
+                no_csv: true,
+                no_plots: true,
+                verify: false,
+                tolerance: 0.05,
+            })
+            .unwrap()
+        };
+        let text = analyze(&parts[..2]);
+        assert!(
+            text.contains(&format!("not given: {}", parts[2].display())),
+            "{text}"
+        );
+        let text = analyze(&parts);
+        assert!(
+            !text.contains("not given") && text.contains("one run of 200 updates"),
+            "{text}"
+        );
         // Resuming from any part goes on from the last.
         let point = crate::resume::resume_point(&first).unwrap();
         assert_eq!(point.start.update, 200);
