@@ -229,8 +229,6 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
 /// Assembles updates, recomputes and writes them.
 struct WriterState {
     writer: RunFiles,
-    /// The part being written (`recording.split_mb`).
-    part: std::path::PathBuf,
     assembler: Assembler,
     config: session::RunConfig,
     text: String,
@@ -268,7 +266,6 @@ impl WriterState {
             names.clone(),
         );
         Ok(Self {
-            part: writer.file(),
             writer,
             assembler,
             config: cfg,
@@ -486,7 +483,7 @@ impl WriterState {
                     .filter(|t| *t > 0)
                     .min();
                 let end = a.timings.iter().map(|t| t.end_ns).max();
-                self.writer.write_update(&UpdateData {
+                let begun = self.writer.write_update(&UpdateData {
                     hyperparameters: self.assembler.hyperparameters(),
                     before: &a.before,
                     after: &a.after,
@@ -500,9 +497,8 @@ impl WriterState {
                     default_worker: "unknown",
                 })?;
                 self.written += 1;
-                if self.writer.file() != self.part {
-                    self.part = self.writer.file();
-                    eprintln!("recording continues in {}", self.part.display());
+                if let Some(part) = begun {
+                    eprintln!("recording continues in {}", part.display());
                 }
                 if !a.recomputed_matches {
                     self.mismatches += 1;

@@ -141,7 +141,7 @@ impl RunFiles {
     }
 
     /// The part being written.
-    pub fn file(&self) -> PathBuf {
+    fn file(&self) -> PathBuf {
         match self.part {
             1 => self.first.clone(),
             n => part_path(&self.first, n),
@@ -162,24 +162,24 @@ impl RunFiles {
         self.writer()?.write_start(start)
     }
 
-    /// As [`RunWriter::write_update`], into a new part first if the current one is full.
-    pub fn write_update(&mut self, u: &UpdateData<'_>) -> Result<(), RecordError> {
+    /// As [`RunWriter::write_update`], into a new part first if the current one is full;
+    /// returns the new part's file if it began one.
+    pub fn write_update(&mut self, u: &UpdateData<'_>) -> Result<Option<PathBuf>, RecordError> {
         let full = self.split_bytes.is_some_and(|max| {
             self.writer
                 .as_ref()
                 .is_some_and(|w| w.bytes_written() >= max)
         });
-        if full {
-            self.next_part(u)?;
-        }
-        self.writer()?.write_update(u)
+        let begun = if full { self.next_part(u)? } else { None };
+        self.writer()?.write_update(u)?;
+        Ok(begun)
     }
 
     /// Finishes the current part and starts the next with `u`'s update: its `/run` holds the
     /// distribution `u` samples from and the settings it runs with.
-    fn next_part(&mut self, u: &UpdateData<'_>) -> Result<(), RecordError> {
+    fn next_part(&mut self, u: &UpdateData<'_>) -> Result<Option<PathBuf>, RecordError> {
         let Some(run) = self.run.clone() else {
-            return Ok(());
+            return Ok(None);
         };
         let previous = self.file();
         if let Some(w) = self.writer.take() {
@@ -214,7 +214,7 @@ impl RunFiles {
             ),
         )?;
         self.writer = Some(w);
-        Ok(())
+        Ok(Some(path))
     }
 
     pub fn write_task_change(

@@ -395,8 +395,8 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     }
     for (id, files) in sweep_orphaned_ipc(run_id) {
         say(&format!(
-            "removed the shared memory and iceoryx2 files run {id} left behind ({files} files; \
-             all its processes are gone)"
+            "removed the shared memory and iceoryx2 files run {id} left behind ({files} \
+             shared-memory files; all its processes are gone)"
         ));
     }
     if run_dir.exists() {
@@ -1410,6 +1410,12 @@ fn remove_run(run_dir: &Path, run_id: u64) -> usize {
     if let Some(base) = run_dir.parent() {
         let _ = std::fs::remove_dir(base);
     }
+    remove_ipc(run_id)
+}
+
+/// Removes a run's iceoryx2 directory and its files with the run's prefix; returns how many of
+/// those files there were.
+fn remove_ipc(run_id: u64) -> usize {
     let _ = std::fs::remove_dir_all(wire::iceoryx_root(run_id));
     remove_prefixed(&wire::file_prefix(run_id))
 }
@@ -1465,7 +1471,7 @@ fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize)> {
 /// until reboot. Removed: an iceoryx2 directory `/tmp/p2c-<run>/` none of whose processes is alive
 /// ([`wire::run_alive`]) with the run's shared memory, and shared memory whose iceoryx2 directory
 /// is gone. Only what is older than a minute, so a run that is starting is never touched; never
-/// the run `own`. Returns the runs and how many files each had.
+/// the run `own`. Returns the runs and how many shared-memory files each had.
 fn sweep_orphaned_ipc(own: u64) -> Vec<(String, usize)> {
     const MIN_AGE: Duration = Duration::from_secs(60);
     let old = |p: &Path| {
@@ -1506,28 +1512,8 @@ fn sweep_orphaned_ipc(own: u64) -> Vec<(String, usize)> {
         }
     }
     runs.into_iter()
-        .map(|id| {
-            let files = count_files(&wire::iceoryx_root(id));
-            let _ = std::fs::remove_dir_all(wire::iceoryx_root(id));
-            (
-                wire::run_id_hex(id),
-                files + remove_prefixed(&wire::file_prefix(id)),
-            )
-        })
+        .map(|id| (wire::run_id_hex(id), remove_ipc(id)))
         .collect()
-}
-
-/// Files under `dir`, recursively (0 if it cannot be read).
-fn count_files(dir: &Path) -> usize {
-    std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| match e.file_type() {
-            Ok(t) if t.is_dir() => count_files(&e.path()),
-            _ => 1,
-        })
-        .sum()
 }
 
 fn run_abandoned(run_dir: &Path) -> bool {
