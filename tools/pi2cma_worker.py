@@ -60,7 +60,7 @@ class WorkHeader(WireStruct):
 
 
 class CostHeader(WireStruct):
-    WIRE_NAME = "pi2cma.CostHeader.v1"
+    WIRE_NAME = "pi2cma.CostHeader.v2"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("update", ctypes.c_uint64),
@@ -68,6 +68,7 @@ class CostHeader(WireStruct):
         ("worker", ctypes.c_uint32),
         ("duration_ns", ctypes.c_uint64),
         ("terminal", ctypes.c_double),
+        ("start_ns", ctypes.c_uint64),
     ]
 
 
@@ -94,7 +95,7 @@ class Lifecycle(WireStruct):
     ]
 
 
-for _t, _size in [(WorkHeader, 112), (CostHeader, 40), (Ready, 32), (Lifecycle, 24)]:
+for _t, _size in [(WorkHeader, 112), (CostHeader, 48), (Ready, 32), (Lifecycle, 24)]:
     assert ctypes.sizeof(_t) == _size, (_t.__name__, ctypes.sizeof(_t))
 
 
@@ -293,6 +294,8 @@ def _serve(make_task, args):
                     applied[i] = h.settings[i]
             update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
             item.delete()
+            # The wall clock first, as the Rust worker does (see crates/pipeline/src/worker.rs).
+            start_ns = time.time_ns()
             start = time.monotonic_ns()
             per_step, terminal = task.rollout(theta)
             if len(per_step) != n:
@@ -305,6 +308,7 @@ def _serve(make_task, args):
             header.run_id, header.update, header.rollout, header.worker = run_id, update, rollout, w
             header.duration_ns = time.monotonic_ns() - start
             header.terminal = terminal
+            header.start_ns = start_ns
             sample.assume_init().send()
             unannounced = True
             if chunk != chunk_id:

@@ -170,6 +170,9 @@ fn slot<T: Task>(
                 }
                 return Ok(Flow::Stop);
             }
+            // The wall clock first: preempted between the two reads, the recorded interval
+            // (start_ns, start_ns + duration) comes out early, never overlapping the next.
+            let start_ns = wire::wall_clock_ns();
             let start = Instant::now();
             let sample = iox(costs.loan_slice_uninit(steps), "loan cost sample")?;
             let mut sample = sample.write_from_fn(|_| 0.0);
@@ -185,6 +188,7 @@ fn slot<T: Task>(
                 worker: w,
                 duration_ns: start.elapsed().as_nanos() as u64,
                 terminal,
+                start_ns,
             };
             drop(item);
             iox(sample.send(), "send costs")?;

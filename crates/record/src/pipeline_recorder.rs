@@ -364,12 +364,8 @@ impl WriterState {
                     self.final_update = Some(h.update);
                 }
             }
-            Msg::Cost(h, costs, end_ns) => {
-                let timing = RolloutTiming {
-                    worker: format!("worker-{}", h.worker),
-                    start_ns: end_ns.saturating_sub(h.duration_ns),
-                    end_ns,
-                };
+            Msg::Cost(h, costs, received_ns) => {
+                let timing = rollout_timing(&h, received_ns);
                 match self
                     .assembler
                     .cost(h.update, h.rollout as usize, &costs, h.terminal, timing)
@@ -553,6 +549,20 @@ impl WriterState {
 }
 
 /// CPU time (user + system) this process has used, in seconds; 0 if unknown.
+/// When rollout `h` ran: as its worker stamped it, or, from a worker that does not
+/// (`start_ns` = 0), the interval that ended when the costs were taken in (up to a round late).
+fn rollout_timing(h: &CostHeader, received_ns: u64) -> RolloutTiming {
+    let start_ns = match h.start_ns {
+        0 => received_ns.saturating_sub(h.duration_ns),
+        t => t,
+    };
+    RolloutTiming {
+        worker: format!("worker-{}", h.worker),
+        start_ns,
+        end_ns: start_ns.saturating_add(h.duration_ns),
+    }
+}
+
 fn process_cpu_seconds() -> f64 {
     // SAFETY: getrusage writes into the struct it is given and reads nothing else.
     #[allow(unsafe_code)]
@@ -564,4 +574,29 @@ fn process_cpu_seconds() -> f64 {
         let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
         t(u.ru_utime) + t(u.ru_stime)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rollout_is_recorded_when_its_worker_ran_it() {
+        let h = CostHeader {
+            worker: 2,
+            duration_ns: 300,
+            start_ns: 1_000,
+            ..Default::default()
+        };
+        // Taken in a round later: the worker's stamp, not the arrival, places it.
+        let t = rollout_timing(&h, 900_000);
+        assert_eq!(
+            (t.worker.as_str(), t.start_ns, t.end_ns),
+            ("worker-2", 1_000, 1_300)
+        );
+        // A worker that does not stamp: the interval ending at the arrival.
+        let unstamped = CostHeader { start_ns: 0, ..h };
+        let t = rollout_timing(&unstamped, 900_000);
+        assert_eq!((t.start_ns, t.end_ns), (899_700, 900_000));
+    }
 }

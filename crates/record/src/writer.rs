@@ -8,7 +8,6 @@ use std::io::{Seek, Write};
 
 use crate::seek_buffer::SeekBuffer;
 use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use mcap::records::{MessageHeader, Metadata};
 use mcap::{Compression, WriteOptions};
@@ -20,10 +19,7 @@ use crate::{proto, topics, RecordError, DESCRIPTORS};
 
 /// Wall-clock time in ns since the Unix epoch: the `log_time` of every message of every process.
 pub fn now_ns() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_nanos() as u64)
-        .unwrap_or(0)
+    wire::wall_clock_ns()
 }
 
 fn timestamp(ns: u64) -> prost_types::Timestamp {

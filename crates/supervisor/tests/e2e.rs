@@ -322,6 +322,34 @@ fn assert_recorded(rec: &record::Recording, n: u64) {
     assert!(errors.is_empty(), "{errors:?}");
 }
 
+/// Asserts each rollout's recorded interval is the one its worker ran it in: a worker runs one
+/// rollout at a time, so its intervals follow one another. (An interval reconstructed from when
+/// the recorder took the costs in is off by up to its round, a millisecond, and overlaps.)
+fn assert_rollouts_timed_by_their_workers(rec: &record::Recording) {
+    let mut by_worker: std::collections::BTreeMap<&str, Vec<(u64, u64)>> = Default::default();
+    for r in &rec.rollouts {
+        assert!(r.start_ns > 0 && r.end_ns >= r.start_ns, "{r:?}");
+        by_worker
+            .entry(r.worker.as_str())
+            .or_default()
+            .push((r.start_ns, r.end_ns));
+    }
+    assert!(by_worker.len() > 1, "{:?}", by_worker.keys());
+    for (worker, mut intervals) in by_worker {
+        intervals.sort_unstable();
+        for w in intervals.windows(2) {
+            // Exact: NTP slews the monotonic clock as it does the wall clock (only a step of
+            // the wall clock, which time daemons avoid, could break this).
+            assert!(
+                w[1].0 >= w[0].1,
+                "{worker}: a rollout ran {:?} and the next began at {} ns",
+                w[0],
+                w[1].0
+            );
+        }
+    }
+}
+
 /// Asserts the recorded distribution after the last update equals the in-process run's of as
 /// many updates, bit for bit.
 fn assert_recording_matches_in_process(config_text: &str, rec: &record::Recording) {
@@ -1027,6 +1055,7 @@ fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
     // hold 256 updates (wire::RECORDER_SLACK_UPDATES), more than this whole run.
     assert_recorded(&rec, 40);
     assert_recording_matches_in_process(session::DEFAULT_CONFIG, &rec);
+    assert_rollouts_timed_by_their_workers(&rec);
     assert_nothing_left(&run);
 
     // The default config with 2 ms rollouts (same costs, same result): every update recorded,
@@ -1042,6 +1071,7 @@ fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
     let rec = record::read_recording(&scratch.recording("A1", 602)).unwrap();
     assert_recorded(&rec, 40);
     assert_recording_matches_in_process(session::DEFAULT_CONFIG, &rec);
+    assert_rollouts_timed_by_their_workers(&rec);
     assert_eq!(rec.task_changes.len(), 1);
     // It ended by itself after the final distribution, not by the supervisor's SIGTERM.
     assert!(

@@ -174,16 +174,21 @@ impl WorkHeader {
 /// Header of a `costs` sample. Payload: the N immediate costs q_i.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.CostHeader.v1")]
+#[type_name("pi2cma.CostHeader.v2")]
 pub struct CostHeader {
     pub run_id: u64,
     pub update: u64,
     pub rollout: u32,
     pub worker: u32,
-    /// Wall time of the rollout, for statistics.
+    /// How long the rollout ran (a monotonic clock), for statistics.
     pub duration_ns: u64,
     /// φ_N.
     pub terminal: f64,
+    /// When the rollout started: wall-clock ns since the Unix epoch, the clock of every
+    /// recording's `log_time`; 0 if the worker does not say. The recorder takes the costs in
+    /// rounds, up to a millisecond after they were sent, so only the worker knows when its
+    /// rollout ran.
+    pub start_ns: u64,
 }
 
 /// A worker asks for work.
@@ -448,6 +453,16 @@ pub const RECORDER_MAX_LAG: u64 = 16;
 
 /// The node name of worker `w`, incarnation `incarnation`: `worker-<w>.<incarnation>`. The
 /// sampler finds crashed workers by these names among the run's dead nodes.
+/// Wall-clock time in ns since the Unix epoch: [`CostHeader::start_ns`], and the `log_time` of
+/// every message a recording holds, in every process (one clock, so that intervals taken in
+/// different processes can be compared).
+pub fn wall_clock_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
 pub fn worker_node_name(worker: u32, incarnation: u32) -> String {
     format!("worker-{worker}.{incarnation}")
 }
@@ -785,7 +800,7 @@ mod tests {
             56 + 8 * MAX_SETTINGS
         );
         assert_eq!(std::mem::size_of::<WorkHeader>(), 48 + 8 * MAX_SETTINGS);
-        assert_eq!(std::mem::size_of::<CostHeader>(), 40);
+        assert_eq!(std::mem::size_of::<CostHeader>(), 48);
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 8);
