@@ -13,7 +13,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::recompute::verify;
-use crate::{distribution_from_proto, join_resumed, proto, read_recording, RecordError, Recording};
+use crate::{
+    distribution_from_proto, join_resumed, proto, read_recording_slim, RecordError, Recording,
+};
 
 /// `analyze FILES… [--out DIR]`: prints the info summary of every file; with `--out`, writes CSV
 /// and figures per file into `DIR/<file stem>/`, and with several files the experiment's mean
@@ -47,7 +49,7 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
     let mut out = String::new();
     let mut recs = Vec::with_capacity(args.files.len());
     for f in &args.files {
-        let rec = read_recording(f)?;
+        let rec = read_recording_slim(f)?;
         out.push_str(&info(&rec));
         if args.verify {
             let r = verify(&rec)?;
@@ -286,26 +288,41 @@ fn ts(t: &Option<prost_types::Timestamp>) -> String {
         .unwrap_or_default()
 }
 
+/// A CSV file written as its rows come (an `update_rollouts.csv` can outgrow the RAM). The
+/// first write error is kept and returned by [`Csv::write`].
 struct Csv {
     path: PathBuf,
-    text: String,
+    out: std::io::BufWriter<std::fs::File>,
+    error: Option<std::io::Error>,
 }
 
 impl Csv {
-    fn new(dir: &Path, name: &str, header: &[String]) -> Self {
-        let mut text = header.join(",");
-        text.push('\n');
-        Self {
-            path: dir.join(name),
-            text,
-        }
+    fn new(dir: &Path, name: &str, header: &[String]) -> Result<Self, RecordError> {
+        let path = dir.join(name);
+        let file = std::fs::File::create(&path).map_err(io(&path))?;
+        let mut csv = Self {
+            out: std::io::BufWriter::with_capacity(1 << 20, file),
+            path,
+            error: None,
+        };
+        csv.row(header.to_vec());
+        Ok(csv)
     }
     fn row(&mut self, cells: Vec<String>) {
-        self.text.push_str(&cells.join(","));
-        self.text.push('\n');
+        use std::io::Write as _;
+        if self.error.is_none() {
+            if let Err(e) = writeln!(self.out, "{}", cells.join(",")) {
+                self.error = Some(e);
+            }
+        }
     }
-    fn write(self) -> Result<PathBuf, RecordError> {
-        std::fs::write(&self.path, self.text).map_err(io(&self.path))?;
+    fn write(mut self) -> Result<PathBuf, RecordError> {
+        use std::io::Write as _;
+        match self.error.take() {
+            Some(e) => Err(e),
+            None => self.out.flush(),
+        }
+        .map_err(io(&self.path))?;
         Ok(self.path)
     }
 }
@@ -342,7 +359,7 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
             "hyperparameters",
         ]
         .map(String::from),
-    );
+    )?;
     for r in &rec.run {
         let hp = r.hyperparameters.unwrap_or_default();
         run.row(vec![
@@ -376,14 +393,15 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     header.extend(names("after_mean_", p));
     header.extend(names("before_cov_", p * p));
     header.extend(names("after_cov_", p * p));
-    let mut upd = Csv::new(dir, "update.csv", &header);
+    let mut upd = Csv::new(dir, "update.csv", &header)?;
     let mut header: Vec<String> = ["update", "rollout", "weight", "total_cost", "terminal_cost"]
         .map(String::from)
         .to_vec();
     header.extend(names("theta_", p));
     header.extend(names("cost_step_", steps));
-    let mut rol = Csv::new(dir, "update_rollouts.csv", &header);
-    for u in &rec.updates {
+    let mut rol = Csv::new(dir, "update_rollouts.csv", &header)?;
+    // Update by update, streamed from the files for a recording read slim.
+    rec.for_each_update(|u| {
         let mut row = vec![
             ts(&u.timestamp),
             u.update.to_string(),
@@ -424,7 +442,8 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
             row.extend(step.iter().map(|x| f(*x)));
             rol.row(row);
         }
-    }
+        Ok(())
+    })?;
     files.push(upd.write()?);
     files.push(rol.write()?);
 
@@ -440,7 +459,7 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     .map(String::from)
     .to_vec();
     header.extend(names("mean_", p));
-    let mut sum = Csv::new(dir, "summary.csv", &header);
+    let mut sum = Csv::new(dir, "summary.csv", &header)?;
     for s in &rec.summaries {
         let mut row = vec![
             ts(&s.timestamp),
@@ -469,7 +488,7 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
             "total_cost",
         ]
         .map(String::from),
-    );
+    )?;
     for r in &rec.rollouts {
         ro.row(vec![
             ts(&r.timestamp),
@@ -487,7 +506,7 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
         dir,
         "task_change.csv",
         &["timestamp_ns", "update", "name", "value"].map(String::from),
-    );
+    )?;
     for c in &rec.task_changes {
         tc.row(vec![
             ts(&c.timestamp),
@@ -511,7 +530,7 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
             "message",
         ]
         .map(String::from),
-    );
+    )?;
     for l in &rec.logs {
         let level = proto::foxglove::log::Level::try_from(l.level)
             .map(|v| v.as_str_name().to_string())

@@ -42,7 +42,7 @@ pub mod proto {
 
 pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_proto};
 pub use error::RecordError;
-pub use reader::{join_resumed, read_ends, read_recording, Ends, Recording};
+pub use reader::{join_resumed, read_ends, read_recording, read_recording_slim, Ends, Recording};
 pub use recorder::McapRecorder;
 pub use split::{
     analyze_command, describe_parts, first_part, last_part, part_path, recording_parts, RunFiles,

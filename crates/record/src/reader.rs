@@ -1,11 +1,17 @@
 //! Reading a recording back: every message of every topic, decoded, in file order. Works on
 //! complete files and on files whose writer was killed (the readable prefix is returned and
 //! the damage is reported in [`Recording::truncated`]).
+//!
+//! Every reader streams the file through mcap's sans-io reader ([`stream`]), so none holds the
+//! file in memory. [`read_recording_slim`] also leaves out each update's bulk (samples, step
+//! costs, weights: nine tenths of a T-ball update), which [`Recording::for_each_update`] streams
+//! from the files again for the few uses that need it, so analysing a continual run's recording
+//! takes memory for its curves, not for its size.
 
 use std::collections::BTreeMap;
+use std::io::{Read, Seek};
 use std::path::{Path, PathBuf};
 
-use mcap::read::Options;
 use prost::Message;
 
 use crate::{proto, topics, RecordError};
@@ -31,6 +37,10 @@ pub struct Recording {
     pub topic_counts: BTreeMap<String, u64>,
     /// log_time of the first and last message.
     pub time_range: Option<(u64, u64)>,
+    /// The files read, in order (more than one for a joined run, [`Recording::join`]).
+    pub files: Vec<PathBuf>,
+    /// Whether `updates` were read without their bulk ([`read_recording_slim`]).
+    pub slim: bool,
 }
 
 impl Recording {
@@ -76,6 +86,118 @@ impl Recording {
             })
             .collect()
     }
+
+    /// Calls `f` with every update, bulk included, in order: from memory, or for a recording
+    /// read slim, streamed from its files one update at a time.
+    pub fn for_each_update(
+        &self,
+        mut f: impl FnMut(&proto::Update) -> Result<(), RecordError>,
+    ) -> Result<(), RecordError> {
+        if !self.slim {
+            return self.updates.iter().try_for_each(f);
+        }
+        for file in &self.files {
+            let mut index = 0;
+            stream(file, |item| match item {
+                Item::Message {
+                    topic: topics::UPDATE,
+                    data,
+                    ..
+                } => {
+                    index += 1;
+                    f(&decode(file, topics::UPDATE, index - 1, "Update", data)?)
+                }
+                _ => Ok(()),
+            })?;
+        }
+        Ok(())
+    }
+}
+
+/// One record of a recording, as [`stream`] hands it over.
+pub(crate) enum Item<'a> {
+    Metadata(mcap::records::Metadata),
+    Message {
+        topic: &'a str,
+        log_time: u64,
+        data: &'a [u8],
+    },
+}
+
+/// Streams the records of the recording at `path` (chunks decompressed) through mcap's sans-io
+/// reader, so memory stays at about one chunk whatever the size of the file, each chunk checked
+/// against its CRC. Returns why
+/// reading stopped early (a file whose writer was killed: the records before are all handed
+/// over), if it did.
+pub(crate) fn stream(
+    path: &Path,
+    mut on: impl FnMut(Item<'_>) -> Result<(), RecordError>,
+) -> Result<Option<String>, RecordError> {
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
+    // A chunk is checked against the CRC its writer computed before any of its messages is
+    // handed over: damage is reported, never read as other numbers.
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default().with_prevalidate_chunk_crcs(true),
+    );
+    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
+    while let Some(event) = reader.next_event() {
+        let event = match event {
+            Ok(event) => event,
+            Err(e) => return Ok(Some(format!("records end early: {e}"))),
+        };
+        match event {
+            LinearReadEvent::ReadRequest(wanted) => {
+                let buf = reader.insert(wanted.max(1 << 16));
+                let read = file.read(buf).map_err(|e| RecordError::io(path, e))?;
+                reader.notify_read(read);
+            }
+            LinearReadEvent::Record { opcode, data } => match mcap::parse_record(opcode, data) {
+                Ok(mcap::records::Record::Channel(c)) => {
+                    topics.insert(c.id, c.topic);
+                }
+                Ok(mcap::records::Record::Metadata(m)) => on(Item::Metadata(m))?,
+                Ok(mcap::records::Record::Message { header, data }) => {
+                    if let Some(topic) = topics.get(&header.channel_id) {
+                        on(Item::Message {
+                            topic,
+                            log_time: header.log_time,
+                            data: &data,
+                        })?;
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => return Ok(Some(format!("records end early: {e}"))),
+            },
+        }
+    }
+    Ok(None)
+}
+
+/// Whether the file has a readable summary section (it was finished or recovered), read from
+/// its end.
+fn has_summary(path: &Path) -> Result<bool, RecordError> {
+    use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+    let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
+    let len = file.metadata().map_err(|e| RecordError::io(path, e))?.len();
+    let mut reader =
+        SummaryReader::new_with_options(SummaryReaderOptions::default().with_file_size(len));
+    while let Some(event) = reader.next_event() {
+        match event {
+            Err(_) => return Ok(false),
+            Ok(SummaryReadEvent::ReadRequest(n)) => {
+                let read = file
+                    .read(reader.insert(n))
+                    .map_err(|e| RecordError::io(path, e))?;
+                reader.notify_read(read);
+            }
+            Ok(SummaryReadEvent::SeekRequest(to)) => {
+                let pos = file.seek(to).map_err(|e| RecordError::io(path, e))?;
+                reader.notify_seeked(pos);
+            }
+        }
+    }
+    Ok(reader.finish().is_some())
 }
 
 /// The first `/run` message and the last complete `/update` of a recording.
@@ -93,53 +215,31 @@ pub struct Ends {
 /// whatever the size of the file (a continual run's recording can outgrow the RAM that
 /// [`read_recording`] needs). A file whose writer was killed gives its readable prefix.
 pub fn read_ends(path: &Path) -> Result<Ends, RecordError> {
-    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
-    use std::io::Read;
-    let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
-    let mut reader = LinearReader::new();
-    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
     let mut ends = Ends::default();
     // Only the last one is decoded.
     let mut last_update: Vec<u8> = Vec::new();
-    while let Some(event) = reader.next_event() {
-        let event = match event {
-            Ok(event) => event,
-            Err(e) => {
-                ends.truncated = Some(format!("records end early: {e}"));
-                break;
+    ends.truncated = stream(path, |item| {
+        match item {
+            Item::Message {
+                topic: topics::RUN,
+                data,
+                ..
+            } if ends.run.is_none() => {
+                ends.run = Some(decode(path, topics::RUN, 0, "RunInfo", data)?);
             }
-        };
-        match event {
-            LinearReadEvent::ReadRequest(wanted) => {
-                let buf = reader.insert(wanted.max(1 << 16));
-                let read = file.read(buf).map_err(|e| RecordError::io(path, e))?;
-                reader.notify_read(read);
+            Item::Message {
+                topic: topics::UPDATE,
+                data,
+                ..
+            } => {
+                ends.updates += 1;
+                last_update.clear();
+                last_update.extend_from_slice(data);
             }
-            LinearReadEvent::Record { opcode, data } => match mcap::parse_record(opcode, data) {
-                Ok(mcap::records::Record::Channel(c)) => {
-                    topics.insert(c.id, c.topic);
-                }
-                Ok(mcap::records::Record::Message { header, data }) => {
-                    match topics.get(&header.channel_id).map(String::as_str) {
-                        Some(topics::RUN) if ends.run.is_none() => {
-                            ends.run = Some(decode(path, topics::RUN, 0, "RunInfo", &data)?);
-                        }
-                        Some(topics::UPDATE) => {
-                            ends.updates += 1;
-                            last_update.clear();
-                            last_update.extend_from_slice(&data);
-                        }
-                        _ => {}
-                    }
-                }
-                Ok(_) => {}
-                Err(e) => {
-                    ends.truncated = Some(format!("records end early: {e}"));
-                    break;
-                }
-            },
+            _ => {}
         }
-    }
+        Ok(())
+    })?;
     if ends.updates > 0 {
         let index = ends.updates - 1;
         ends.last_update = Some(decode(path, topics::UPDATE, index, "Update", &last_update)?);
@@ -173,6 +273,8 @@ impl Recording {
         self.summaries = self.curve();
         self.summaries.extend(next.curve());
         self.file_bytes += next.file_bytes;
+        self.files.extend(next.files);
+        self.slim |= next.slim;
         self.indexed &= next.indexed;
         self.truncated = next.truncated;
         self.run.extend(next.run);
@@ -244,56 +346,59 @@ fn decode<M: Message + Default>(
 
 /// Reads and decodes a whole recording.
 pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
-    let buf = std::fs::read(path).map_err(|e| RecordError::io(path, e))?;
+    read(path, false)
+}
+
+/// Reads and decodes a recording, each `/update` without its bulk: `samples`, `cost_per_step`,
+/// `cost_terminal` and `weights` are left empty ([`Recording::slim`]); everything else, the
+/// distributions before and after included, is read. [`Recording::for_each_update`] gives the
+/// whole updates.
+pub fn read_recording_slim(path: &Path) -> Result<Recording, RecordError> {
+    read(path, true)
+}
+
+fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
     let mut rec = Recording {
         path: path.to_path_buf(),
-        file_bytes: buf.len() as u64,
-        indexed: matches!(mcap::read::Summary::read(&buf), Ok(Some(_))),
+        file_bytes: std::fs::metadata(path)
+            .map_err(|e| RecordError::io(path, e))?
+            .len(),
+        indexed: has_summary(path)?,
+        files: vec![path.to_path_buf()],
+        slim,
         ..Default::default()
     };
-    // Metadata records (not part of the message stream).
-    let records = mcap::read::LinearReader::new_with_options(&buf, Options::IgnoreEndMagic.into())
-        .map_err(|e| RecordError::mcap(path, e))?;
-    for r in records {
-        match r {
-            Ok(mcap::records::Record::Metadata(m)) => {
+    let truncated = stream(path, |item| {
+        let (topic, log_time, data) = match item {
+            Item::Metadata(m) => {
                 rec.metadata.insert(m.name, m.metadata);
+                return Ok(());
             }
-            Ok(_) => {}
-            Err(e) => {
-                rec.truncated = Some(format!("records end early: {e}"));
-                break;
-            }
-        }
-    }
-    let stream = mcap::MessageStream::new_with_options(&buf, Options::IgnoreEndMagic.into())
-        .map_err(|e| RecordError::mcap(path, e))?;
-    for m in stream {
-        let m = match m {
-            Ok(m) => m,
-            Err(e) => {
-                if rec.indexed {
-                    return Err(RecordError::mcap(path, e));
-                }
-                rec.truncated
-                    .get_or_insert_with(|| format!("messages end early: {e}"));
-                break;
-            }
+            Item::Message {
+                topic,
+                log_time,
+                data,
+            } => (topic, log_time, data),
         };
-        let topic = m.channel.topic.as_str();
         let count = rec.topic_counts.entry(topic.to_string()).or_insert(0);
         let index = *count;
         *count += 1;
         rec.time_range = Some(match rec.time_range {
-            None => (m.log_time, m.log_time),
-            Some((a, b)) => (a.min(m.log_time), b.max(m.log_time)),
+            None => (log_time, log_time),
+            Some((a, b)) => (a.min(log_time), b.max(log_time)),
         });
-        let data = &m.data[..];
         match topic {
             topics::RUN => rec.run.push(decode(path, topic, index, "RunInfo", data)?),
-            topics::UPDATE => rec
-                .updates
-                .push(decode(path, topic, index, "Update", data)?),
+            topics::UPDATE => {
+                let mut u: proto::Update = decode(path, topic, index, "Update", data)?;
+                if slim {
+                    u.samples = Vec::new();
+                    u.cost_per_step = Vec::new();
+                    u.cost_terminal = Vec::new();
+                    u.weights = Vec::new();
+                }
+                rec.updates.push(u);
+            }
             topics::SUMMARY => {
                 rec.summaries
                     .push(decode(path, topic, index, "UpdateSummary", data)?)
@@ -308,6 +413,14 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
             topics::LOG => rec.logs.push(decode(path, topic, index, "Log", data)?),
             _ => {}
         }
+        Ok(())
+    })?;
+    // A finished file is whole: damage inside it is an error, not a killed writer's end.
+    if let Some(why) = truncated {
+        if rec.indexed {
+            return Err(RecordError::invalid(path, why));
+        }
+        rec.truncated = Some(why);
     }
     Ok(rec)
 }
@@ -378,8 +491,63 @@ mod tests {
                 ends.truncated
             );
             checked += ends.updates;
+            // Read slim, the same recording without the bulk, which streams back in full.
+            let slim = read_recording_slim(&cut).unwrap();
+            assert!(slim.slim && !whole.slim);
+            assert_eq!(slim.updates.len(), whole.updates.len());
+            assert_eq!(
+                (
+                    slim.indexed,
+                    &slim.truncated,
+                    &slim.topic_counts,
+                    slim.time_range
+                ),
+                (
+                    whole.indexed,
+                    &whole.truncated,
+                    &whole.topic_counts,
+                    whole.time_range
+                )
+            );
+            assert_eq!(
+                (&slim.run, &slim.rollouts, &slim.logs, &slim.metadata),
+                (&whole.run, &whole.rollouts, &whole.logs, &whole.metadata)
+            );
+            for (s, w) in slim.updates.iter().zip(&whole.updates) {
+                assert!(s.samples.is_empty() && s.cost_per_step.is_empty());
+                assert!(s.cost_terminal.is_empty() && s.weights.is_empty());
+                let bulk = proto::Update {
+                    samples: w.samples.clone(),
+                    cost_per_step: w.cost_per_step.clone(),
+                    cost_terminal: w.cost_terminal.clone(),
+                    weights: w.weights.clone(),
+                    ..s.clone()
+                };
+                assert_eq!(&bulk, w);
+            }
+            let mut streamed = Vec::new();
+            slim.for_each_update(|u| {
+                streamed.push(u.clone());
+                Ok(())
+            })
+            .unwrap();
+            assert_eq!(streamed, whole.updates);
         }
         assert!(checked > 25, "the prefixes hold updates");
+
+        // A finished file damaged inside is an error naming it, not a killed writer's prefix.
+        let mut damaged = bytes.clone();
+        let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+        let chunk = &summary.chunk_indexes[summary.chunk_indexes.len() / 2];
+        // Inside the chunk's compressed records, which zstd would decode into other numbers.
+        let middle = (chunk.chunk_start_offset + chunk.chunk_length / 2) as usize;
+        damaged[middle..middle + 16].fill(0xff);
+        std::fs::write(&cut, &damaged).unwrap();
+        let e = match read_recording_slim(&cut) {
+            Ok(r) => panic!("a damaged file read as {} updates", r.updates.len()),
+            Err(e) => e.to_string(),
+        };
+        assert!(e.contains("cut.mcap"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -93,12 +93,13 @@ pub fn matches_recorded(u: &proto::Update, r: &Recomputed) -> bool {
 /// Recomputes every update of the recording and compares.
 pub fn verify(rec: &Recording) -> Result<VerifyReport, RecordError> {
     let mut report = VerifyReport::default();
-    for u in &rec.updates {
+    rec.for_each_update(|u| {
         let r = recompute_update(rec, u)?;
         report.updates += 1;
         if !matches_recorded(u, &r) {
             report.mismatches.push(u.update);
         }
-    }
+        Ok(())
+    })?;
     Ok(report)
 }

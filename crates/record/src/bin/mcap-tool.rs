@@ -10,7 +10,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use record::analyze::{self, AnalyzeArgs};
 use record::recover::{self, RecoverArgs};
-use record::{read_recording, McapRecorder};
+use record::{read_recording_slim, McapRecorder};
 use session::InProcess;
 
 #[derive(Parser)]
@@ -107,14 +107,14 @@ fn main() -> Result<()> {
         }
         Command::Info { files } => {
             for f in &files {
-                print!("{}", analyze::info(&read_recording(f)?));
+                print!("{}", analyze::info(&read_recording_slim(f)?));
             }
             Ok(())
         }
         Command::Verify { files } => {
             let mut bad = 0;
             for f in &files {
-                let rec = read_recording(f)?;
+                let rec = read_recording_slim(f)?;
                 let r = record::recompute::verify(&rec)?;
                 println!(
                     "{}: {} updates recomputed, {} mismatches {:?}",
@@ -131,13 +131,13 @@ fn main() -> Result<()> {
             Ok(())
         }
         Command::Csv { file, out } => {
-            for p in analyze::export_csv(&read_recording(&file)?, &out)? {
+            for p in analyze::export_csv(&read_recording_slim(&file)?, &out)? {
                 println!("wrote {}", p.display());
             }
             Ok(())
         }
         Command::Plot { file, out } => {
-            for p in analyze::plot(&read_recording(&file)?, &out)? {
+            for p in analyze::plot(&read_recording_slim(&file)?, &out)? {
                 println!("wrote {}", p.display());
             }
             Ok(())
@@ -149,7 +149,7 @@ fn main() -> Result<()> {
         } => {
             let recs = files
                 .iter()
-                .map(|f| read_recording(f))
+                .map(|f| read_recording_slim(f))
                 .collect::<Result<Vec<_>, _>>()?;
             let r = analyze::experiment(&recs, Some(&out), tolerance, true)?;
             print!("{}", r.table);
