@@ -287,6 +287,26 @@ fn check_shape(task: &dyn Task, config: &RunConfig) -> anyhow::Result<()> {
             config.origin.display()
         );
     }
+    // The update weighs by the config's activations; a worker whose policy has others would
+    // be learning with a projection that is not its own.
+    if let (Some(own), Some(declared_psi)) =
+        (task.basis_activations(), declared.basis_activations())
+    {
+        let same = own.len() == declared_psi.len()
+            && own
+                .iter()
+                .zip(&declared_psi)
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+        if !same {
+            bail!(
+                "task `{}` has other basis activations than {} in {}: the update weighs the \
+                 rollouts by the config's, so put the task's own there",
+                task.name(),
+                field("basis_activations"),
+                config.origin.display()
+            );
+        }
+    }
     let names = |t: &dyn Task| t.settings().iter().map(|(n, _)| *n).collect::<Vec<_>>();
     if names(task) != names(declared.as_ref()) {
         bail!(

@@ -141,6 +141,12 @@ pub struct ExternalConfig {
     /// order of their names.
     #[serde(default)]
     pub settings: std::collections::BTreeMap<String, f64>,
+    /// The policy's basis activations: `steps` rows of `parameters` non-negative numbers, ψ of
+    /// parameter j's basis function at step i. Needed for `temporal_averaging =
+    /// "basis-activation"`, which the update side cannot compute for a policy that runs
+    /// elsewhere; in the config, so that the recorded config reruns the run.
+    #[serde(default)]
+    pub basis_activations: Option<Vec<Vec<f64>>>,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -541,7 +547,54 @@ impl RunConfig {
                 ));
             }
         }
+        if self.external_basis_activations()?.is_none()
+            && self.optimizer.temporal_averaging == Some(TemporalName::BasisActivation)
+        {
+            return Err(self.invalid(
+                "task.external.basis_activations",
+                "(none)",
+                "optimizer.temporal_averaging = \"basis-activation\" needs the policy's basis \
+                 activations: `steps` rows of `parameters` values",
+            ));
+        }
         Ok(())
+    }
+
+    /// `[task.external] basis_activations` as row-major N × P, checked, if the config has them.
+    pub fn external_basis_activations(&self) -> Result<Option<Vec<f64>>, ConfigError> {
+        let TaskSection::External(e) = &self.task else {
+            return Ok(None);
+        };
+        let Some(rows) = &e.basis_activations else {
+            return Ok(None);
+        };
+        let field = "task.external.basis_activations";
+        if rows.len() != e.steps {
+            return Err(self.invalid(
+                field,
+                format!("({} rows)", rows.len()),
+                &format!("must have steps = {} rows", e.steps),
+            ));
+        }
+        let mut values = Vec::with_capacity(e.steps * e.parameters);
+        for (i, row) in rows.iter().enumerate() {
+            if row.len() != e.parameters {
+                return Err(self.invalid(
+                    &format!("{field}[{i}]"),
+                    format!("({} values)", row.len()),
+                    &format!("must have parameters = {} values", e.parameters),
+                ));
+            }
+            if let Some(j) = row.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+                return Err(self.invalid(
+                    &format!("{field}[{i}][{j}]"),
+                    row[j],
+                    "must be finite and not negative",
+                ));
+            }
+            values.extend_from_slice(row);
+        }
+        Ok(Some(values))
     }
 
     /// The program and arguments of an external task's rollout worker, the program resolved
@@ -650,12 +703,20 @@ impl RunConfig {
             TaskSection::External(e) => {
                 let settings: Vec<(String, f64)> =
                     e.settings.iter().map(|(n, v)| (n.clone(), *v)).collect();
-                Ok(Box::new(tasks::External::new(
-                    e.parameters,
-                    e.steps,
-                    e.initial_mean.clone(),
-                    &settings,
-                )?))
+                let task =
+                    tasks::External::new(e.parameters, e.steps, e.initial_mean.clone(), &settings)?;
+                // Checked by `validate` when the config was loaded.
+                let task = match self.external_basis_activations() {
+                    Ok(None) => task,
+                    Ok(Some(psi)) => task.with_basis_activations(psi)?,
+                    Err(e) => {
+                        return Err(tasks::TaskError::Invalid {
+                            task: "external",
+                            reason: e.to_string(),
+                        })
+                    }
+                };
+                Ok(Box::new(task))
             }
         }
     }
@@ -837,6 +898,73 @@ mod tests {
         // A bare program name is looked up in PATH, not next to the config.
         let c = parse(&text.replace("../target/release/examples/reach-worker", "my-sim")).unwrap();
         assert_eq!(c.external_worker().unwrap().0, Path::new("my-sim"));
+    }
+
+    #[test]
+    fn external_basis_activations_have_the_declared_shape() {
+        // The reach example shrunk to P = 2, N = 3.
+        let text: String = include_str!("../../../config/external-reach.toml")
+            .lines()
+            .map(|l| match l {
+                "parameters = 10" => "parameters = 2",
+                "steps = 101" => "steps = 3",
+                l if l.starts_with("initial_mean = ") => "initial_mean = [0.0, 0.0]",
+                l => l,
+            })
+            .collect::<Vec<_>>()
+            .join("\n");
+        let with = |rows: &str| {
+            text.replace(
+                "[task.external.settings]",
+                &format!("basis_activations = {rows}\n\n[task.external.settings]"),
+            )
+        };
+        let per_time_step = text.replace(
+            "weighting = \"episodic\"",
+            "weighting = \"per-time-step\"\ntemporal_averaging = \"basis-activation\"",
+        );
+        let e = parse(&per_time_step).unwrap_err().to_string();
+        assert!(
+            e.contains("task.external.basis_activations = (none): optimizer.temporal_averaging"),
+            "{e}"
+        );
+        assert_eq!(
+            parse(&text)
+                .unwrap()
+                .build_task()
+                .unwrap()
+                .basis_activations(),
+            None
+        );
+        let c = parse(&with("[[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]]")).unwrap();
+        assert_eq!(
+            c.build_task().unwrap().basis_activations(),
+            Some(vec![1.0, 0.0, 0.5, 0.5, 0.0, 1.0])
+        );
+        for (rows, expect) in [
+            (
+                "[[1.0, 0.0], [0.5, 0.5]]",
+                "task.external.basis_activations = (2 rows): must have steps = 3 rows",
+            ),
+            (
+                "[[1.0, 0.0], [0.5], [0.0, 1.0]]",
+                "task.external.basis_activations[1] = (1 values): must have parameters = 2",
+            ),
+            (
+                "[[1.0, 0.0], [0.5, -0.5], [0.0, 1.0]]",
+                "task.external.basis_activations[1][1] = -0.5: must be finite and not negative",
+            ),
+            (
+                "[[1.0, 0.0], [0.5, nan], [0.0, 1.0]]",
+                "task.external.basis_activations[1][1] = NaN",
+            ),
+        ] {
+            let e = parse(&with(rows)).unwrap_err().to_string();
+            assert!(
+                e.starts_with("test.toml: ") && e.contains(expect),
+                "{expect}: {e}"
+            );
+        }
     }
 
     #[test]

@@ -33,6 +33,8 @@ struct Reach {
     /// The DMP weights of a minimum-jerk reach from START to END: the initial mean, printed by
     /// `reach-worker --initial-mean` for the config.
     min_jerk: Vec<f64>,
+    /// ψ per step and parameter, printed by `reach-worker --basis-activations` for the config.
+    activations: Vec<f64>,
     dmp: AffineDmp,
     trajectory: Trajectory,
     target: [f64; 2],
@@ -52,6 +54,7 @@ impl Reach {
         let trajectory = Trajectory::zeros(dmp.steps(), 2, DT);
         Ok(Self {
             min_jerk: dmp.fit_min_jerk(DURATION),
+            activations: dmp.parameter_activations(),
             dmp: dmp.affine(),
             trajectory,
             // The run's [task.external.settings] come with every work item, before its rollout.
@@ -80,6 +83,9 @@ impl Task for Reach {
     }
     fn initial_mean(&self) -> Vec<f64> {
         self.min_jerk.clone()
+    }
+    fn basis_activations(&self) -> Option<Vec<f64>> {
+        Some(self.activations.clone())
     }
 
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
@@ -134,11 +140,28 @@ struct Cli {
 
 fn main() -> std::process::ExitCode {
     use clap::Parser as _;
-    if std::env::args().nth(1).as_deref() == Some("--initial-mean") {
-        // For `[task.external] initial_mean` (Reach::new does not read the config).
+    // For `[task.external]` (Reach::new does not read the config): the initial mean, and the
+    // basis activations that `temporal_averaging = "basis-activation"` needs.
+    let print = |line: fn(&Reach) -> String| {
         let reach = Reach::new(&RunConfig::default_config()).expect("the constants are valid");
-        println!("initial_mean = {:?}", reach.initial_mean());
-        return std::process::ExitCode::SUCCESS;
+        println!("{}", line(&reach));
+        std::process::ExitCode::SUCCESS
+    };
+    match std::env::args().nth(1).as_deref() {
+        Some("--initial-mean") => {
+            return print(|r| format!("initial_mean = {:?}", r.initial_mean()));
+        }
+        Some("--basis-activations") => {
+            return print(|r| {
+                let rows: Vec<String> = r
+                    .activations
+                    .chunks(r.parameters())
+                    .map(|row| format!("{row:?}"))
+                    .collect();
+                format!("basis_activations = [\n  {},\n]", rows.join(",\n  "))
+            });
+        }
+        _ => {}
     }
     // Without arguments of its own, `pipeline::worker::serve_main("reach-worker", Reach::new)`
     // would be the whole of main.

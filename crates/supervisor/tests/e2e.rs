@@ -1399,6 +1399,72 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     assert_nothing_left(&run);
 }
 
+/// `reach-worker --basis-activations`: the `[task.external] basis_activations` line of its task.
+fn reach_basis_activations() -> String {
+    let worker = Path::new(SUPERVISOR)
+        .parent()
+        .unwrap()
+        .join("examples/reach-worker");
+    let out = std::process::Command::new(worker)
+        .arg("--basis-activations")
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn a_task_of_your_own_learns_with_per_time_step_weighting_by_its_basis_activations() {
+    let scratch = Scratch::new("external-psi");
+    let psi = reach_basis_activations();
+    let per_time_step = (
+        "weighting = \"episodic\"",
+        "weighting = \"per-time-step\"\ntemporal_averaging = \"basis-activation\"",
+    );
+    let declared = format!("{psi}\n[task.external.settings]");
+    let text = external_config(&[per_time_step, ("[task.external.settings]", &declared)]);
+    let cfg = write_config(&scratch, "reach-psi.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 840, &cfg, &result);
+    let exit = run.wait(Duration::from_secs(60));
+    assert!(exit.success(), "{}", run.text());
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 80);
+    assert!(r.last_eval_cost < r.first_eval_cost / 4.0, "{r:?}");
+    // The activations are recorded, and every update recomputes with them bit for bit.
+    let rec = record::read_recording(&scratch.recording("reach", 840)).unwrap();
+    let recorded = &rec.run_info().unwrap().basis_activations;
+    let cfg = RunConfig::parse(&text, Path::new("reach-psi.toml")).unwrap();
+    assert_eq!(
+        Some(recorded.clone()),
+        cfg.external_basis_activations().unwrap()
+    );
+    assert_eq!(recorded.len(), 101 * 10);
+    assert_recorded(&rec, 80);
+    assert_nothing_left(&run);
+
+    // Activations that are not the worker's own: it refuses to run for them.
+    let first = psi.lines().nth(1).unwrap();
+    let other = first.replacen("[0.", "[0.5", 1);
+    assert_ne!(first, other);
+    let declared = format!(
+        "{}\n[task.external.settings]",
+        psi.replacen(first, &other, 1)
+    );
+    let text = external_config(&[
+        per_time_step,
+        ("[task.external.settings]", &declared),
+        ("workers = 2", "workers = 2\nrestart_limit = 0"),
+    ]);
+    assert_run_fails_saying(
+        &scratch,
+        841,
+        "other-psi.toml",
+        &text,
+        &["task `reach` has other basis activations than task.external.basis_activations"],
+    );
+}
+
 #[test]
 fn a_worker_whose_task_does_not_match_the_config_or_is_missing_is_named() {
     let scratch = Scratch::new("external-bad");

@@ -17,6 +17,8 @@ pub struct External {
     steps: usize,
     initial_mean: Vec<f64>,
     settings: Vec<(&'static str, f64)>,
+    /// Row-major N × P, for per-time-step weighting with basis-activation averaging.
+    basis_activations: Option<Vec<f64>>,
 }
 
 impl External {
@@ -65,7 +67,41 @@ impl External {
             steps,
             initial_mean,
             settings: named,
+            basis_activations: None,
         })
+    }
+
+    /// With the policy's basis activations (row-major N × P, finite, non-negative): what
+    /// per-time-step weighting with `temporal_averaging = "basis-activation"` needs, and what
+    /// the update side cannot compute for a policy that runs elsewhere.
+    pub fn with_basis_activations(mut self, activations: Vec<f64>) -> Result<Self, TaskError> {
+        let (n, p) = (self.steps, self.parameters);
+        if activations.len() != n * p {
+            return Err(TaskError::Invalid {
+                task: "external",
+                reason: format!(
+                    "basis activations: {} values, expected steps × parameters = {n} × {p}",
+                    activations.len()
+                ),
+            });
+        }
+        if let Some(i) = activations
+            .iter()
+            .position(|v| !(v.is_finite() && *v >= 0.0))
+        {
+            return Err(TaskError::Invalid {
+                task: "external",
+                reason: format!(
+                    "basis activation of step {} and parameter {} is {}: must be finite and \
+                     not negative",
+                    i / p,
+                    i % p,
+                    activations[i]
+                ),
+            });
+        }
+        self.basis_activations = Some(activations);
+        Ok(self)
     }
 }
 
@@ -95,6 +131,9 @@ impl Task for External {
     }
     fn initial_mean(&self) -> Vec<f64> {
         self.initial_mean.clone()
+    }
+    fn basis_activations(&self) -> Option<Vec<f64>> {
+        self.basis_activations.clone()
     }
     /// Not runnable (see the module documentation): NaN everywhere, which executors reject.
     fn rollout(&mut self, _theta: &[f64], per_step: &mut [f64]) -> f64 {
@@ -146,6 +185,25 @@ mod tests {
         let e = t.set("masss", 1.0).unwrap_err().to_string();
         assert!(e.contains("masss") && e.contains("target_y, mass"), "{e}");
         assert!(t.set("mass", f64::NAN).is_err());
+    }
+
+    #[test]
+    fn basis_activations_have_the_task_shape() {
+        let t = External::new(2, 3, vec![0.0; 2], &[]).unwrap();
+        assert_eq!(t.basis_activations(), None);
+        let psi = vec![1.0, 0.0, 0.5, 0.5, 0.0, 1.0];
+        let t = t.with_basis_activations(psi.clone()).unwrap();
+        assert_eq!(t.basis_activations(), Some(psi));
+        let t = External::new(2, 3, vec![0.0; 2], &[]).unwrap();
+        let e = t.clone().with_basis_activations(vec![1.0; 5]).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("5 values, expected steps × parameters = 3 × 2"),
+            "{e}"
+        );
+        let e = t.with_basis_activations(vec![1.0, 1.0, 1.0, -0.5, 1.0, 1.0]);
+        let e = e.unwrap_err().to_string();
+        assert!(e.contains("step 1 and parameter 1 is -0.5"), "{e}");
     }
 
     #[test]
