@@ -115,6 +115,8 @@ class Shape:
         self.parameters = ext["parameters"]
         self.steps = ext["steps"]
         self.settings = sorted(ext.get("settings", {}))
+        # N rows of P values, or None (see [task.external] basis_activations in the README).
+        self.basis_activations = ext.get("basis_activations")
         self.rollouts = cfg["optimizer"]["rollouts"]
         self.max_workers = cfg.get("pipeline", {}).get("max_workers", 16)
         self.origin = config_path
@@ -155,6 +157,16 @@ def _check_shape(task, shape):
             raise WorkerError(
                 f"the task has {what} {ours}, but task.external.{what} = {declared} "
                 f"in {shape.origin}"
+            )
+    # A task that knows its policy's activations (an attribute, N rows of P values) must have
+    # the config's: the update weighs the rollouts by those.
+    own = getattr(task, "basis_activations", None)
+    if own is not None and shape.basis_activations is not None:
+        if [list(map(float, row)) for row in own] != shape.basis_activations:
+            raise WorkerError(
+                f"the task has other basis activations than task.external.basis_activations "
+                f"in {shape.origin}: the update weighs the rollouts by the config's, so put the "
+                f"task's own there"
             )
 
 

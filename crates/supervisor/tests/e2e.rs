@@ -1575,6 +1575,50 @@ fn python_config(edits: &[(&str, &str)]) -> String {
     )
 }
 
+/// `tools/pi2cma_worker.py` checks a task's basis activations (an attribute) against the
+/// config's, as `serve` does in Rust.
+#[test]
+fn a_python_worker_checks_its_basis_activations_against_the_config() {
+    let scratch = Scratch::new("python-psi");
+    let cfg = write_config(
+        &scratch,
+        "psi.toml",
+        &python_config(&[(
+            "[task.external.settings]",
+            &format!("{}\n[task.external.settings]", reach_basis_activations()),
+        )]),
+    );
+    let tools = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools");
+    // The config's activations pass; with one value changed, the check names the field.
+    let script = r#"
+import sys, pi2cma_worker as w
+shape = w.Shape(sys.argv[1])
+class Task:
+    parameters, steps, settings = shape.parameters, shape.steps, {"target_x": 0.3, "target_y": 0.7}
+    basis_activations = [list(r) for r in shape.basis_activations]
+w._check_shape(Task, shape)
+Task.basis_activations[3][1] += 0.25
+try:
+    w._check_shape(Task, shape)
+except w.WorkerError as e:
+    print(e)
+"#;
+    let out = std::process::Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(&cfg)
+        .env("PYTHONPATH", &tools)
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("other basis activations than task.external.basis_activations in"),
+        "{text}"
+    );
+}
+
 /// Needs `python3 -m pip install -r tools/requirements.txt` (the README's test command does it).
 #[test]
 fn a_python_worker_speaks_the_wire_protocol_and_learns_its_task() {
