@@ -124,11 +124,10 @@ pub(crate) enum Item<'a> {
     },
 }
 
-/// Streams the records of the recording at `path` (chunks decompressed) through mcap's sans-io
-/// reader, so memory stays at about one chunk whatever the size of the file, each chunk checked
-/// against its CRC. Returns why
-/// reading stopped early (a file whose writer was killed: the records before are all handed
-/// over), if it did.
+/// Streams the records of the recording at `path` (chunks decompressed, each checked against
+/// its CRC) through mcap's sans-io reader, so memory stays at about one chunk whatever the size
+/// of the file. Returns why reading stopped early (a file whose writer was killed: the records
+/// before are all handed over), if it did.
 pub(crate) fn stream(
     path: &Path,
     mut on: impl FnMut(Item<'_>) -> Result<(), RecordError>,
