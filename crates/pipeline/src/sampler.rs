@@ -266,8 +266,13 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         // ⌈K / workers⌉ (5 and 5 for K = 10 and 2 workers, where shrinking per hand-out gave
         // 5, 3, 1, 1: two more round trips through the sampler on the update's critical path).
         // Rounds that find some workers still busy shrink the share as guided self-scheduling
-        // does.
-        let share = pending.len().div_ceil(workers.len().max(1)).max(1);
+        // does. A worker that holds an overdue chunk (one that joined by itself and hung: not
+        // the supervisor's to kill) does not count: it takes no share.
+        let available = workers
+            .values()
+            .filter(|w| w.overdue_chunk.is_none())
+            .count();
+        let share = pending.len().div_ceil(available.max(1)).max(1);
         // Plan the round first: whether it empties the queue goes into every chunk's header
         // (WorkHeader::QUEUE_EMPTY: its worker then reports Ready without ringing the sampler).
         let mut round: Vec<(u32, Vec<u32>)> = Vec::new();

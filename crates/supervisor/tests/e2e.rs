@@ -682,6 +682,10 @@ fn a_hung_unsupervised_worker_loses_its_rollouts_to_the_others() {
     );
     foreign.kill().unwrap();
     foreign.wait().unwrap();
+    // Once w5 is overdue, w0 is the only worker that takes work: it gets each update's 15
+    // rollouts in one chunk, not a share that counts w5.
+    let last = out.lines().rfind(|l| l.contains("-> w0: [")).unwrap();
+    assert_eq!(last.matches(',').count() + 1, 15, "{last}");
     assert_eq!(RunResult::read(&result).unwrap().updates, 100);
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
