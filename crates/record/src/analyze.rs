@@ -206,6 +206,18 @@ pub fn info(rec: &Recording) -> String {
     if let Some((a, b)) = rec.time_range {
         let _ = writeln!(s, "  time span: {:.3} s", (b - a) as f64 / 1e9);
     }
+    if let Some(t) = update_times(rec) {
+        let _ = writeln!(
+            s,
+            "  time per update (between the starts of consecutive updates' first rollouts): \
+             median {:.3} ms, 90 % within {:.3} ms, slowest {:.3} ms (update {} to {})",
+            t.median_ns as f64 / 1e6,
+            t.p90_ns as f64 / 1e6,
+            t.slowest_ns as f64 / 1e6,
+            t.slowest_update,
+            t.slowest_update + 1
+        );
+    }
     for c in &rec.task_changes {
         let _ = writeln!(
             s,
@@ -241,6 +253,47 @@ pub fn info(rec: &Recording) -> String {
         let _ = writeln!(s, "  metadata {name}: {}", keys.join(", "));
     }
     s
+}
+
+/// How long updates took, from the recorded rollout start times (the workers' own clocks in
+/// the pipeline, the runner's in-process): the interval from the first rollout start of update u
+/// to that of u + 1, for each pair of consecutive recorded updates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UpdateTimes {
+    pub median_ns: u64,
+    /// The 90th percentile (nearest rank).
+    pub p90_ns: u64,
+    pub slowest_ns: u64,
+    /// The update the slowest interval began at.
+    pub slowest_update: u64,
+}
+
+/// [`UpdateTimes`] of a recording; `None` without two consecutive timed updates.
+pub fn update_times(rec: &Recording) -> Option<UpdateTimes> {
+    let mut first: BTreeMap<u64, u64> = BTreeMap::new();
+    for r in rec.rollouts.iter().filter(|r| r.start_ns > 0) {
+        let t = first.entry(r.update).or_insert(r.start_ns);
+        *t = (*t).min(r.start_ns);
+    }
+    let mut times: Vec<(u64, u64)> = first
+        .iter()
+        .zip(first.iter().skip(1))
+        .filter(|((u, _), (next, _))| **next == **u + 1)
+        .map(|((u, a), (_, b))| (b.saturating_sub(*a), *u))
+        .collect();
+    if times.is_empty() {
+        return None;
+    }
+    let (slowest_ns, slowest_update) = *times.iter().max()?;
+    times.sort_unstable();
+    let rank =
+        |q: f64| times[((q * times.len() as f64).ceil() as usize).clamp(1, times.len()) - 1].0;
+    Some(UpdateTimes {
+        median_ns: rank(0.5),
+        p90_ns: rank(0.9),
+        slowest_ns,
+        slowest_update,
+    })
 }
 
 fn describe_hp(hp: &proto::Hyperparameters) -> String {
@@ -1246,6 +1299,42 @@ mod tests {
             });
         }
         r
+    }
+
+    #[test]
+    fn update_times_come_from_the_first_rollout_starts() {
+        let mut r = Recording::default();
+        // Updates 0..=4 start at 0, 10, 30, 31, 41 µs (their first rollout; the others later);
+        // update 6 follows a gap in the recording and has no interval; update 7 is untimed.
+        for (u, t) in [(0u64, 0u64), (1, 10), (2, 30), (3, 31), (4, 41), (6, 100)] {
+            for k in 0..3 {
+                r.rollouts.push(proto::Rollout {
+                    update: u,
+                    rollout: k,
+                    start_ns: 1_000_000 + t * 1000 + u64::from(2 - k),
+                    ..Default::default()
+                });
+            }
+        }
+        r.rollouts.push(proto::Rollout {
+            update: 7,
+            ..Default::default()
+        });
+        // Intervals 10, 20, 1, 10 µs: median 10 (nearest rank 2 of 4), 90th 20, slowest 20 at 1.
+        let t = update_times(&r).unwrap();
+        assert_eq!(
+            t,
+            UpdateTimes {
+                median_ns: 10_000,
+                p90_ns: 20_000,
+                slowest_ns: 20_000,
+                slowest_update: 1
+            }
+        );
+        assert!(info(&r)
+            .contains("median 0.010 ms, 90 % within 0.020 ms, slowest 0.020 ms (update 1 to 2)"));
+        r.rollouts.retain(|x| x.update == 0);
+        assert_eq!(update_times(&r), None);
     }
 
     #[test]
