@@ -3,11 +3,12 @@
 
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::BufWriter;
+use std::io::{BufWriter, Read};
 use std::path::{Path, PathBuf};
 
-use mcap::read::{ChunkReader, LinearReader, Options};
+use mcap::read::ChunkReader;
 use mcap::records::{MessageHeader, Record};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use mcap::{Compression, WriteOptions};
 
 use crate::RecordError;
@@ -31,9 +32,14 @@ pub struct RecoverReport {
 
 /// Copies every readable schema, channel, message, metadata and attachment record of `input`
 /// into a new, finished MCAP at `output` (zstd chunks, full indexes). `output` may be `input`:
-/// the result is written next to it and renamed over it.
+/// the result is written next to it and renamed over it. The input is read as a stream, a
+/// chunk at a time, so a continual run's recording recovers in little memory.
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError> {
-    let buf = std::fs::read(input).map_err(|e| RecordError::io(input, e))?;
+    let mut file = File::open(input).map_err(|e| RecordError::io(input, e))?;
+    let input_len = file
+        .metadata()
+        .map_err(|e| RecordError::io(input, e))?
+        .len();
     let tmp = tmp_path(output);
     let f = File::create(&tmp).map_err(|e| RecordError::io(&tmp, e))?;
     let mut w = WriteOptions::new()
@@ -56,13 +62,32 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
         channels: HashMap::new(),
         tmp: &tmp,
     };
-    let reader = LinearReader::new_with_options(&buf, Options::IgnoreEndMagic.into())
-        .map_err(|e| RecordError::mcap(input, e))?;
-    // Byte offset just past the last record that was copied whole.
+    // Top-level records as they are (chunks still compressed): a chunk is decoded, and its CRC
+    // checked, by `ChunkReader`, and kept only if all of it decodes.
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_end_magic(true)
+            .with_emit_chunks(true),
+    );
+    // Byte offset just past the last record that was copied whole (after the leading magic).
     let mut good_end: u64 = 8;
-    let mut offset_probe = OffsetProbe::new(&buf);
-    for record in reader {
-        let record = match record {
+    while let Some(event) = reader.next_event() {
+        let (opcode, body) = match event {
+            Ok(LinearReadEvent::ReadRequest(wanted)) => {
+                let buf = reader.insert(wanted.max(1 << 16));
+                let read = file.read(buf).map_err(|e| RecordError::io(input, e))?;
+                reader.notify_read(read);
+                continue;
+            }
+            Ok(LinearReadEvent::Record { opcode, data }) => (opcode, data),
+            Err(e) => {
+                report.stopped_by = Some(e.to_string());
+                break;
+            }
+        };
+        // opcode, length, body.
+        let record_len = 1 + 8 + body.len() as u64;
+        let record = match mcap::parse_record(opcode, body) {
             Ok(r) => r,
             Err(e) => {
                 report.stopped_by = Some(e.to_string());
@@ -71,7 +96,6 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
         };
         match record {
             Record::Chunk { header, data } => {
-                // A chunk is kept only if all of it decodes.
                 let inner: Result<Vec<Record<'_>>, _> =
                     ChunkReader::new(header, &data).and_then(|r| r.collect());
                 match inner {
@@ -87,15 +111,15 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
                 }
             }
             Record::DataEnd(_) | Record::Footer(_) => {
-                good_end = buf.len() as u64;
+                good_end = input_len;
                 break;
             }
             other => copier.copy(&mut w, other, &mut report)?,
         }
-        good_end = offset_probe.advance();
+        good_end += record_len;
     }
     if report.stopped_by.is_some() {
-        report.dropped_bytes = (buf.len() as u64).saturating_sub(good_end);
+        report.dropped_bytes = input_len.saturating_sub(good_end);
     }
     w.finish().map_err(|e| RecordError::mcap(&tmp, e))?;
     let mut inner = w.into_inner();
@@ -197,32 +221,6 @@ impl Copier<'_> {
             _ => {}
         }
         Ok(())
-    }
-}
-
-/// Tracks the byte offset of the record boundary after each record the linear reader yields
-/// (opcode u8 + length u64 + body), so the size of the unreadable tail can be reported.
-struct OffsetProbe<'a> {
-    buf: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> OffsetProbe<'a> {
-    fn new(buf: &'a [u8]) -> Self {
-        Self { buf, pos: 8 }
-    }
-
-    fn advance(&mut self) -> u64 {
-        if let Some(len) = self.buf.get(self.pos + 1..self.pos + 9) {
-            let mut b = [0u8; 8];
-            b.copy_from_slice(len);
-            self.pos = self
-                .pos
-                .saturating_add(9)
-                .saturating_add(u64::from_le_bytes(b) as usize)
-                .min(self.buf.len());
-        }
-        self.pos as u64
     }
 }
 
