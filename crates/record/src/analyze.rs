@@ -821,7 +821,121 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
     let path = dir.join("worker_time.svg");
     plot_worker_time(rec, &path).map_err(perr(&path, "worker_time"))?;
     files.push(path);
+
+    if !timeline(rec, TIMELINE_UPDATES).is_empty() {
+        let path = dir.join("worker_timeline.svg");
+        plot_worker_timeline(rec, &path).map_err(perr(&path, "worker_timeline"))?;
+        files.push(path);
+    }
     Ok(files)
+}
+
+/// How many of the last updates `worker_timeline.svg` shows.
+pub const TIMELINE_UPDATES: usize = 10;
+
+/// One rollout on the timeline: its worker's row, update, rollout index and interval (ns).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TimelineBar {
+    pub worker: String,
+    pub update: u64,
+    pub rollout: u32,
+    pub start_ns: u64,
+    pub end_ns: u64,
+}
+
+/// The timed rollouts of the last `updates` updates that have any, in start order: when each
+/// worker ran what (the workers' own clocks in the pipeline), so idle workers, stragglers and
+/// the gaps between updates show.
+pub fn timeline(rec: &Recording, updates: usize) -> Vec<TimelineBar> {
+    let timed: Vec<&proto::Rollout> = rec
+        .rollouts
+        .iter()
+        .filter(|r| r.start_ns > 0 && r.end_ns >= r.start_ns)
+        .collect();
+    let mut last: Vec<u64> = timed.iter().map(|r| r.update).collect();
+    last.sort_unstable();
+    last.dedup();
+    let from = last.len().checked_sub(updates).map_or(0, |i| last[i]);
+    let mut bars: Vec<TimelineBar> = timed
+        .into_iter()
+        .filter(|r| r.update >= from)
+        .map(|r| TimelineBar {
+            worker: r.worker.clone(),
+            update: r.update,
+            rollout: r.rollout,
+            start_ns: r.start_ns,
+            end_ns: r.end_ns,
+        })
+        .collect();
+    bars.sort_by_key(|b| (b.start_ns, b.update, b.rollout));
+    bars
+}
+
+fn plot_worker_timeline(rec: &Recording, path: &Path) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
+    let bars = timeline(rec, TIMELINE_UPDATES);
+    let t0 = bars.iter().map(|b| b.start_ns).min().unwrap_or(0);
+    let ms = |t: u64| (t - t0) as f64 / 1e6;
+    let xmax = bars.iter().map(|b| ms(b.end_ns)).fold(0.0f64, f64::max);
+    let mut workers: Vec<&str> = bars.iter().map(|b| b.worker.as_str()).collect();
+    workers.sort_unstable();
+    workers.dedup();
+    let row = |w: &str| workers.iter().position(|x| *x == w).unwrap_or(0) as f64;
+    let (first, last) = (
+        bars.iter().map(|b| b.update).min().unwrap_or(0),
+        bars.iter().map(|b| b.update).max().unwrap_or(0),
+    );
+    let root = SVGBackend::new(path, (1000, 120 + 40 * workers.len() as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "{}: what each worker ran, updates {first} to {last} (colour: update)",
+                rec.name()
+            ),
+            ("sans-serif", 18),
+        )
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(90)
+        .build_cartesian_2d(
+            0f64..(xmax * 1.02).max(1e-3),
+            -0.5f64..(workers.len() as f64 - 0.5),
+        )
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("time [ms]")
+        .y_labels(workers.len())
+        .y_label_formatter(&|y| {
+            let i = y.round();
+            if (y - i).abs() < 1e-6 && i >= 0.0 {
+                workers
+                    .get(i as usize)
+                    .map(|w| w.to_string())
+                    .unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+        .disable_y_mesh()
+        .draw()
+        .map_err(|x| e(&x))?;
+    chart
+        .draw_series(bars.iter().map(|b| {
+            let y = row(&b.worker);
+            let color = PALETTE[(b.update % PALETTE.len() as u64) as usize];
+            Rectangle::new(
+                [
+                    (ms(b.start_ns), y - 0.35),
+                    (ms(b.end_ns).max(ms(b.start_ns) + xmax * 1e-4), y + 0.35),
+                ],
+                color.filled(),
+            )
+        }))
+        .map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
 }
 
 /// Points of the 2σ ellipse of a 2×2 covariance around `m`.
@@ -1335,6 +1449,44 @@ mod tests {
             .contains("median 0.010 ms, 90 % within 0.020 ms, slowest 0.020 ms (update 1 to 2)"));
         r.rollouts.retain(|x| x.update == 0);
         assert_eq!(update_times(&r), None);
+    }
+
+    #[test]
+    fn the_timeline_holds_the_last_timed_updates_in_start_order() {
+        let mut r = Recording::default();
+        for u in 0..5u64 {
+            for k in 0..2u32 {
+                r.rollouts.push(proto::Rollout {
+                    update: u,
+                    rollout: k,
+                    worker: format!("worker-{k}"),
+                    start_ns: 1_000 * u + 10 * u64::from(1 - k) + 1,
+                    end_ns: 1_000 * u + 500,
+                    ..Default::default()
+                });
+            }
+        }
+        // An untimed rollout (a worker that does not stamp, before any arrival) is left out.
+        r.rollouts.push(proto::Rollout {
+            update: 5,
+            ..Default::default()
+        });
+        let bars = timeline(&r, 2);
+        let got: Vec<(u64, u32, &str)> = bars
+            .iter()
+            .map(|b| (b.update, b.rollout, b.worker.as_str()))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (3, 1, "worker-1"),
+                (3, 0, "worker-0"),
+                (4, 1, "worker-1"),
+                (4, 0, "worker-0")
+            ]
+        );
+        assert_eq!(timeline(&r, 100).len(), 10);
+        assert!(timeline(&Recording::default(), 10).is_empty());
     }
 
     #[test]
