@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use pi2cma::Hyperparameters;
+use pi2cma::{Hyperparameters, TemporalAveraging, Weighting};
 use session::{RunConfig, Start};
 
 use crate::{
@@ -48,6 +48,8 @@ pub struct ResumePoint {
     pub hyperparameters: Hyperparameters,
     pub dim: usize,
     pub steps: usize,
+    /// The policy's basis activations as recorded in `/run` (row-major N × P; empty if none).
+    pub basis_activations: Vec<f64>,
     /// The config the run was started with, as recorded.
     pub config_toml: Option<String>,
     /// Why reading stopped early (a file whose writer was killed), if it did.
@@ -103,6 +105,11 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
         hyperparameters,
         dim: last.dim as usize,
         steps: last.steps as usize,
+        basis_activations: rec
+            .run
+            .as_ref()
+            .map(|r| r.basis_activations.clone())
+            .unwrap_or_default(),
         config_toml,
         truncated: rec.truncated,
     })
@@ -197,6 +204,24 @@ impl ResumePoint {
                 differs.join("; ")
             )));
         }
+        // With basis-activation averaging the activations are part of the update rule.
+        let averaged_by_basis = c.weighting
+            == Weighting::PerTimeStep {
+                temporal: TemporalAveraging::BasisActivation,
+            };
+        let own = task.basis_activations().unwrap_or_default();
+        let same = own.len() == self.basis_activations.len()
+            && own
+                .iter()
+                .zip(&self.basis_activations)
+                .all(|(a, b)| a.to_bits() == b.to_bits());
+        if averaged_by_basis && !same {
+            return Err(refuse(
+                "the basis activations differ (the recording's /run vs the config's task), and \
+                 the update weighs by them (temporal_averaging = \"basis-activation\")"
+                    .into(),
+            ));
+        }
         if let Some(n) = config.run.updates.filter(|n| *n <= self.start.update) {
             return Err(RecordError::invalid(
                 file,
@@ -228,6 +253,37 @@ mod tests {
             text = text.replacen(from, to, 1);
         }
         RunConfig::parse(&text, Path::new("c.toml")).unwrap()
+    }
+
+    #[test]
+    fn other_basis_activations_are_refused_when_the_update_weighs_by_them() {
+        let dir = std::env::temp_dir().join(format!("resume-psi-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let by_basis = [
+            ("updates = 40", "updates = 3"),
+            (
+                "weighting = \"episodic\"",
+                "weighting = \"per-time-step\"\ntemporal_averaging = \"basis-activation\"",
+            ),
+        ];
+        let cfg = config(&by_basis);
+        let mut rec = McapRecorder::create(&path).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        let mut point = resume_point(&path).unwrap();
+        assert_eq!(point.basis_activations.len(), 101 * 2);
+        let more = config(&[by_basis[1]]);
+        point.check(&more).unwrap();
+        // A recording whose policy had other activations (an external task's config changed).
+        point.basis_activations[3] += 0.25;
+        let e = point.check(&more).unwrap_err().to_string();
+        assert!(e.contains("the basis activations differ"), "{e}");
+        // Episodic weighting does not use them.
+        let mut episodic = point.clone();
+        episodic.hyperparameters = config(&[]).hyperparameters();
+        episodic.check(&config(&[])).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
