@@ -103,13 +103,19 @@ struct Run {
 
 /// Writes a run's recording: [`RunWriter`]'s calls, and a new part once the current one holds
 /// `split_mb` (see [`RunFiles::split_at_mb`]). A part is finished (indexed) when the update
-/// after its last arrives; the new part begins with that update.
+/// after its last arrives; the new part begins with that update, and with the task changes
+/// written for it.
 pub struct RunFiles {
     writer: Option<RunWriter<FileSink>>,
     first: PathBuf,
     part: u32,
     split_bytes: Option<u64>,
     run: Option<Run>,
+    /// Whether the part was full after the last update: the next update begins a new part.
+    full: bool,
+    /// Task changes written while `full`: they come before the next update, so they belong to
+    /// the part that begins with it.
+    pending_changes: Vec<(u64, String, f64)>,
 }
 
 impl RunFiles {
@@ -125,6 +131,8 @@ impl RunFiles {
             part: 1,
             split_bytes: None,
             run: None,
+            full: false,
+            pending_changes: Vec::new(),
         })
     }
 
@@ -165,13 +173,19 @@ impl RunFiles {
     /// As [`RunWriter::write_update`], into a new part first if the current one is full;
     /// returns the new part's file if it began one.
     pub fn write_update(&mut self, u: &UpdateData<'_>) -> Result<Option<PathBuf>, RecordError> {
-        let full = self.split_bytes.is_some_and(|max| {
+        let begun = if std::mem::take(&mut self.full) {
+            self.next_part(u)?
+        } else {
+            None
+        };
+        self.writer()?.write_update(u)?;
+        // Decided here, after the update, so that what comes before the next one (its task
+        // changes) knows which part it belongs to.
+        self.full = self.split_bytes.is_some_and(|max| {
             self.writer
                 .as_ref()
                 .is_some_and(|w| w.bytes_written() >= max)
         });
-        let begun = if full { self.next_part(u)? } else { None };
-        self.writer()?.write_update(u)?;
         Ok(begun)
     }
 
@@ -213,6 +227,9 @@ impl RunFiles {
                 self.part, u.summary.update
             ),
         )?;
+        for (update, name, value) in self.pending_changes.drain(..) {
+            w.write_task_change(update, &name, value)?;
+        }
         self.writer = Some(w);
         Ok(Some(path))
     }
@@ -223,6 +240,10 @@ impl RunFiles {
         name: &str,
         value: f64,
     ) -> Result<(), RecordError> {
+        if self.full && self.run.is_some() {
+            self.pending_changes.push((update, name.to_string(), value));
+            return Ok(());
+        }
         self.writer()?.write_task_change(update, name, value)
     }
 
@@ -245,7 +266,13 @@ impl RunFiles {
     /// Finishes the part being written; the earlier ones were finished when they filled.
     pub fn finish(mut self) -> Result<(), RecordError> {
         match self.writer.take() {
-            Some(w) => w.finish().map(|_| ()),
+            Some(mut w) => {
+                // No update came after them: they stay with the last one.
+                for (update, name, value) in self.pending_changes.drain(..) {
+                    w.write_task_change(update, &name, value)?;
+                }
+                w.finish().map(|_| ())
+            }
             None => Ok(()),
         }
     }
@@ -254,7 +281,7 @@ impl RunFiles {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{join_resumed, read_recording, recompute::verify, McapRecorder};
+    use crate::{join_resumed, read_recording, recompute::verify, McapRecorder, Recording};
 
     fn record(path: &Path, updates: u64, split_mb: Option<u64>) -> pi2cma::Distribution {
         let mut cfg = session::RunConfig::default_config();
@@ -342,6 +369,43 @@ mod tests {
 
     /// A resumed run's analyze command names every part of both recordings, whichever part the
     /// run resumed from.
+    /// A task change at a part's first update is in that part, before the update, and the
+    /// part's `/run` has the new value.
+    #[test]
+    fn a_task_change_at_the_first_update_of_a_part_is_in_that_part() {
+        let dir = std::env::temp_dir().join(format!("split-change-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("run.mcap");
+        record(&path, 100, Some(1));
+        let second = read_recording(&recording_parts(&path)[1]).unwrap();
+        let boundary = second.updates[0].update;
+        assert!(boundary > 20, "{boundary}");
+
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(100);
+        cfg.recording = Some(session::RecordingSection { split_mb: Some(1) });
+        cfg.schedule[0].from_update = boundary;
+        let mut rec = McapRecorder::create(&path).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        let parts: Vec<Recording> = recording_parts(&path)
+            .iter()
+            .map(|p| read_recording(p).unwrap())
+            .collect();
+        assert_eq!(parts[1].updates[0].update, boundary);
+        assert!(
+            parts[0].task_changes.is_empty(),
+            "{:?}",
+            parts[0].task_changes
+        );
+        let change = &parts[1].task_changes;
+        assert_eq!(change.len(), 1);
+        assert_eq!((change[0].update, change[0].value), (boundary, 0.1));
+        let settings = &parts[1].run_info().unwrap().task_settings;
+        assert_eq!(settings[0].value, 0.1);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn the_analyze_command_names_every_part_of_both_recordings() {
         let dir = std::env::temp_dir().join(format!("split-cmd-{}", std::process::id()));
