@@ -15,7 +15,7 @@ mod control;
 mod run;
 
 pub use control::{client, runs_dir};
-pub use run::{default_recording, run, RunOptions};
+pub use run::{default_recording, process_alive, run, RunOptions};
 
 /// Exit code of a run stopped by SIGINT/SIGTERM.
 pub const EXIT_INTERRUPTED: u8 = 130;

@@ -1531,8 +1531,9 @@ fn run_abandoned(run_dir: &Path) -> bool {
     }
 }
 
-/// Whether a process with this pid exists (a zombie counts as gone).
-fn process_alive(pid: u32) -> bool {
+/// Whether process `pid` runs: it exists and is not a zombie (one that has exited and waits to
+/// be reaped still has `/proc/<pid>`).
+pub fn process_alive(pid: u32) -> bool {
     match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
         // The state follows the parenthesised command name, which may contain spaces.
         Ok(stat) => stat

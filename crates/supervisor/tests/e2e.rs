@@ -223,16 +223,6 @@ fn pids_in(status: &str) -> Vec<(String, u32)> {
         .collect()
 }
 
-fn alive(pid: u32) -> bool {
-    // A zombie still has /proc/<pid>; treat it as gone only when its state is not Z.
-    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
-        Err(_) => false,
-        Ok(s) => !s
-            .rsplit_once(')')
-            .is_some_and(|(_, rest)| rest.trim_start().starts_with('Z')),
-    }
-}
-
 /// Nothing of run `run_id` left: no process, no run directory, no shared memory, no iceoryx2
 /// files.
 fn assert_nothing_left(run: &Run) {
@@ -241,7 +231,8 @@ fn assert_nothing_left(run: &Run) {
             continue;
         };
         let cmdline = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
-        if String::from_utf8_lossy(&cmdline).contains(&run.run_id) && alive(pid) {
+        if String::from_utf8_lossy(&cmdline).contains(&run.run_id) && supervisor::process_alive(pid)
+        {
             panic!(
                 "process {pid} of the run is still running: {}",
                 String::from_utf8_lossy(&cmdline).replace('\0', " ")
@@ -481,7 +472,7 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
         out.contains(&format!("worker-1 (pid {victim}) died")),
         "{out}"
     );
-    assert!(!alive(victim));
+    assert!(!supervisor::process_alive(victim));
     let r = RunResult::read(&result).unwrap();
     assert_eq!(r.updates, 200);
     assert_bit_identical(&text, &result);
@@ -576,7 +567,10 @@ fn exhausted_restart_limit_stops_the_run_with_the_reason() {
         "{out}"
     );
     for (name, pid) in pids {
-        assert!(!alive(pid), "{name} (pid {pid}) survived");
+        assert!(
+            !supervisor::process_alive(pid),
+            "{name} (pid {pid}) survived"
+        );
     }
     assert_nothing_left(&run);
 }
@@ -777,7 +771,10 @@ fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
         t0.elapsed()
     );
     for (name, pid) in pids {
-        assert!(!alive(pid), "{name} (pid {pid}) survived");
+        assert!(
+            !supervisor::process_alive(pid),
+            "{name} (pid {pid}) survived"
+        );
     }
     assert!(run.text().contains("interrupted"), "{}", run.text());
     assert_nothing_left(&run);
@@ -792,7 +789,7 @@ fn sigkill_after_3_updates(run: &mut Run) {
     run.child.kill().unwrap();
     run.wait(Duration::from_secs(10));
     let end = Instant::now() + Duration::from_secs(10);
-    while pids.iter().any(|(_, pid)| alive(*pid)) {
+    while pids.iter().any(|(_, pid)| supervisor::process_alive(*pid)) {
         assert!(
             Instant::now() < end,
             "children outlived their supervisor: {pids:?}"
@@ -1708,7 +1705,7 @@ fn a_killed_run_resumes_from_its_recording_to_the_uninterrupted_result() {
     killed.child.kill().unwrap();
     killed.wait(Duration::from_secs(10));
     let end = Instant::now() + Duration::from_secs(10);
-    while pids.iter().any(|(_, pid)| alive(*pid)) {
+    while pids.iter().any(|(_, pid)| supervisor::process_alive(*pid)) {
         assert!(Instant::now() < end, "children outlived their supervisor");
         std::thread::sleep(Duration::from_millis(20));
     }
