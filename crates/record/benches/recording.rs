@@ -96,8 +96,8 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
         );
         return;
     }
-    println!("\n| pipeline case | updates | without (updates/s, steady state) | with recorder (updates/s, steady state) | recording cost | recorded | bytes/update |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("\n| pipeline case | updates | without (updates/s, steady state) | with recorder (updates/s, steady state) | recording cost | recorded | bytes/update | recorder CPU / updates (whole process: start, idle waits included) |");
+    println!("|---|---|---|---|---|---|---|---|");
     let via_point = |updates: u64, delay: f64| {
         session::DEFAULT_CONFIG
             .replace("updates = 40", &format!("updates = {updates}"))
@@ -140,6 +140,9 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
         let mut best = [f64::INFINITY; 2];
         let mut hung = 0;
         let (mut recorded, mut bytes) = (0, 0);
+        // The recorder's own figure (its exit line), fewest of the runs: what recording takes
+        // from a machine whose cores the rollouts keep busy.
+        let mut recorder_cpu_us = f64::INFINITY;
         for _ in 0..3 {
             for with in [false, true] {
                 id += 1;
@@ -154,7 +157,7 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
                         .arg(dir)
                         .args(["--run-id", &run_id, "--out"])
                         .arg(&out)
-                        .stderr(Stdio::null())
+                        .stderr(Stdio::piped())
                         .spawn()
                         .unwrap();
                     while !out.exists() {
@@ -193,13 +196,23 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
                     }
                     std::thread::sleep(std::time::Duration::from_millis(20));
                 }
-                if let Some(mut c) = rec.take() {
+                if let Some(c) = rec.take() {
                     if stalled {
                         let _ = Command::new("kill")
                             .args(["-INT", &c.id().to_string()])
                             .status();
                     }
-                    c.wait().unwrap();
+                    let exit = c.wait_with_output().unwrap();
+                    let text = String::from_utf8_lossy(&exit.stderr);
+                    // "recorded N updates to FILE (X µs of CPU per update; …)"
+                    if let Some(us) = text
+                        .split(" µs of CPU per update")
+                        .next()
+                        .and_then(|head| head.rsplit('(').next())
+                        .and_then(|x| x.trim().parse::<f64>().ok())
+                    {
+                        recorder_cpu_us = recorder_cpu_us.min(us);
+                    }
                     recorded = record::read_recording(&out).unwrap().updates.len();
                     bytes = std::fs::metadata(&out).unwrap().len() / updates;
                 }
@@ -219,7 +232,7 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
             }
         }
         println!(
-            "| {name} | {updates} | {:.0} | {:.0} | {:+.1}% | {recorded} of {updates} | {bytes} |{}",
+            "| {name} | {updates} | {:.0} | {:.0} | {:+.1}% | {recorded} of {updates} | {bytes} | {recorder_cpu_us:.1} µs |{}",
             1.0 / best[0],
             1.0 / best[1],
             100.0 * (best[1] / best[0] - 1.0),
