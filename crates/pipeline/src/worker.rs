@@ -292,12 +292,8 @@ fn check_shape(task: &dyn Task, config: &RunConfig) -> anyhow::Result<()> {
     if let (Some(own), Some(declared_psi)) =
         (task.basis_activations(), declared.basis_activations())
     {
-        let same = own.len() == declared_psi.len()
-            && own
-                .iter()
-                .zip(&declared_psi)
-                .all(|(a, b)| a.to_bits() == b.to_bits());
-        if !same {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        if bits(&own) != bits(&declared_psi) {
             bail!(
                 "task `{}` has other basis activations than {} in {}: the update weighs the \
                  rollouts by the config's, so put the task's own there",

@@ -822,9 +822,10 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
     plot_worker_time(rec, &path).map_err(perr(&path, "worker_time"))?;
     files.push(path);
 
-    if !timeline(rec, TIMELINE_UPDATES).is_empty() {
+    let bars = timeline(rec, TIMELINE_UPDATES);
+    if !bars.is_empty() {
         let path = dir.join("worker_timeline.svg");
-        plot_worker_timeline(rec, &path).map_err(perr(&path, "worker_timeline"))?;
+        plot_worker_timeline(rec, &bars, &path).map_err(perr(&path, "worker_timeline"))?;
         files.push(path);
     }
     Ok(files)
@@ -871,9 +872,8 @@ pub fn timeline(rec: &Recording, updates: usize) -> Vec<TimelineBar> {
     bars
 }
 
-fn plot_worker_timeline(rec: &Recording, path: &Path) -> Result<(), String> {
+fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
-    let bars = timeline(rec, TIMELINE_UPDATES);
     let t0 = bars.iter().map(|b| b.start_ns).min().unwrap_or(0);
     let ms = |t: u64| (t - t0) as f64 / 1e6;
     let xmax = bars.iter().map(|b| ms(b.end_ns)).fold(0.0f64, f64::max);

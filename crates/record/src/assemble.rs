@@ -235,9 +235,7 @@ impl Assembler {
             .tell(&pending.costs)
             .map_err(|e| format!("update {u}: {e}"))?;
         let recomputed = opt.distribution();
-        let same = |a: &[f64], b: &[f64]| {
-            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
-        };
+        let same = crate::recompute::same_bits;
         let recomputed_matches = same(recomputed.mean.as_slice(), after.mean.as_slice())
             && same(
                 recomputed.covariance.as_slice(),

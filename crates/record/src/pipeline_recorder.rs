@@ -548,7 +548,6 @@ impl WriterState {
     }
 }
 
-/// CPU time (user + system) this process has used, in seconds; 0 if unknown.
 /// When rollout `h` ran: as its worker stamped it, or, from a worker that does not
 /// (`start_ns` = 0), the interval that ended when the costs were taken in (up to a round late).
 fn rollout_timing(h: &CostHeader, received_ns: u64) -> RolloutTiming {
@@ -563,6 +562,7 @@ fn rollout_timing(h: &CostHeader, received_ns: u64) -> RolloutTiming {
     }
 }
 
+/// CPU time (user + system) this process has used, in seconds; 0 if unknown.
 fn process_cpu_seconds() -> f64 {
     // SAFETY: getrusage writes into the struct it is given and reads nothing else.
     #[allow(unsafe_code)]

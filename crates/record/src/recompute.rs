@@ -69,7 +69,7 @@ pub fn recompute_update(rec: &Recording, u: &proto::Update) -> Result<Recomputed
     })
 }
 
-fn same_bits(a: &[f64], b: &[f64]) -> bool {
+pub(crate) fn same_bits(a: &[f64], b: &[f64]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 

@@ -10,6 +10,7 @@ use std::path::Path;
 use pi2cma::{Hyperparameters, TemporalAveraging, Weighting};
 use session::{RunConfig, Start};
 
+use crate::recompute::same_bits;
 use crate::{
     distribution_from_proto, first_part, hyperparameters_from_proto, last_part, read_ends,
     RecordError,
@@ -210,12 +211,7 @@ impl ResumePoint {
                 temporal: TemporalAveraging::BasisActivation,
             };
         let own = task.basis_activations().unwrap_or_default();
-        let same = own.len() == self.basis_activations.len()
-            && own
-                .iter()
-                .zip(&self.basis_activations)
-                .all(|(a, b)| a.to_bits() == b.to_bits());
-        if averaged_by_basis && !same {
+        if averaged_by_basis && !same_bits(&own, &self.basis_activations) {
             return Err(refuse(
                 "the basis activations differ (the recording's /run vs the config's task), and \
                  the update weighs by them (temporal_averaging = \"basis-activation\")"
