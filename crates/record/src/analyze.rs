@@ -150,6 +150,22 @@ fn io(file: &Path) -> impl FnOnce(std::io::Error) -> RecordError + '_ {
 // ---------------------------------------------------------------------------------------------
 // Info
 
+/// The update numbers missing between the first and the last of ascending `updates`, as
+/// "3, 7–9" (a recovered file without its damaged chunks' updates); empty if none are.
+fn gaps(updates: impl IntoIterator<Item = u64>) -> String {
+    let mut out = Vec::new();
+    let mut prev: Option<u64> = None;
+    for u in updates {
+        match prev {
+            Some(p) if u == p + 2 => out.push(format!("{}", p + 1)),
+            Some(p) if u > p + 2 => out.push(format!("{}–{}", p + 1, u - 1)),
+            _ => {}
+        }
+        prev = Some(prev.map_or(u, |p| p.max(u)));
+    }
+    out.join(", ")
+}
+
 /// A human-readable summary of one recording.
 pub fn info(rec: &Recording) -> String {
     let mut s = String::new();
@@ -188,11 +204,17 @@ pub fn info(rec: &Recording) -> String {
             .min_by(|a, b| a.eval_cost.total_cmp(&b.eval_cost))
             .map(|u| (u.eval_cost, u.update))
             .unwrap_or((f64::NAN, 0));
+        let missing = gaps(rec.updates.iter().map(|u| u.update));
         let _ = writeln!(
             s,
-            "  updates: {n} ({}..={}), {} bytes per update",
+            "  updates: {n} ({}..={}{}), {} bytes per update",
             first.update,
             last.update,
+            if missing.is_empty() {
+                String::new()
+            } else {
+                format!("; missing {missing}")
+            },
             rec.file_bytes / n as u64
         );
         let _ = writeln!(
@@ -1487,6 +1509,14 @@ mod tests {
         );
         assert_eq!(timeline(&r, 100).len(), 10);
         assert!(timeline(&Recording::default(), 10).is_empty());
+    }
+
+    #[test]
+    fn gaps_name_the_missing_updates() {
+        assert_eq!(gaps([0, 1, 2]), "");
+        assert_eq!(gaps([0, 1, 3, 4, 8, 9]), "2, 5–7");
+        assert_eq!(gaps([5]), "");
+        assert_eq!(gaps([]), "");
     }
 
     #[test]

@@ -136,8 +136,14 @@ pub(crate) fn stream(
     let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
     // A chunk is checked against the CRC its writer computed before any of its messages is
     // handed over: damage is reported, never read as other numbers.
+    // A damaged record length must fail as damage, not ask for that much memory. Chunks
+    // decompress to more than they take in the file; 64× leaves room for any our writer makes.
+    let len = file.metadata().map_err(|e| RecordError::io(path, e))?.len();
+    let limit = usize::try_from(len.saturating_mul(64).max(64 << 20)).unwrap_or(usize::MAX);
     let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default().with_prevalidate_chunk_crcs(true),
+        LinearReaderOptions::default()
+            .with_prevalidate_chunk_crcs(true)
+            .with_record_length_limit(limit),
     );
     let mut topics: BTreeMap<u16, String> = BTreeMap::new();
     while let Some(event) = reader.next_event() {
@@ -176,27 +182,39 @@ pub(crate) fn stream(
 /// Whether the file has a readable summary section (it was finished or recovered), read from
 /// its end.
 fn has_summary(path: &Path) -> Result<bool, RecordError> {
-    use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
     let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
     let len = file.metadata().map_err(|e| RecordError::io(path, e))?.len();
-    let mut reader =
-        SummaryReader::new_with_options(SummaryReaderOptions::default().with_file_size(len));
+    Ok(summary_of(&mut file, len)
+        .map_err(|e| RecordError::io(path, e))?
+        .is_some())
+}
+
+/// The summary section of an MCAP file of `len` bytes, read from its end; `None` if it has no
+/// readable one (its writer was killed, or its end is damaged).
+pub(crate) fn summary_of(
+    file: &mut std::fs::File,
+    len: u64,
+) -> std::io::Result<Option<mcap::Summary>> {
+    use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+    let mut reader = SummaryReader::new_with_options(
+        SummaryReaderOptions::default()
+            .with_file_size(len)
+            .with_record_length_limit(usize::try_from(len).unwrap_or(usize::MAX)),
+    );
     while let Some(event) = reader.next_event() {
         match event {
-            Err(_) => return Ok(false),
+            Err(_) => return Ok(None),
             Ok(SummaryReadEvent::ReadRequest(n)) => {
-                let read = file
-                    .read(reader.insert(n))
-                    .map_err(|e| RecordError::io(path, e))?;
+                let read = file.read(reader.insert(n))?;
                 reader.notify_read(read);
             }
             Ok(SummaryReadEvent::SeekRequest(to)) => {
-                let pos = file.seek(to).map_err(|e| RecordError::io(path, e))?;
+                let pos = file.seek(to)?;
                 reader.notify_seeked(pos);
             }
         }
     }
-    Ok(reader.finish().is_some())
+    Ok(reader.finish())
 }
 
 /// The first `/run` message and the last complete `/update` of a recording.
@@ -417,7 +435,14 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
     // A finished file is whole: damage inside it is an error, not a killed writer's end.
     if let Some(why) = truncated {
         if rec.indexed {
-            return Err(RecordError::invalid(path, why));
+            return Err(RecordError::invalid(
+                path,
+                format!(
+                    "{why} (the file is damaged; `mcap-tool recover {}` keeps every undamaged \
+                     chunk)",
+                    path.display()
+                ),
+            ));
         }
         rec.truncated = Some(why);
     }

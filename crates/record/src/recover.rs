@@ -1,9 +1,16 @@
 //! `recover`: rewrite a recording whose writer was killed (no summary, possibly a torn chunk at
-//! the end) into a complete, indexed MCAP holding every readable record.
+//! the end), or whose bytes were damaged, into a complete, indexed MCAP holding every readable
+//! record.
+//!
+//! Damage inside the file does not end the recovery: chunks are independent, so reading goes on
+//! at the next chunk whose CRC holds (found by scanning for one when the damage hit a record's
+//! framing), and only the damaged chunks' updates are lost. The report lists each unreadable
+//! region.
 
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufWriter, Read};
+use std::io::{BufWriter, Read, Seek, SeekFrom};
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use mcap::read::ChunkReader;
@@ -13,18 +20,36 @@ use mcap::{Compression, WriteOptions};
 
 use crate::RecordError;
 
+/// A region of the input that could not be read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Damage {
+    /// Byte offset where the region starts: the first record that did not read whole.
+    pub offset: u64,
+    /// Its length: up to the next readable chunk, or to the end of the file.
+    pub len: u64,
+    /// What was wrong with its first record.
+    pub why: String,
+}
+
 /// What `recover` kept and dropped.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RecoverReport {
     pub input: PathBuf,
     pub output: PathBuf,
+    /// The input's length.
+    pub input_bytes: u64,
     pub messages: u64,
     pub metadata: u64,
     pub attachments: u64,
-    /// Bytes at the end of the input that could not be read (the chunk in flight).
+    /// Bytes of the input that could not be read: the total of [`Self::damage`].
     pub dropped_bytes: u64,
-    /// Why reading stopped, if the input was damaged.
-    pub stopped_by: Option<String>,
+    /// The unreadable regions in file order. A killed writer leaves one, at the end (the chunk
+    /// in flight); damage inside the file leaves one per damaged stretch, after which reading
+    /// went on.
+    pub damage: Vec<Damage>,
+    /// Messages whose channel was declared only in damaged bytes: not copied (with no channel,
+    /// nothing says how to decode them).
+    pub orphaned_messages: u64,
     /// The last part of the split recording the input belongs to, if that is another file:
     /// the only part a killed writer leaves unfinished.
     pub last_part: Option<PathBuf>,
@@ -33,13 +58,17 @@ pub struct RecoverReport {
 /// Copies every readable schema, channel, message, metadata and attachment record of `input`
 /// into a new, finished MCAP at `output` (zstd chunks, full indexes). `output` may be `input`:
 /// the result is written next to it and renamed over it. The input is read as a stream, a
-/// chunk at a time, so a continual run's recording recovers in little memory.
+/// chunk at a time, so a continual run's recording recovers in little memory. Channels and
+/// schemas also come from the input's summary when it has one, so a finished file whose first
+/// chunk (where they are declared) is damaged keeps its later messages.
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError> {
     let mut file = File::open(input).map_err(|e| RecordError::io(input, e))?;
     let input_len = file
         .metadata()
         .map_err(|e| RecordError::io(input, e))?
         .len();
+    let summary =
+        crate::reader::summary_of(&mut file, input_len).map_err(|e| RecordError::io(input, e))?;
     let tmp = tmp_path(output);
     let f = File::create(&tmp).map_err(|e| RecordError::io(&tmp, e))?;
     let mut w = WriteOptions::new()
@@ -55,6 +84,7 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
     let mut report = RecoverReport {
         input: input.to_path_buf(),
         output: output.to_path_buf(),
+        input_bytes: input_len,
         ..Default::default()
     };
     let mut copier = Copier {
@@ -62,15 +92,69 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
         channels: HashMap::new(),
         tmp: &tmp,
     };
+    if let Some(summary) = &summary {
+        copier.declare(&mut w, summary)?;
+    }
+    let mut from = 0;
+    loop {
+        let stop = copy_from(
+            &mut file,
+            input,
+            from,
+            input_len,
+            &mut copier,
+            &mut w,
+            &mut report,
+        )?;
+        let Some((at, why)) = stop else { break };
+        let next = next_chunk(&file, at + 1, input_len).map_err(|e| RecordError::io(input, e))?;
+        let end = next.unwrap_or(input_len);
+        report.damage.push(Damage {
+            offset: at,
+            len: end - at,
+            why,
+        });
+        report.dropped_bytes += end - at;
+        match next {
+            Some(n) => from = n,
+            None => break,
+        }
+    }
+    w.finish().map_err(|e| RecordError::mcap(&tmp, e))?;
+    let mut inner = w.into_inner();
+    std::io::Write::flush(&mut inner).map_err(|e| RecordError::io(&tmp, e))?;
+    drop(inner);
+    std::fs::rename(&tmp, output).map_err(|e| RecordError::io(output, e))?;
+    Ok(report)
+}
+
+/// Copies the records of `input` from byte `from` (0: the start, with its magic; otherwise a
+/// record's first byte) until the data section ends, the file ends, or a record does not read
+/// whole: then returns where that record starts and why.
+fn copy_from(
+    file: &mut File,
+    input: &Path,
+    from: u64,
+    input_len: u64,
+    copier: &mut Copier<'_>,
+    w: &mut mcap::Writer<BufWriter<File>>,
+    report: &mut RecoverReport,
+) -> Result<Option<(u64, String)>, RecordError> {
+    file.seek(SeekFrom::Start(from))
+        .map_err(|e| RecordError::io(input, e))?;
     // Top-level records as they are (chunks still compressed): a chunk is decoded, and its CRC
-    // checked, by `ChunkReader`, and kept only if all of it decodes.
+    // checked, by `ChunkReader`, and kept only if all of it decodes. No record is longer than
+    // the file: a damaged length fails here instead of asking for that much memory.
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
+            .with_skip_start_magic(from != 0)
             .with_skip_end_magic(true)
-            .with_emit_chunks(true),
+            .with_emit_chunks(true)
+            .with_record_length_limit(usize::try_from(input_len).unwrap_or(usize::MAX)),
     );
-    // Byte offset just past the last record that was copied whole (after the leading magic).
-    let mut good_end: u64 = 8;
+    // Byte offset just past the last record that was copied whole.
+    let mut good_end: u64 = if from == 0 { 8 } else { from };
+    let mut first = true;
     while let Some(event) = reader.next_event() {
         let (opcode, body) = match event {
             Ok(LinearReadEvent::ReadRequest(wanted)) => {
@@ -80,19 +164,16 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
                 continue;
             }
             Ok(LinearReadEvent::Record { opcode, data }) => (opcode, data),
-            Err(e) => {
-                report.stopped_by = Some(e.to_string());
-                break;
-            }
+            // Damaged leading magic: nothing was read yet.
+            Err(e) if first && from == 0 => return Ok(Some((0, e.to_string()))),
+            Err(e) => return Ok(Some((good_end, e.to_string()))),
         };
+        first = false;
         // opcode, length, body.
         let record_len = 1 + 8 + body.len() as u64;
         let record = match mcap::parse_record(opcode, body) {
             Ok(r) => r,
-            Err(e) => {
-                report.stopped_by = Some(e.to_string());
-                break;
-            }
+            Err(e) => return Ok(Some((good_end, e.to_string()))),
         };
         match record {
             Record::Chunk { header, data } => {
@@ -101,32 +182,83 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
                 match inner {
                     Ok(records) => {
                         for r in records {
-                            copier.copy(&mut w, r, &mut report)?;
+                            copier.copy(w, r, report)?;
                         }
                     }
-                    Err(e) => {
-                        report.stopped_by = Some(format!("damaged chunk: {e}"));
-                        break;
-                    }
+                    Err(e) => return Ok(Some((good_end, format!("damaged chunk: {e}")))),
                 }
             }
-            Record::DataEnd(_) | Record::Footer(_) => {
-                good_end = input_len;
-                break;
-            }
-            other => copier.copy(&mut w, other, &mut report)?,
+            Record::DataEnd(_) | Record::Footer(_) => return Ok(None),
+            other => copier.copy(w, other, report)?,
         }
         good_end += record_len;
     }
-    if report.stopped_by.is_some() {
-        report.dropped_bytes = input_len.saturating_sub(good_end);
+    Ok(None)
+}
+
+/// The offset of the first chunk at or after `from` that reads whole: its header is consistent
+/// with its length, it decompresses, and its records match the CRC its writer computed. Chunks
+/// are what resumes reading after damage because the CRC makes a false find (a stray 0x06 in
+/// damaged bytes) all but impossible; top-level records in between (metadata, message indexes)
+/// are lost with the damage.
+fn next_chunk(file: &File, from: u64, len: u64) -> std::io::Result<Option<u64>> {
+    const WINDOW: usize = 1 << 20;
+    let mut buf = vec![0; WINDOW];
+    let mut base = from;
+    while base < len {
+        let n = WINDOW.min((len - base) as usize);
+        file.read_exact_at(&mut buf[..n], base)?;
+        for (i, _) in buf[..n].iter().enumerate().filter(|(_, b)| **b == OP_CHUNK) {
+            let at = base + i as u64;
+            if chunk_reads_whole(file, at, len)? {
+                return Ok(Some(at));
+            }
+        }
+        base += n as u64;
     }
-    w.finish().map_err(|e| RecordError::mcap(&tmp, e))?;
-    let mut inner = w.into_inner();
-    std::io::Write::flush(&mut inner).map_err(|e| RecordError::io(&tmp, e))?;
-    drop(inner);
-    std::fs::rename(&tmp, output).map_err(|e| RecordError::io(output, e))?;
-    Ok(report)
+    Ok(None)
+}
+
+const OP_CHUNK: u8 = 0x06;
+
+/// Whether a whole, CRC-checked chunk record starts at `at`.
+fn chunk_reads_whole(file: &File, at: u64, len: u64) -> std::io::Result<bool> {
+    // opcode, record length, then the chunk header: start and end time, uncompressed size,
+    // uncompressed CRC, compression (u32 length + name), compressed size.
+    let mut head = [0; 9 + 8 + 8 + 8 + 4 + 4];
+    if at + head.len() as u64 > len {
+        return Ok(false);
+    }
+    file.read_exact_at(&mut head, at)?;
+    let u64_at = |i: usize| u64::from_le_bytes(head[i..i + 8].try_into().unwrap_or([0; 8]));
+    let record_len = u64_at(1);
+    let crc = u32::from_le_bytes(head[33..37].try_into().unwrap_or([0; 4]));
+    let name_len = u64::from(u32::from_le_bytes(
+        head[37..41].try_into().unwrap_or([0; 4]),
+    ));
+    // Our writer and every mcap writer by default compute the CRC; without one, nothing would
+    // tell a chunk from noise.
+    if crc == 0 || name_len > 8 || record_len > len - at - 9 || u64_at(9) > u64_at(17) {
+        return Ok(false);
+    }
+    let header_len = 8 + 8 + 8 + 4 + 4 + name_len + 8;
+    if record_len < header_len {
+        return Ok(false);
+    }
+    let mut tail = vec![0; (name_len + 8) as usize];
+    file.read_exact_at(&mut tail, at + 41)?;
+    let compressed = u64::from_le_bytes(tail[name_len as usize..].try_into().unwrap_or([0xff; 8]));
+    if compressed != record_len - header_len {
+        return Ok(false);
+    }
+    let mut body = vec![0; record_len as usize];
+    file.read_exact_at(&mut body, at + 9)?;
+    Ok(match mcap::parse_record(OP_CHUNK, &body) {
+        Ok(Record::Chunk { header, data }) => ChunkReader::new(header, &data)
+            .and_then(|r| r.collect::<Result<Vec<_>, _>>())
+            .is_ok(),
+        _ => false,
+    })
 }
 
 fn tmp_path(output: &Path) -> PathBuf {
@@ -146,6 +278,50 @@ struct Copier<'p> {
 }
 
 impl Copier<'_> {
+    /// Declares the summary's schemas and channels under their input ids. Declared again by
+    /// the data section, they keep the ids given here (the writer returns the id of an equal
+    /// schema or channel).
+    fn declare(
+        &mut self,
+        w: &mut mcap::Writer<BufWriter<File>>,
+        summary: &mcap::Summary,
+    ) -> Result<(), RecordError> {
+        let mut schemas: Vec<_> = summary.schemas.values().collect();
+        schemas.sort_by_key(|s| s.id);
+        for s in schemas {
+            let header = mcap::records::SchemaHeader {
+                id: s.id,
+                name: s.name.clone(),
+                encoding: s.encoding.clone(),
+            };
+            let data = std::borrow::Cow::Borrowed(&s.data[..]);
+            self.copy_schema_or_channel(w, Record::Schema { header, data })?;
+        }
+        let mut channels: Vec<_> = summary.channels.values().collect();
+        channels.sort_by_key(|c| c.id);
+        for c in channels {
+            self.copy_schema_or_channel(
+                w,
+                Record::Channel(mcap::records::Channel {
+                    id: c.id,
+                    schema_id: c.schema.as_ref().map_or(0, |s| s.id),
+                    topic: c.topic.clone(),
+                    message_encoding: c.message_encoding.clone(),
+                    metadata: c.metadata.clone(),
+                }),
+            )?;
+        }
+        Ok(())
+    }
+
+    fn copy_schema_or_channel(
+        &mut self,
+        w: &mut mcap::Writer<BufWriter<File>>,
+        record: Record<'_>,
+    ) -> Result<(), RecordError> {
+        self.copy(w, record, &mut RecoverReport::default())
+    }
+
     fn copy(
         &mut self,
         w: &mut mcap::Writer<BufWriter<File>>,
@@ -184,13 +360,8 @@ impl Copier<'_> {
             }
             Record::Message { header, data } => {
                 let Some(&channel_id) = self.channels.get(&header.channel_id) else {
-                    return Err(RecordError::invalid(
-                        self.tmp,
-                        format!(
-                            "message {} on unknown channel {}",
-                            header.sequence, header.channel_id
-                        ),
-                    ));
+                    report.orphaned_messages += 1;
+                    return Ok(());
                 };
                 w.write_to_known_channel(
                     &MessageHeader {
@@ -254,10 +425,28 @@ impl RecoverReport {
             self.input.display(),
             self.output.display()
         );
-        if let Some(why) = &self.stopped_by {
+        for (i, d) in self.damage.iter().enumerate() {
+            let at_end = i + 1 == self.damage.len() && d.offset + d.len >= self.input_bytes;
+            if at_end {
+                s.push_str(&format!(
+                    "; dropped the unreadable last {} bytes, from byte {} ({})",
+                    d.len, d.offset, d.why
+                ));
+            } else {
+                s.push_str(&format!(
+                    "; skipped {} damaged bytes at {}..{} ({}) and read on from the next whole \
+                     chunk",
+                    d.len,
+                    d.offset,
+                    d.offset + d.len,
+                    d.why
+                ));
+            }
+        }
+        if self.orphaned_messages > 0 {
             s.push_str(&format!(
-                "; dropped the unreadable last {} bytes ({why})",
-                self.dropped_bytes
+                "; dropped {} messages whose channel was declared only in damaged bytes",
+                self.orphaned_messages
             ));
         }
         if let Some(last) = &self.last_part {

@@ -173,10 +173,13 @@ fn torn_chunks_lose_only_the_update_in_flight() {
             );
             assert!(keep <= u + 2);
             assert_eq!(
-                report.stopped_by.is_some(),
-                cut != at,
+                report.damage.is_empty(),
+                cut == at,
                 "cut at {cut}: {report:?}"
             );
+            // One unreadable region, at the end: no chunk in the torn tail reads whole.
+            assert!(report.damage.len() <= 1, "cut at {cut}: {report:?}");
+            assert!(report.damage.iter().all(|d| d.offset + d.len == cut as u64));
             // The torn tail is what was dropped: from the end of the last whole record.
             if cut != at && keep == u + 1 {
                 assert_eq!(report.dropped_bytes, (cut - at) as u64, "cut at {cut}");
@@ -184,4 +187,107 @@ fn torn_chunks_lose_only_the_update_in_flight() {
             assert!(verify(&r).unwrap().mismatches.is_empty());
         }
     }
+}
+
+/// A finished 12-update recording, its bytes and the offsets where each update's chunk starts.
+fn finished_recording(name: &str) -> (PathBuf, Vec<u8>, Vec<u64>) {
+    let path = tmp(name);
+    let mut cfg = session::RunConfig::default_config();
+    cfg.run.updates = Some(12);
+    let mut rec = record::McapRecorder::create(&path).unwrap();
+    session::run_session(&cfg, 2, &mut rec).unwrap();
+    rec.finish().unwrap();
+    let whole = std::fs::read(&path).unwrap();
+    // The chunk of update u starts where /run's chunk (u = 0) or update u − 1's ends.
+    let starts = flush_boundaries(&whole)[1..].to_vec();
+    (path, whole, starts)
+}
+
+fn recovered_updates(damaged: &[u8], name: &str) -> (Vec<u64>, record::recover::RecoverReport) {
+    let input = tmp(&format!("{name}.mcap"));
+    std::fs::write(&input, damaged).unwrap();
+    let fixed = tmp(&format!("{name}-fixed.mcap"));
+    let report = recover(&input, &fixed).unwrap();
+    let r = read_recording(&fixed).unwrap();
+    assert!(r.indexed && r.truncated.is_none(), "{report:?}");
+    let v = verify(&r).unwrap();
+    assert!(v.mismatches.is_empty(), "{v:?}");
+    (r.updates.iter().map(|x| x.update).collect(), report)
+}
+
+/// Damage inside a file loses the damaged chunk's update only: reading goes on at the next whole
+/// chunk, whether the damage left the chunk's framing intact or hit its length.
+#[test]
+fn damage_inside_a_file_loses_only_the_damaged_chunks() {
+    let (path, whole, starts) = finished_recording("inside.mcap");
+    let all_but = |lost: &[u64]| (0..12).filter(|u| !lost.contains(u)).collect::<Vec<u64>>();
+    // A finished file damaged inside is an error for the readers; recover is the way out.
+    let (c3, c4) = (starts[3] as usize, starts[4] as usize);
+
+    // Bytes in the middle of update 3's compressed records.
+    let mut bytes = whole.clone();
+    bytes[(c3 + c4) / 2..(c3 + c4) / 2 + 8].fill(0xa5);
+    let (got, report) = recovered_updates(&bytes, "payload");
+    assert_eq!(got, all_but(&[3]), "{report:?}");
+    assert_eq!(report.damage.len(), 1, "{report:?}");
+    assert_eq!(report.damage[0].offset, c3 as u64);
+    assert!(report.damage[0].why.contains("damaged chunk"), "{report:?}");
+    assert!(report
+        .describe()
+        .contains("read on from the next whole chunk"));
+
+    // Update 3's record length: garbage that points past the end of the file.
+    let mut bytes = whole.clone();
+    bytes[c3 + 1..c3 + 9].copy_from_slice(&0x00ff_ffff_ffff_fff0u64.to_le_bytes());
+    let (got, report) = recovered_updates(&bytes, "length");
+    assert_eq!(got, all_but(&[3]), "{report:?}");
+    assert_eq!(report.damage.len(), 1, "{report:?}");
+    // Also a smaller length, which makes the next "record" start inside update 3's data.
+    let mut bytes = whole.clone();
+    bytes[c3 + 1..c3 + 9].copy_from_slice(&100u64.to_le_bytes());
+    let (got, report) = recovered_updates(&bytes, "short");
+    assert_eq!(got, all_but(&[3]), "{report:?}");
+    // Two damaged stretches: updates 3 and 7.
+    let (c7, c8) = (starts[7] as usize, starts[8] as usize);
+    let mut bytes = whole.clone();
+    bytes[c3..c4].fill(0);
+    bytes[(c7 + c8) / 2] ^= 1;
+    let (got, report) = recovered_updates(&bytes, "two");
+    assert_eq!(got, all_but(&[3, 7]), "{report:?}");
+    assert_eq!(report.damage.len(), 2, "{report:?}");
+    assert_eq!(
+        report.dropped_bytes,
+        report.damage.iter().map(|d| d.len).sum::<u64>()
+    );
+    // The readers refuse such a file with an error naming it, and do not try to allocate the
+    // damaged length.
+    let mut bytes = whole.clone();
+    bytes[c3 + 1..c3 + 9].copy_from_slice(&0x00ff_ffff_ffff_fff0u64.to_le_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    let e = read_recording(&path).unwrap_err().to_string();
+    assert!(e.contains("inside.mcap"), "{e}");
+}
+
+/// The channels are declared in the first chunk. A finished file keeps them in its summary too,
+/// so damage there loses no later message; a killed writer's file has no summary, and its
+/// messages are reported as orphaned instead of failing the recovery.
+#[test]
+fn damaged_channel_declarations_come_from_the_summary() {
+    let (_, whole, starts) = finished_recording("declarations.mcap");
+    let first = flush_boundaries(&whole)[0] as usize; // end of the schemas' chunk
+    let mut bytes = whole.clone();
+    bytes[first - 40..first - 32].fill(0xa5);
+    let (got, report) = recovered_updates(&bytes, "declarations");
+    assert_eq!(got, (0..12).collect::<Vec<u64>>(), "{report:?}");
+    assert_eq!(report.orphaned_messages, 0);
+    assert_eq!(report.damage.len(), 1, "{report:?}");
+
+    // Without the summary: cut the file after update 5, as a killed writer would.
+    let cut = &bytes[..starts[6] as usize];
+    let input = tmp("declarations-killed.mcap");
+    std::fs::write(&input, cut).unwrap();
+    let fixed = tmp("declarations-killed-fixed.mcap");
+    let report = recover(&input, &fixed).unwrap();
+    assert!(report.orphaned_messages > 0, "{report:?}");
+    assert!(report.describe().contains("declared only in damaged bytes"));
 }
