@@ -217,6 +217,18 @@ pub(crate) fn summary_of(
     Ok(reader.finish())
 }
 
+/// The error for a finished file that does not read to its end: damaged bytes, which
+/// `recover` reads past.
+fn damaged(path: &Path, why: &str) -> RecordError {
+    RecordError::invalid(
+        path,
+        format!(
+            "{why} (the file is damaged; `mcap-tool recover {}` keeps every undamaged chunk)",
+            path.display()
+        ),
+    )
+}
+
 /// The first `/run` message and the last complete `/update` of a recording.
 #[derive(Debug, Clone, Default)]
 pub struct Ends {
@@ -257,6 +269,13 @@ pub fn read_ends(path: &Path) -> Result<Ends, RecordError> {
         }
         Ok(())
     })?;
+    // A finished file is whole: its end is not where the damage is (resuming there would
+    // redo, and record twice, the updates after it).
+    if let Some(why) = &ends.truncated {
+        if has_summary(path)? {
+            return Err(damaged(path, why));
+        }
+    }
     if ends.updates > 0 {
         let index = ends.updates - 1;
         ends.last_update = Some(decode(path, topics::UPDATE, index, "Update", &last_update)?);
@@ -435,14 +454,7 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
     // A finished file is whole: damage inside it is an error, not a killed writer's end.
     if let Some(why) = truncated {
         if rec.indexed {
-            return Err(RecordError::invalid(
-                path,
-                format!(
-                    "{why} (the file is damaged; `mcap-tool recover {}` keeps every undamaged \
-                     chunk)",
-                    path.display()
-                ),
-            ));
+            return Err(damaged(path, &why));
         }
         rec.truncated = Some(why);
     }
@@ -571,7 +583,10 @@ mod tests {
             Ok(r) => panic!("a damaged file read as {} updates", r.updates.len()),
             Err(e) => e.to_string(),
         };
-        assert!(e.contains("cut.mcap"), "{e}");
+        assert!(e.contains("cut.mcap") && e.contains("recover"), "{e}");
+        // Resume's reader too: the end of a finished file is not where its damage is.
+        let e = read_ends(&cut).unwrap_err().to_string();
+        assert!(e.contains("cut.mcap") && e.contains("recover"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
