@@ -21,6 +21,7 @@ mod reader;
 pub mod recompute;
 mod recorder;
 pub mod recover;
+mod reserve;
 pub mod resume;
 mod seek_buffer;
 mod split;

@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{Seek, Write};
 
+use crate::reserve::ReservingFile;
 use crate::seek_buffer::SeekBuffer;
 use std::path::{Path, PathBuf};
 
@@ -139,15 +140,15 @@ pub struct RunWriter<W: Write + Seek> {
     bytes: u64,
 }
 
-/// What [`RunWriter::create`] writes to: the file behind a buffer that serves the `mcap`
-/// writer's per-chunk seeks from memory (one `write` per flush).
-pub type FileSink = SeekBuffer<File>;
+/// What [`RunWriter::create`] writes to: the file (reserving its blocks ahead) behind a buffer
+/// that serves the `mcap` writer's per-chunk seeks from memory (one `write` per flush).
+pub type FileSink = SeekBuffer<ReservingFile>;
 
 impl RunWriter<FileSink> {
     /// Creates (truncates) `path`.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
         let f = File::create(path).map_err(|e| RecordError::io(path, e))?;
-        Self::new(SeekBuffer::new(f), path)
+        Self::new(SeekBuffer::new(ReservingFile::new(f)), path)
     }
 }
 
