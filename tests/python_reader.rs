@@ -6,12 +6,12 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+#[path = "scratch.rs"]
+mod common;
+
 /// An empty scratch directory `name`.
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("pi2cma-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
+    common::scratch(&format!("python-{name}"))
 }
 
 /// `pi2cma run ARGS` in `dir`, which must succeed.

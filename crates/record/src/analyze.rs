@@ -39,7 +39,7 @@ pub struct AnalyzeArgs {
     #[arg(long)]
     pub verify: bool,
     /// Re-convergence tolerance: a segment has converged once every later eval cost is within
-    /// `tolerance` × (peak − final level) of its final level.
+    /// `tolerance` × (peak − lowest level) of its lowest level.
     #[arg(long, default_value_t = 0.05)]
     pub tolerance: f64,
 }

@@ -3,15 +3,16 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/scratch.rs"]
+mod scratch;
+
 use record::analyze::{run, AnalyzeArgs};
 use record::McapRecorder;
 use session::{run_session, RunConfig};
 
 #[test]
 fn analyze_writes_csv_figures_and_the_experiment_table() {
-    let dir = std::env::temp_dir().join(format!("record-analyze-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch::scratch("analyze");
     let mut cfg = RunConfig::default_config();
     cfg.run.updates = Some(30);
     let mut files = Vec::new();
@@ -67,8 +68,7 @@ fn analyze_writes_csv_figures_and_the_experiment_table() {
 /// `mcap-tool record --seed --updates` records the config it ran: its text has both.
 #[test]
 fn the_recorded_config_has_the_command_line_seed_and_updates() {
-    let dir = std::env::temp_dir().join(format!("record-seed-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch::scratch("seed");
     let out = dir.join("s3.mcap");
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
         .args(["record", "--seed", "3", "--updates", "5", "--out"])

@@ -3,6 +3,9 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/scratch.rs"]
+mod scratch;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -12,9 +15,7 @@ use record::recompute::verify;
 use record::recover::recover;
 
 fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("record-crash-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    scratch::shared("crash").join(name)
 }
 
 /// Starts a long recording (2 ms per rollout) and returns it with the updates it reported as

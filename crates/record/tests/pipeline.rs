@@ -9,6 +9,9 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/scratch.rs"]
+mod scratch;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -46,9 +49,7 @@ struct Run {
 }
 
 fn setup(name: &str, updates: u64, delay_ms: f64) -> Run {
-    let dir = std::env::temp_dir().join(format!("record-pipeline-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = scratch::scratch(&format!("pipeline-{name}"));
     let text = session::DEFAULT_CONFIG
         .replace("updates = 40", &format!("updates = {updates}"))
         .replace(

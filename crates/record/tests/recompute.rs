@@ -3,6 +3,9 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/scratch.rs"]
+mod scratch;
+
 use std::path::PathBuf;
 
 use record::recompute::{recompute_update, verify};
@@ -10,9 +13,7 @@ use record::{read_recording, McapRecorder};
 use session::{run_session, RunConfig};
 
 fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("record-test-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    scratch::shared("recompute").join(name)
 }
 
 fn record(cfg: &RunConfig, seed: u64, name: &str) -> PathBuf {

@@ -129,11 +129,20 @@ impl Task for Reach {
 /// The arguments the supervisor passes (`WorkerArgs`) and this program's own, from
 /// `task.external.worker` in the config.
 #[derive(clap::Parser)]
+#[command(name = "reach-worker")]
 struct Cli {
     /// Each rollout takes at least this long: a stand-in for a simulator or robot that runs in
     /// real time.
     #[arg(long, default_value_t = 0.0)]
     rollout_ms: f64,
+    /// Print the `initial_mean` line for `[task.external]` (the DMP weights of the reach) and
+    /// exit.
+    #[arg(long, exclusive = true)]
+    initial_mean: bool,
+    /// Print the `basis_activations` rows for `[task.external]` (what
+    /// `temporal_averaging = "basis-activation"` needs) and exit.
+    #[arg(long, exclusive = true)]
+    basis_activations: bool,
     #[command(flatten)]
     worker: pipeline::worker::WorkerArgs,
 }
@@ -147,21 +156,21 @@ fn main() -> std::process::ExitCode {
         println!("{}", line(&reach));
         std::process::ExitCode::SUCCESS
     };
-    match std::env::args().nth(1).as_deref() {
-        Some("--initial-mean") => {
-            return print(|r| format!("initial_mean = {:?}", r.initial_mean()));
-        }
-        Some("--basis-activations") => {
-            return print(|r| {
-                let rows: Vec<String> = r
-                    .activations
-                    .chunks(r.parameters())
-                    .map(|row| format!("{row:?}"))
-                    .collect();
-                format!("basis_activations = [\n  {},\n]", rows.join(",\n  "))
-            });
-        }
-        _ => {}
+    // These two run without the worker arguments, which clap would require first; they are
+    // declared in `Cli` for `--help` and to refuse them among other arguments.
+    let alone = |flag: &str| std::env::args().skip(1).eq([flag.to_string()]);
+    if alone("--initial-mean") {
+        return print(|r| format!("initial_mean = {:?}", r.initial_mean()));
+    }
+    if alone("--basis-activations") {
+        return print(|r| {
+            let rows: Vec<String> = r
+                .activations
+                .chunks(r.parameters())
+                .map(|row| format!("{row:?}"))
+                .collect();
+            format!("basis_activations = [\n  {},\n]", rows.join(",\n  "))
+        });
     }
     // Without arguments of its own, `pipeline::worker::serve_main("reach-worker", Reach::new)`
     // would be the whole of main.

@@ -23,25 +23,28 @@ use session::{InProcess, NoObserver, RunConfig, TaskSection};
 use tasks::Task;
 use tball::Tball;
 
+/// Times T-ball rollouts and updates, in-process and (with `--supervisor`) through the
+/// pipeline with 1 and 2 rollout workers. Prints figures.
+#[derive(clap::Parser)]
+#[command(name = "tball-bench")]
+struct Args {
+    /// A `[task.tball]` run config.
+    #[arg(long, default_value = "config/tball.toml")]
+    config: PathBuf,
+    /// The pipeline's `supervisor` binary; without it only the in-process figures.
+    #[arg(long)]
+    supervisor: Option<PathBuf>,
+    /// Updates per pipeline run.
+    #[arg(long, default_value_t = 300)]
+    pipeline_updates: u64,
+}
+
 fn main() -> Result<(), Box<dyn Error>> {
-    let mut config = PathBuf::from("config/tball.toml");
-    let mut supervisor = None;
-    let mut pipeline_updates = 300u64;
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        match (flag.as_str(), it.next()) {
-            ("--config", Some(v)) => config = v.into(),
-            ("--supervisor", Some(v)) => supervisor = Some(PathBuf::from(v)),
-            ("--pipeline-updates", Some(v)) => pipeline_updates = v.parse()?,
-            _ => {
-                return Err(format!(
-                    "usage: tball-bench [--config FILE] [--supervisor PATH] \
-                     [--pipeline-updates N] (got {flag})"
-                )
-                .into())
-            }
-        }
-    }
+    let Args {
+        config,
+        supervisor,
+        pipeline_updates,
+    } = clap::Parser::parse();
     let cfg = RunConfig::load(&config)?;
     let TaskSection::Tball(task_cfg) = &cfg.task else {
         return Err(format!("{}: not a [task.tball] config", config.display()).into());

@@ -64,49 +64,29 @@ impl Observer for Recorder {
     }
 }
 
+/// Runs S learning sessions of a T-ball config in-process and writes CSVs, Fig. 4-style SVGs
+/// and a summary into an output directory.
+#[derive(clap::Parser)]
+#[command(name = "tball-experiment")]
 struct Args {
+    /// A `[task.tball]` run config.
+    #[arg(long, default_value = "config/tball.toml")]
     config: PathBuf,
+    /// Learning sessions (seeds run.seed, run.seed + 1, …).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
     sessions: u64,
+    /// Output directory.
+    #[arg(long, default_value = "runs/tball")]
     out: PathBuf,
     /// Overrides `optimizer.weighting`, to compare the two modes on the same run.
-    weighting: Option<WeightingName>,
+    #[arg(long, value_enum)]
+    weighting: Option<Weighting>,
 }
 
-fn parse_args() -> Res<Args> {
-    let mut args = Args {
-        config: PathBuf::from("config/tball.toml"),
-        sessions: 10,
-        out: PathBuf::from("runs/tball"),
-        weighting: None,
-    };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let value = it.next().ok_or(format!("{flag} needs a value"))?;
-        match flag.as_str() {
-            "--config" => args.config = value.into(),
-            "--sessions" => args.sessions = value.parse()?,
-            "--out" => args.out = value.into(),
-            "--weighting" => {
-                args.weighting = Some(match value.as_str() {
-                    "episodic" => WeightingName::Episodic,
-                    "per-time-step" => WeightingName::PerTimeStep,
-                    _ => {
-                        return Err(format!("--weighting {value}: episodic or per-time-step").into())
-                    }
-                })
-            }
-            _ => {
-                return Err(format!(
-                    "unknown option {flag} (--config, --sessions, --out, --weighting)"
-                )
-                .into())
-            }
-        }
-    }
-    if args.sessions == 0 {
-        return Err("--sessions must be at least 1".into());
-    }
-    Ok(args)
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Weighting {
+    Episodic,
+    PerTimeStep,
 }
 
 fn mean(v: impl Iterator<Item = f64>) -> f64 {
@@ -119,10 +99,13 @@ fn geometric_mean(v: impl Iterator<Item = f64>) -> f64 {
 }
 
 fn main() -> Res<()> {
-    let args = parse_args()?;
+    let args = <Args as clap::Parser>::parse();
     let mut cfg = RunConfig::load(&args.config)?;
     if let Some(w) = args.weighting {
-        cfg.optimizer.weighting = w;
+        cfg.optimizer.weighting = match w {
+            Weighting::Episodic => WeightingName::Episodic,
+            Weighting::PerTimeStep => WeightingName::PerTimeStep,
+        };
         cfg.validate()?;
     }
     println!(

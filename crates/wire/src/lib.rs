@@ -806,6 +806,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 8);
         assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
+        assert_eq!(std::mem::size_of::<Overdue>(), 48);
     }
 
     #[test]
