@@ -40,8 +40,19 @@ pub struct AnalyzeArgs {
     pub verify: bool,
     /// Re-convergence tolerance: a segment has converged once every later eval cost is within
     /// `tolerance` × (peak − lowest level) of its lowest level.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = parse_tolerance)]
     pub tolerance: f64,
+}
+
+/// A tolerance is a fraction of the jump: in [0, 1) (at 1 every update would count as
+/// converged).
+fn parse_tolerance(s: &str) -> Result<f64, String> {
+    let t: f64 = s.parse().map_err(|e| format!("{s}: {e}"))?;
+    if (0.0..1.0).contains(&t) {
+        Ok(t)
+    } else {
+        Err(format!("{s}: must be at least 0 and less than 1"))
+    }
 }
 
 /// Runs `analyze`; returns the text to print (summaries and the files written).
@@ -1509,6 +1520,15 @@ mod tests {
         );
         assert_eq!(timeline(&r, 100).len(), 10);
         assert!(timeline(&Recording::default(), 10).is_empty());
+    }
+
+    #[test]
+    fn tolerances_outside_0_to_1_are_refused() {
+        assert_eq!(parse_tolerance("0.05"), Ok(0.05));
+        assert_eq!(parse_tolerance("0"), Ok(0.0));
+        for bad in ["nan", "-1", "inf", "1", "x"] {
+            assert!(parse_tolerance(bad).unwrap_err().starts_with(bad), "{bad}");
+        }
     }
 
     #[test]

@@ -157,6 +157,9 @@ pub(crate) fn stream(
                 let read = file.read(buf).map_err(|e| RecordError::io(path, e))?;
                 reader.notify_read(read);
             }
+            LinearReadEvent::Record { opcode, .. } if opcode == crate::recover::OP_RESERVED => {
+                return Ok(Some("records end early: opcode 0x00 (zeroed bytes)".into()))
+            }
             LinearReadEvent::Record { opcode, data } => match mcap::parse_record(opcode, data) {
                 Ok(mcap::records::Record::Channel(c)) => {
                     topics.insert(c.id, c.topic);
@@ -217,6 +220,19 @@ pub(crate) fn summary_of(
     Ok(reader.finish())
 }
 
+/// The error for a file without a `/run` message, which every recording writes and flushes
+/// before its first update: another file given by mistake (a config, an empty file, another
+/// program's MCAP), or one cut before anything was recorded.
+fn no_run(path: &Path, why: Option<&str>) -> RecordError {
+    RecordError::invalid(
+        path,
+        format!(
+            "not a pi2cma recording: no /run message{}",
+            why.map(|w| format!(" ({w})")).unwrap_or_default()
+        ),
+    )
+}
+
 /// The error for a finished file that does not read to its end: damaged bytes, which
 /// `recover` reads past.
 fn damaged(path: &Path, why: &str) -> RecordError {
@@ -269,6 +285,9 @@ pub fn read_ends(path: &Path) -> Result<Ends, RecordError> {
         }
         Ok(())
     })?;
+    if ends.run.is_none() {
+        return Err(no_run(path, ends.truncated.as_deref()));
+    }
     // A finished file is whole: its end is not where the damage is (resuming there would
     // redo, and record twice, the updates after it).
     if let Some(why) = &ends.truncated {
@@ -451,6 +470,9 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
         }
         Ok(())
     })?;
+    if rec.run.is_empty() {
+        return Err(no_run(path, truncated.as_deref()));
+    }
     // A finished file is whole: damage inside it is an error, not a killed writer's end.
     if let Some(why) = truncated {
         if rec.indexed {
@@ -587,6 +609,41 @@ mod tests {
         // Resume's reader too: the end of a finished file is not where its damage is.
         let e = read_ends(&cut).unwrap_err().to_string();
         assert!(e.contains("cut.mcap") && e.contains("recover"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A file that is not a recording (a config given by mistake, an empty file, a recording
+    /// cut before its /run was flushed) is an error naming it, not a recording of 0 updates.
+    #[test]
+    fn a_file_without_a_run_message_is_not_a_recording() {
+        let dir = std::env::temp_dir().join(format!("reader-no-run-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(2);
+        let mut rec = crate::McapRecorder::create(&path).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        for (name, content) in [
+            ("config.toml", b"[run]\nupdates = 5\n".to_vec()),
+            ("empty.mcap", Vec::new()),
+            ("head.mcap", bytes[..100].to_vec()),
+        ] {
+            let p = dir.join(name);
+            std::fs::write(&p, content).unwrap();
+            for e in [
+                read_recording(&p).unwrap_err(),
+                read_recording_slim(&p).unwrap_err(),
+                read_ends(&p).unwrap_err(),
+            ] {
+                let e = e.to_string();
+                assert!(
+                    e.contains(name) && e.contains("not a pi2cma recording"),
+                    "{e}"
+                );
+            }
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -50,6 +50,9 @@ pub struct RecoverReport {
     /// Messages whose channel was declared only in damaged bytes: not copied (with no channel,
     /// nothing says how to decode them).
     pub orphaned_messages: u64,
+    /// Where the input went when it was rewritten in place with damage inside it (not only a
+    /// torn tail): `FILE.damaged`.
+    pub kept_original: Option<PathBuf>,
     /// The last part of the split recording the input belongs to, if that is another file:
     /// the only part a killed writer leaves unfinished.
     pub last_part: Option<PathBuf>,
@@ -124,8 +127,55 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
     let mut inner = w.into_inner();
     std::io::Write::flush(&mut inner).map_err(|e| RecordError::io(&tmp, e))?;
     drop(inner);
+    // Nothing readable: not a recording at all (a config given by mistake, an empty file), or
+    // damaged beyond reading. Writing an empty MCAP over it would destroy it for nothing.
+    if report.messages + report.metadata + report.attachments == 0 {
+        let _ = std::fs::remove_file(&tmp);
+        let mut why = report
+            .damage
+            .first()
+            .map(|d| format!(" ({})", d.why))
+            .unwrap_or_default();
+        if report.orphaned_messages > 0 {
+            why.push_str(&format!(
+                "; {} messages, whose channels were declared only in damaged bytes",
+                report.orphaned_messages
+            ));
+        }
+        return Err(RecordError::invalid(
+            input,
+            format!(
+                "no readable record: not an MCAP recording, or damaged beyond recovery{why}; \
+                 left as it is"
+            ),
+        ));
+    }
+    // Damage inside the file is more than a killed writer's torn tail: rewritten in place,
+    // the original stays next to it, for whatever else might read the damaged bytes.
+    let inside = report.damage.iter().any(|d| d.offset + d.len < input_len);
+    if inside && same_file(input, output) {
+        let kept = with_suffix(input, ".damaged");
+        std::fs::rename(input, &kept).map_err(|e| RecordError::io(&kept, e))?;
+        report.kept_original = Some(kept);
+    }
     std::fs::rename(&tmp, output).map_err(|e| RecordError::io(output, e))?;
     Ok(report)
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
+fn with_suffix(path: &Path, suffix: &str) -> PathBuf {
+    let mut name = path
+        .file_name()
+        .map(|n| n.to_os_string())
+        .unwrap_or_default();
+    name.push(suffix);
+    path.with_file_name(name)
 }
 
 /// Copies the records of `input` from byte `from` (0: the start, with its magic; otherwise a
@@ -169,6 +219,11 @@ fn copy_from(
             Err(e) => return Ok(Some((good_end, e.to_string()))),
         };
         first = false;
+        // Opcode 0 is reserved: never written, but zeroed bytes read as a run of such empty
+        // records, which a reader skips like records of a newer version of the format.
+        if opcode == OP_RESERVED {
+            return Ok(Some((good_end, "opcode 0x00 (zeroed bytes)".into())));
+        }
         // opcode, length, body.
         let record_len = 1 + 8 + body.len() as u64;
         let record = match mcap::parse_record(opcode, body) {
@@ -220,6 +275,7 @@ fn next_chunk(file: &File, from: u64, len: u64) -> std::io::Result<Option<u64>> 
 }
 
 const OP_CHUNK: u8 = 0x06;
+pub(crate) const OP_RESERVED: u8 = 0x00;
 
 /// Whether a whole, CRC-checked chunk record starts at `at`.
 fn chunk_reads_whole(file: &File, at: u64, len: u64) -> std::io::Result<bool> {
@@ -262,12 +318,7 @@ fn chunk_reads_whole(file: &File, at: u64, len: u64) -> std::io::Result<bool> {
 }
 
 fn tmp_path(output: &Path) -> PathBuf {
-    let mut name = output
-        .file_name()
-        .map(|n| n.to_os_string())
-        .unwrap_or_default();
-    name.push(".recover-tmp");
-    output.with_file_name(name)
+    with_suffix(output, ".recover-tmp")
 }
 
 struct Copier<'p> {
@@ -442,6 +493,12 @@ impl RecoverReport {
                     d.why
                 ));
             }
+        }
+        if let Some(kept) = &self.kept_original {
+            s.push_str(&format!(
+                "; the damaged original is kept as {}",
+                kept.display()
+            ));
         }
         if self.orphaned_messages > 0 {
             s.push_str(&format!(

@@ -248,8 +248,22 @@ fn damage_inside_a_file_loses_only_the_damaged_chunks() {
     bytes[c3 + 1..c3 + 9].copy_from_slice(&100u64.to_le_bytes());
     let (got, report) = recovered_updates(&bytes, "short");
     assert_eq!(got, all_but(&[3]), "{report:?}");
-    // Two damaged stretches: updates 3 and 7.
+    // Two damaged stretches: updates 3 and 7. Zeroed bytes read as empty records of the
+    // reserved opcode 0, which must count as damage (so the length of the zeroed stretch
+    // does not decide whether it is noticed).
     let (c7, c8) = (starts[7] as usize, starts[8] as usize);
+    // Update 3's chunk replaced by zeros that end exactly where the next chunk begins.
+    let zeros = vec![0; (c4 - c3) / 9 * 9];
+    let bytes = [&whole[..c3], &zeros, &whole[c4..]].concat();
+    let (got, report) = recovered_updates(&bytes, "zeros");
+    assert_eq!(got, all_but(&[3]), "{report:?}");
+    assert!(report.damage[0].why.contains("opcode 0x00"), "{report:?}");
+    // The readers stop there (the shifted summary no longer reads, so as at a killed writer's
+    // end), instead of reading on without update 3.
+    std::fs::write(&path, &bytes).unwrap();
+    let r = read_recording(&path).unwrap();
+    assert!(r.truncated.as_deref().unwrap_or("").contains("opcode 0x00"));
+    assert_eq!(r.updates.len(), 3);
     let mut bytes = whole.clone();
     bytes[c3..c4].fill(0);
     bytes[(c7 + c8) / 2] ^= 1;
@@ -260,6 +274,14 @@ fn damage_inside_a_file_loses_only_the_damaged_chunks() {
         report.dropped_bytes,
         report.damage.iter().map(|d| d.len).sum::<u64>()
     );
+    // In place, the damaged original is kept beside the rewritten file.
+    let in_place = tmp("in-place.mcap");
+    std::fs::write(&in_place, &bytes).unwrap();
+    let report = recover(&in_place, &in_place).unwrap();
+    let kept = report.kept_original.clone().unwrap();
+    assert_eq!(std::fs::read(&kept).unwrap(), bytes);
+    assert!(read_recording(&in_place).unwrap().indexed);
+    assert!(report.describe().contains("in-place.mcap.damaged"));
     // The readers refuse such a file with an error naming it, and do not try to allocate the
     // damaged length.
     let mut bytes = whole.clone();
@@ -288,7 +310,27 @@ fn damaged_channel_declarations_come_from_the_summary() {
     let input = tmp("declarations-killed.mcap");
     std::fs::write(&input, cut).unwrap();
     let fixed = tmp("declarations-killed-fixed.mcap");
-    let report = recover(&input, &fixed).unwrap();
-    assert!(report.orphaned_messages > 0, "{report:?}");
-    assert!(report.describe().contains("declared only in damaged bytes"));
+    // All of its messages are orphaned, and the /run metadata after the damaged chunk is
+    // skipped with it: nothing readable is left.
+    let e = recover(&input, &fixed).unwrap_err().to_string();
+    assert!(e.contains("declared only in damaged bytes"), "{e}");
+}
+
+/// A file with nothing readable (a config given by mistake, an empty file, a cut before any
+/// record) is refused and left as it is, in place or not.
+#[test]
+fn recover_refuses_a_file_without_readable_records_and_leaves_it() {
+    let (_, whole, _) = finished_recording("nothing.mcap");
+    for (name, bytes) in [
+        ("config.toml", b"[run]\nupdates = 5\n".to_vec()),
+        ("empty.mcap", Vec::new()),
+        ("magic-only.mcap", whole[..20].to_vec()),
+    ] {
+        let path = tmp(name);
+        std::fs::write(&path, &bytes).unwrap();
+        let e = recover(&path, &path).unwrap_err().to_string();
+        assert!(e.contains(name) && e.contains("no readable record"), "{e}");
+        assert_eq!(std::fs::read(&path).unwrap(), bytes, "{name} was changed");
+        assert!(!tmp(&format!("{name}.recover-tmp")).exists());
+    }
 }
