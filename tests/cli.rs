@@ -104,6 +104,30 @@ fn bad_config_names_file_field_and_value() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.toml"));
 }
 
+/// A config that cannot run in-process (an external task) is refused before anything in the
+/// output directory is written: the previous run's recording and results stay.
+#[test]
+fn a_config_that_cannot_run_in_process_leaves_the_results_directory() {
+    let d = scratch("keep");
+    let out = pi2cma(&["run", "--updates", "3", "--out", "res"], &d);
+    assert!(out.status.success());
+    let before = std::fs::read(d.join("res/run.mcap")).expect("recording");
+    let csv = std::fs::read(d.join("res/updates.csv")).expect("csv");
+    let external = repo().join("config/external-reach.toml");
+    let out = pi2cma(
+        &["run", external.to_str().expect("utf-8"), "--out", "res"],
+        &d,
+    );
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("supervisor run"), "{stderr}");
+    assert_eq!(
+        std::fs::read(d.join("res/run.mcap")).expect("recording"),
+        before
+    );
+    assert_eq!(std::fs::read(d.join("res/updates.csv")).expect("csv"), csv);
+}
+
 #[test]
 fn unknown_option_is_rejected() {
     let out = pi2cma(&["run", "--lambda-min", "3"], &repo());

@@ -280,6 +280,9 @@ fn run(cli: Cli) -> Result<()> {
                     if point.is_some() { ", or give --updates" } else { "" }
                 );
             }
+            // Before anything in OUT is written: a config that cannot run in-process (an
+            // external task) must not cost the results and recording OUT may hold.
+            session::build_task(&cfg)?;
             if let Some(point) = point {
                 point.check(&cfg)?;
                 return run_resumed(&cfg, text, point, &out, quiet, no_record);

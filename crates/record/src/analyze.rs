@@ -46,7 +46,7 @@ pub struct AnalyzeArgs {
 
 /// A tolerance is a fraction of the jump: in [0, 1) (at 1 every update would count as
 /// converged).
-fn parse_tolerance(s: &str) -> Result<f64, String> {
+pub fn parse_tolerance(s: &str) -> Result<f64, String> {
     let t: f64 = s.parse().map_err(|e| format!("{s}: {e}"))?;
     if (0.0..1.0).contains(&t) {
         Ok(t)

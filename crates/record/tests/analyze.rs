@@ -6,6 +6,8 @@
 #[path = "../../../tests/scratch.rs"]
 mod scratch;
 
+use std::path::PathBuf;
+
 use record::analyze::{run, AnalyzeArgs};
 use record::McapRecorder;
 use session::{run_session, RunConfig};
@@ -82,5 +84,26 @@ fn the_recorded_config_has_the_command_line_seed_and_updates() {
     assert_eq!(run.seed, 3);
     let recorded = RunConfig::parse(&run.config_toml, &out).unwrap();
     assert_eq!((recorded.run.seed, recorded.run.updates), (3, Some(5)));
+
+    // A config that cannot run in-process leaves the file at --out as it was.
+    let before = std::fs::read(&out).unwrap();
+    let external =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../config/external-reach.toml");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .arg("record")
+        .arg("--config")
+        .arg(&external)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!run.status.success());
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("supervisor run"), "{stderr}");
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        before,
+        "the recording was overwritten"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

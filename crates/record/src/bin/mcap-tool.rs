@@ -77,7 +77,7 @@ enum Command {
         files: Vec<PathBuf>,
         #[arg(long, short)]
         out: PathBuf,
-        #[arg(long, default_value_t = 0.05)]
+        #[arg(long, default_value_t = 0.05, value_parser = analyze::parse_tolerance)]
         tolerance: f64,
     },
     /// Rewrite a recording whose writer was killed into a complete, indexed file.
@@ -187,6 +187,9 @@ fn record_run(
     }
     cfg.validate()?;
     let seed = cfg.run.seed;
+    // Before the file is created: a config that cannot run here (an external task) must not
+    // cost the recording that `out` may hold.
+    let mut exec = InProcess::new(&cfg, seed)?;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
@@ -201,7 +204,6 @@ fn record_run(
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the SIGINT/SIGTERM handler")?;
     }
-    let mut exec = InProcess::new(&cfg, seed)?;
     let result = exec.run(&mut recorder, &|| stop.load(Ordering::SeqCst));
     if let Err(e) = &result {
         recorder.log_event(record::Event::Crash, &format!("run failed: {e}"));
