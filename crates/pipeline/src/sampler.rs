@@ -135,7 +135,11 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             for (&worker, w) in workers.iter_mut() {
                 let Some(a) = &w.assignment else { continue };
                 let held = a.since.elapsed();
-                if held <= per_rollout * a.rollouts.len() as u32 {
+                // A timeout past what a Duration holds never expires.
+                let limit = per_rollout
+                    .checked_mul(a.rollouts.len() as u32)
+                    .unwrap_or(Duration::MAX);
+                if held <= limit {
                     continue;
                 }
                 let report = wire::Overdue {

@@ -133,7 +133,7 @@ impl Task for Reach {
 struct Cli {
     /// Each rollout takes at least this long: a stand-in for a simulator or robot that runs in
     /// real time.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = rollout_ms)]
     rollout_ms: f64,
     /// Print the `initial_mean` line for `[task.external]` (the DMP weights of the reach) and
     /// exit.
@@ -145,6 +145,13 @@ struct Cli {
     basis_activations: bool,
     #[command(flatten)]
     worker: pipeline::worker::WorkerArgs,
+}
+
+fn rollout_ms(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(ms) if (0.0..=3.6e6).contains(&ms) => Ok(ms),
+        _ => Err(format!("{s}: milliseconds from 0 to 3600000 (an hour)")),
+    }
 }
 
 fn main() -> std::process::ExitCode {
@@ -175,7 +182,7 @@ fn main() -> std::process::ExitCode {
     // Without arguments of its own, `pipeline::worker::serve_main("reach-worker", Reach::new)`
     // would be the whole of main.
     let cli = Cli::parse();
-    let delay = std::time::Duration::from_secs_f64(cli.rollout_ms.max(0.0) / 1e3);
+    let delay = std::time::Duration::from_secs_f64(cli.rollout_ms / 1e3);
     pipeline::run_main("reach-worker", || {
         pipeline::worker::serve(&cli.worker, |config| {
             Ok(Reach {

@@ -583,7 +583,12 @@ impl Supervisor {
     }
 
     fn fail(&mut self, reason: String) {
-        if self.outcome.is_none() || self.outcome == Some(Outcome::Complete) {
+        // A failure also outranks a stop that was asked for: the process may have failed
+        // before it saw the request, and then the run did not end as asked.
+        if matches!(
+            self.outcome,
+            None | Some(Outcome::Complete) | Some(Outcome::Stopped)
+        ) {
             say(&format!("error: {reason}"));
             self.outcome = Some(Outcome::Failed(reason));
         }
@@ -1227,7 +1232,9 @@ impl Supervisor {
                     return;
                 }
                 let now = Instant::now();
-                let window = Duration::from_secs_f64(self.pipe.restart_window_s);
+                // Any window past what a Duration holds is "forever".
+                let window = Duration::try_from_secs_f64(self.pipe.restart_window_s)
+                    .unwrap_or(Duration::MAX);
                 while slot
                     .restarts
                     .front()
@@ -1257,6 +1264,11 @@ impl Supervisor {
             }
             Role::Updater => {
                 if self.phase == Phase::Stopping && p.stopping {
+                    // Told to stop, it exits 0 (or is killed at the shutdown timeout); exit
+                    // code 1 is an error of its own, such as a cost it refused just before.
+                    if status.code() == Some(1) {
+                        self.fail(format!("updater exited ({cause})"));
+                    }
                     return;
                 }
                 if status.success() && self.phase == Phase::Running {
@@ -1270,6 +1282,9 @@ impl Supervisor {
             }
             Role::Sampler => {
                 if self.phase == Phase::Stopping && p.stopping {
+                    if status.code() == Some(1) {
+                        self.fail(format!("sampler exited ({cause})"));
+                    }
                     return;
                 }
                 self.fail(format!("sampler exited ({cause})"));
