@@ -251,6 +251,96 @@ impl Default for PipelineSection {
     }
 }
 
+/// The most rollouts per update: the update keeps four K×K matrices (3.2 GB at K = 10000).
+pub const MAX_ROLLOUTS: usize = 10_000;
+/// The most policy parameters: the update keeps several P×P covariances and eigen-decomposes
+/// them every update.
+pub const MAX_PARAMETERS: usize = 5_000;
+/// The most time steps of a rollout: about 1000 s at 1 kHz.
+pub const MAX_STEPS: usize = 1_000_000;
+/// The most work of building a DMP policy (via-point, T-ball): it integrates the DMP once per
+/// basis function, N × B² basis-function evaluations.
+pub const MAX_DMP_WORK: f64 = 1e8;
+/// Basis-function evaluations per second of a DMP's construction (measured: 10⁸ took 3.2–4.4 s
+/// for B = 10, 100 and 1000), for the time the error message states.
+const DMP_WORK_PER_SECOND: f64 = 3e7;
+/// The most memory the run may need ([`RunConfig::memory_need`]).
+pub const MEMORY_LIMIT_BYTES: u64 = 4 << 30;
+/// The largest eliteness h (see the error message).
+pub const MAX_ELITENESS: f64 = 100.0;
+/// The range of every variance λ (λ_init, λ_min unless 0, λ_max unless inf).
+pub const LAMBDA_RANGE: (f64, f64) = (1e-50, 1e50);
+const LAMBDA_WHY: &str = "λ is a variance of the parameters, and the update squares Σ's entries \
+                          (λ² must stay a finite, normal double)";
+const PARAMETERS_WHY: &str = "the update keeps several P×P covariances and eigen-decomposes them \
+                              every update (at P = 5000: about 1.2 GB, minutes per update)";
+
+/// P and N of a config's task, known without building it.
+#[derive(Debug, Clone, PartialEq)]
+struct TaskShape {
+    section: &'static str,
+    parameters: usize,
+    steps: usize,
+    /// The field (and its value) that sets P, and the one that sets N.
+    p_field: (String, String),
+    n_field: (String, String),
+    /// For a DMP policy: basis functions per dimension, dimensions.
+    dmp: Option<(usize, usize)>,
+}
+
+/// The memory a run needs at its peak, by what it is for ([`RunConfig::memory_need`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MemoryNeed {
+    pub parts: Vec<MemoryPart>,
+    pub rollouts: usize,
+    pub parameters: usize,
+    pub steps: usize,
+}
+
+impl MemoryNeed {
+    /// In bytes.
+    pub fn total(&self) -> f64 {
+        self.parts.iter().map(|p| p.bytes).sum()
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct MemoryPart {
+    pub what: &'static str,
+    pub bytes: f64,
+    /// Which sizes it grows with, to name the field in an error.
+    blame: Blame,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Blame {
+    Rollouts,
+    Parameters,
+    RolloutsSteps,
+    RolloutsParameters,
+    StepsParameters,
+}
+
+/// A number as a config would write it: plainly, or with an exponent when it is very large or
+/// very small (1e-12 rather than 0.000000000001).
+fn num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e16).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        v.to_string()
+    }
+}
+
+/// Bytes in decimal units, as in "about 7.2 GB".
+fn bytes(b: f64) -> String {
+    match b {
+        b if b >= 1e12 => format!("{:.1} TB", b / 1e12),
+        b if b >= 1e9 => format!("{:.1} GB", b / 1e9),
+        b if b >= 1e6 => format!("{:.1} MB", b / 1e6),
+        b => format!("{:.0} kB", b / 1e3),
+    }
+}
+
 /// The built-in default: PI²-CMA on the paper's via-point task (the A1 run), episodic weighting.
 pub const DEFAULT_CONFIG: &str = include_str!("default.toml");
 
@@ -274,13 +364,41 @@ impl RunConfig {
     }
 
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
-        let mut cfg: RunConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            file: origin.to_path_buf(),
-            message: e.to_string().trim_end().replace('\n', "\n  "),
+        let mut cfg: RunConfig = toml::from_str(text).map_err(|e| {
+            Self::task_sections_error(text, origin).unwrap_or_else(|| ConfigError::Parse {
+                file: origin.to_path_buf(),
+                message: e.to_string().trim_end().replace('\n', "\n  "),
+            })
         })?;
         cfg.origin = origin.to_path_buf();
         cfg.validate()?;
         Ok(cfg)
+    }
+
+    /// A `task` table without exactly one section, which serde would report as "wanted
+    /// exactly 1 element"; `None` when that is not what is wrong with `text`.
+    fn task_sections_error(text: &str, origin: &Path) -> Option<ConfigError> {
+        let table: toml::Table = text.parse().ok()?;
+        let sections = table.get("task")?.as_table()?;
+        if sections.len() == 1 {
+            return None;
+        }
+        let found = if sections.is_empty() {
+            "none".to_string()
+        } else {
+            sections
+                .keys()
+                .map(|k| format!("[task.{k}]"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        Some(ConfigError::Parse {
+            file: origin.to_path_buf(),
+            message: format!(
+                "task: exactly one of [task.via-point], [task.tball], [task.external] (found: \
+                 {found})"
+            ),
+        })
     }
 
     /// `text` with the `run` table's integer fields set as given (command-line options such as
@@ -331,6 +449,10 @@ impl RunConfig {
     }
 
     /// Checks every range and cross-field rule; call again after changing fields in code.
+    ///
+    /// Nothing large is built before the sizes it depends on are known to be sane: P and N come
+    /// from the task section's fields ([`TaskShape`]), the memory the run needs is estimated from
+    /// K, P and N ([`RunConfig::memory_need`]), and only then is the task built.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let o = &self.optimizer;
         let only = |field: &str, present: bool, methods: &str| -> Result<(), ConfigError> {
@@ -392,44 +514,58 @@ impl RunConfig {
                 "pi2-cma needs both bounds explicitly (lambda_max = inf for no upper bound)",
             ));
         }
-        if !(o.lambda_init.is_finite() && o.lambda_init > 0.0) {
+        self.validate_lambdas()?;
+        // Rollout 0 is the noise-free evaluation θ_0 = θ (ε_0 = 0): whether or not it enters
+        // the update, it cannot move the distribution, so one exploration rollout is the least.
+        if o.rollouts < 2 {
             return Err(self.invalid(
-                "optimizer.lambda_init",
-                o.lambda_init,
-                "must be finite and > 0",
+                "optimizer.rollouts",
+                o.rollouts,
+                "too few rollouts: at least one must enter the update besides the evaluation \
+                 rollout (rollout 0 is θ itself and cannot move the distribution, even when it \
+                 enters the update), so at least 2",
             ));
         }
-        if let (Some(lo), Some(hi)) = (o.lambda_min, o.lambda_max) {
-            if !(lo <= o.lambda_init && o.lambda_init <= hi) {
-                return Err(self.invalid(
-                    "optimizer.lambda_init",
-                    o.lambda_init,
-                    "must lie within [lambda_min, lambda_max]",
-                ));
-            }
-        }
-        if o.rollouts > 100_000 {
-            return Err(self.invalid("optimizer.rollouts", o.rollouts, "must be at most 100000"));
+        if o.rollouts > MAX_ROLLOUTS {
+            return Err(self.invalid(
+                "optimizer.rollouts",
+                o.rollouts,
+                &format!(
+                    "must be at most {MAX_ROLLOUTS} (the update keeps four K×K matrices: {} at \
+                     K = {MAX_ROLLOUTS})",
+                    bytes(4.0 * 8.0 * (MAX_ROLLOUTS as f64).powi(2))
+                ),
+            ));
         }
         self.hyperparameters()
             .check()
             .map_err(|e| self.invalid_param(e))?;
+        if let Some(h) = o.eliteness.filter(|h| *h > MAX_ELITENESS) {
+            return Err(self.invalid(
+                "optimizer.eliteness",
+                num(h),
+                &format!(
+                    "must be at most {MAX_ELITENESS}: the probabilities reach down to about \
+                     exp(−h), and the update squares the covariance they weight, so \
+                     exp(−2h)·λ² must stay a normal double (h = 400 already gives NaN)"
+                ),
+            ));
+        }
         if self.run.name.trim().is_empty() {
             return Err(self.invalid("run.name", "\"\"", "must not be empty"));
         }
         if self.run.updates == Some(0) {
             return Err(self.invalid("run.updates", 0, "must be at least 1 (omit for unbounded)"));
         }
+        let shape = self.task_shape()?;
+        self.check_memory(&shape)?;
         let (delay_field, delay_ms) = match &self.task {
             TaskSection::ViaPoint(v) => ("task.via-point.rollout_delay_ms", v.rollout_delay_ms),
             TaskSection::Tball(t) => ("task.tball.rollout_delay_ms", t.rollout_delay_ms),
-            TaskSection::External(e) => {
-                self.validate_external(e)?;
-                ("", 0.0)
-            }
+            TaskSection::External(_) => ("", 0.0),
         };
         if !(delay_ms.is_finite() && (0.0..=3.6e6).contains(&delay_ms)) {
-            return Err(self.invalid(delay_field, delay_ms, "must be between 0 and 3600000"));
+            return Err(self.invalid(delay_field, num(delay_ms), "must be between 0 and 3600000"));
         }
         if self.recording.as_ref().and_then(|r| r.split_mb) == Some(0) {
             return Err(self.invalid(
@@ -459,7 +595,7 @@ impl RunConfig {
             if !(p.restart_window_s.is_finite() && p.restart_window_s > 0.0) {
                 return Err(self.invalid(
                     "pipeline.restart_window_s",
-                    p.restart_window_s,
+                    num(p.restart_window_s),
                     "must be finite and > 0",
                 ));
             }
@@ -488,10 +624,381 @@ impl RunConfig {
         }
         let mut task = self
             .build_task()
-            .map_err(|e| self.invalid("task", "", &e.to_string()))?;
-        self.schedule()
-            .validate(&mut task)
-            .map_err(|e| self.invalid("schedule", "", &e.to_string()))?;
+            .map_err(|e| self.task_error(shape.section, e))?;
+        self.validate_schedule(task.as_mut())
+    }
+
+    /// λ_min and λ_max each on their own first (so that a bad bound is reported as itself, not
+    /// as λ_init outside it), then λ_init.
+    fn validate_lambdas(&self) -> Result<(), ConfigError> {
+        let o = &self.optimizer;
+        let (lo, hi) = LAMBDA_RANGE;
+        let sane = |v: f64| (lo..=hi).contains(&v);
+        let range = format!("[{}, {}]", num(lo), num(hi));
+        if let Some(min) = o.lambda_min.filter(|v| !(*v == 0.0 || sane(*v))) {
+            return Err(self.invalid(
+                "optimizer.lambda_min",
+                num(min),
+                &format!("must be 0 (no lower bound) or within {range}: {LAMBDA_WHY}"),
+            ));
+        }
+        if let Some(max) = o.lambda_max.filter(|v| !(*v == f64::INFINITY || sane(*v))) {
+            return Err(self.invalid(
+                "optimizer.lambda_max",
+                num(max),
+                &format!("must be inf (no upper bound) or within {range}: {LAMBDA_WHY}"),
+            ));
+        }
+        let (min, max) = (
+            o.lambda_min.unwrap_or(0.0),
+            o.lambda_max.unwrap_or(f64::INFINITY),
+        );
+        if max < min {
+            return Err(self.invalid(
+                "optimizer.lambda_max",
+                num(max),
+                &format!("must be >= lambda_min = {}", num(min)),
+            ));
+        }
+        if !(o.lambda_init.is_finite() && o.lambda_init > 0.0) {
+            return Err(self.invalid(
+                "optimizer.lambda_init",
+                num(o.lambda_init),
+                "must be finite and > 0",
+            ));
+        }
+        if !sane(o.lambda_init) {
+            return Err(self.invalid(
+                "optimizer.lambda_init",
+                num(o.lambda_init),
+                &format!("must be within {range}: {LAMBDA_WHY}"),
+            ));
+        }
+        if !(min <= o.lambda_init && o.lambda_init <= max) {
+            return Err(self.invalid(
+                "optimizer.lambda_init",
+                num(o.lambda_init),
+                &format!(
+                    "must lie within [lambda_min, lambda_max] = [{}, {}]",
+                    num(min),
+                    num(max)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// P and N of the task, from its section's fields alone: what building it would allocate
+    /// (a DMP of N steps and P weights) is checked before it is built.
+    fn task_shape(&self) -> Result<TaskShape, ConfigError> {
+        match &self.task {
+            TaskSection::ViaPoint(v) => {
+                for (field, value) in [
+                    ("start", v.start),
+                    ("goal", v.goal),
+                    ("viapoint", v.viapoint),
+                ] {
+                    if !value.is_finite() {
+                        return Err(self.invalid(
+                            &format!("task.via-point.{field}"),
+                            num(value),
+                            "must be finite",
+                        ));
+                    }
+                }
+                self.dmp_shape("via-point", 1, v.basis_functions, v.duration, v.dt)
+            }
+            TaskSection::Tball(t) => {
+                for (field, values) in [
+                    ("start_pose", &t.start_pose[..]),
+                    ("end_pose", &t.end_pose[..]),
+                    ("shoulder", &t.shoulder[..]),
+                ] {
+                    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+                        return Err(self.invalid(
+                            &format!("task.tball.{field}[{i}]"),
+                            num(values[i]),
+                            "must be finite",
+                        ));
+                    }
+                }
+                let joints = t.start_pose.len();
+                self.dmp_shape("tball", joints, t.basis_functions, t.duration, t.dt)
+            }
+            TaskSection::External(e) => {
+                self.validate_external(e)?;
+                Ok(TaskShape {
+                    section: "external",
+                    parameters: e.parameters,
+                    steps: e.steps,
+                    p_field: ("task.external.parameters".into(), e.parameters.to_string()),
+                    n_field: ("task.external.steps".into(), e.steps.to_string()),
+                    dmp: None,
+                })
+            }
+        }
+    }
+
+    /// The checks of `dmp::Dmp::new`, plus the sizes: N = duration/dt + 1 steps, P = dims × B
+    /// weights, and the work of building the DMP (N·B² basis-function evaluations).
+    fn dmp_shape(
+        &self,
+        section: &'static str,
+        dims: usize,
+        basis: usize,
+        duration: f64,
+        dt: f64,
+    ) -> Result<TaskShape, ConfigError> {
+        let field = |name: &str| format!("task.{section}.{name}");
+        if basis == 0 {
+            return Err(self.invalid(&field("basis_functions"), 0, "must be at least 1"));
+        }
+        if !(duration.is_finite() && duration > 0.0) {
+            return Err(self.invalid(&field("duration"), num(duration), "must be finite and > 0"));
+        }
+        if !(dt.is_finite() && dt > 0.0 && dt <= duration) {
+            return Err(self.invalid(
+                &field("dt"),
+                num(dt),
+                &format!("must be > 0 and at most duration = {}", num(duration)),
+            ));
+        }
+        let ratio = duration / dt;
+        let steps = ratio.round() + 1.0;
+        if steps > MAX_STEPS as f64 {
+            return Err(self.invalid(
+                &field("dt"),
+                num(dt),
+                &format!(
+                    "N = duration/dt + 1 = {} steps; at most {MAX_STEPS}",
+                    num(steps)
+                ),
+            ));
+        }
+        if (ratio - ratio.round()).abs() > 1e-9 * ratio {
+            return Err(self.invalid(
+                &field("dt"),
+                num(dt),
+                &format!(
+                    "duration = {} must be a whole number of steps",
+                    num(duration)
+                ),
+            ));
+        }
+        let steps = steps as usize;
+        let parameters = dims.saturating_mul(basis);
+        if parameters > MAX_PARAMETERS {
+            let p = if dims == 1 {
+                String::new()
+            } else {
+                format!(" ({dims} joints × {basis} = {parameters} parameters)")
+            };
+            return Err(self.invalid(
+                &field("basis_functions"),
+                basis,
+                &format!("P must be at most {MAX_PARAMETERS}{p}: {PARAMETERS_WHY}"),
+            ));
+        }
+        let work = steps as f64 * (basis as f64).powi(2);
+        if work > MAX_DMP_WORK {
+            return Err(self.invalid(
+                &field("basis_functions"),
+                basis,
+                &format!(
+                    "with N = {steps} steps, building the DMP takes N × basis_functions² = \
+                     {work:.1e} basis-function evaluations (about {:.0} s); at most {} (a few \
+                     seconds): fewer basis functions or a larger dt",
+                    work / DMP_WORK_PER_SECOND,
+                    num(MAX_DMP_WORK)
+                ),
+            ));
+        }
+        Ok(TaskShape {
+            section,
+            parameters,
+            steps,
+            p_field: (field("basis_functions"), basis.to_string()),
+            n_field: (field("dt"), num(dt)),
+            dmp: Some((basis, dims)),
+        })
+    }
+
+    /// What one process that runs the update (the in-process runner, the pipeline's updater)
+    /// holds at its peak, by what scales with K, P and N: an upper estimate (transient copies
+    /// are counted as if they coexisted), from the allocations of `pi2cma::UpdateRule::new`,
+    /// `UpdateRule::update`, the distribution's eigen-decompositions and the executor's batches.
+    /// Measured peaks (a counting allocator around ask/tell; 18 cases, K up to 4000, P up to
+    /// 5000, N up to 10⁶) were 0.79–1.03 times it, the 0.79 where the per-time-step low-rank
+    /// kernel's partial sums and the P×P copies, counted together here, do not coexist.
+    pub fn memory_need(&self) -> Result<MemoryNeed, ConfigError> {
+        Ok(self.memory_need_of(&self.task_shape()?))
+    }
+
+    fn memory_need_of(&self, shape: &TaskShape) -> MemoryNeed {
+        let o = &self.optimizer;
+        let (k, p, n) = (
+            o.rollouts as f64,
+            shape.parameters as f64,
+            shape.steps as f64,
+        );
+        // Rollouts that enter the update.
+        let m = (o.rollouts - usize::from(!o.evaluation_in_update)) as f64;
+        let per_step = o.weighting == WeightingName::PerTimeStep;
+        let adaptive = matches!(o.method, Method::Pi2Cma | Method::Cem);
+        let unbounded = o.lambda_min.unwrap_or(0.0) == 0.0
+            && o.lambda_max.unwrap_or(f64::INFINITY).is_infinite();
+        // The update's covariance kernel: P = 2 closed form, P ≤ m dense, else low rank.
+        let low_rank = shape.parameters != 2 && p > m;
+        let mut parts = Vec::new();
+        // Four m × m scratch matrices, allocated whatever the kernel; the per-time-step low-rank
+        // kernel also keeps one m × m partial sum per block of 50 steps until it adds them.
+        let mut kk = 4.0 * m * m;
+        if per_step && adaptive && !unbounded && low_rank {
+            kk += ((n / 50.0).ceil() + 2.0) * m * m;
+        }
+        parts.push(MemoryPart {
+            what: "K×K matrices of the update",
+            bytes: 8.0 * kk,
+            blame: Blame::Rollouts,
+        });
+        // The K × N cost batch; per time step, the cost-to-go and probabilities of the m
+        // updating rollouts (m × N each) and a few N-vectors.
+        let kn = k * n + if per_step { 2.0 * m * n + 5.0 * n } else { 0.0 };
+        parts.push(MemoryPart {
+            what: if per_step {
+                "K×N costs, cost-to-go and probabilities"
+            } else {
+                "K×N costs"
+            },
+            bytes: 8.0 * kn,
+            blame: Blame::RolloutsSteps,
+        });
+        // Σ before and after, the accumulator, the sampler's factor and the copies of an
+        // eigen-decomposition; the dense kernel also bounds a P × P matrix (every step, per
+        // time step), with copies of its own.
+        let dense = adaptive && !unbounded && shape.parameters != 2 && !low_rank;
+        let pp = if dense { 8.0 } else { 6.0 } * p * p;
+        parts.push(MemoryPart {
+            what: "P×P covariances",
+            bytes: 8.0 * pp,
+            blame: Blame::Parameters,
+        });
+        // Samples (and the executor's copy), deviations, per-parameter weights.
+        parts.push(MemoryPart {
+            what: "K×P samples",
+            bytes: 8.0 * 4.0 * k * p,
+            blame: Blame::RolloutsParameters,
+        });
+        if o.temporal_averaging == Some(TemporalName::BasisActivation) {
+            // The task's activations, the copy handed to the update and its normalised weights
+            // (an external task's also in the config, twice).
+            let copies = if shape.dmp.is_some() { 2.0 } else { 4.0 };
+            parts.push(MemoryPart {
+                what: "N×P basis activations",
+                bytes: 8.0 * copies * n * p,
+                blame: Blame::StepsParameters,
+            });
+        }
+        if let Some((basis, dims)) = shape.dmp {
+            // The DMP's precomputed responses: position, velocity and acceleration of every
+            // basis function and of every dimension's base, N values each.
+            parts.push(MemoryPart {
+                what: "the DMP's N×B precomputed responses",
+                bytes: 8.0 * (3.0 * n * (basis + dims) as f64 + 8.0 * n),
+                blame: Blame::StepsParameters,
+            });
+        }
+        MemoryNeed {
+            parts,
+            rollouts: o.rollouts,
+            parameters: shape.parameters,
+            steps: shape.steps,
+        }
+    }
+
+    fn check_memory(&self, shape: &TaskShape) -> Result<(), ConfigError> {
+        let need = self.memory_need_of(shape);
+        let total = need.total();
+        if total <= MEMORY_LIMIT_BYTES as f64 {
+            return Ok(());
+        }
+        let mut parts: Vec<&MemoryPart> = need.parts.iter().collect();
+        parts.sort_by(|a, b| b.bytes.total_cmp(&a.bytes));
+        let Some(main) = parts.first() else {
+            return Ok(());
+        };
+        // Of two factors, the one nearer its own limit is the one to name.
+        let k = self.optimizer.rollouts as f64 / MAX_ROLLOUTS as f64;
+        let p = shape.parameters as f64 / MAX_PARAMETERS as f64;
+        let n = shape.steps as f64 / MAX_STEPS as f64;
+        let rollouts = (
+            "optimizer.rollouts".to_string(),
+            self.optimizer.rollouts.to_string(),
+        );
+        let (field, value) = match main.blame {
+            Blame::Rollouts => &rollouts,
+            Blame::Parameters => &shape.p_field,
+            Blame::RolloutsSteps if k >= n => &rollouts,
+            Blame::RolloutsSteps => &shape.n_field,
+            Blame::RolloutsParameters if k >= p => &rollouts,
+            Blame::RolloutsParameters => &shape.p_field,
+            Blame::StepsParameters if n >= p => &shape.n_field,
+            Blame::StepsParameters => &shape.p_field,
+        };
+        let list = parts
+            .iter()
+            .filter(|part| part.bytes >= 0.1 * total)
+            .map(|part| format!("{}: {}", part.what, bytes(part.bytes)))
+            .collect::<Vec<_>>()
+            .join(", ");
+        Err(self.invalid(
+            field,
+            value,
+            &format!(
+                "with K = {} rollouts, P = {} parameters and N = {} steps the run would need \
+                 about {} of memory ({list}); at most {} (4 GiB)",
+                need.rollouts,
+                need.parameters,
+                need.steps,
+                bytes(total),
+                bytes(MEMORY_LIMIT_BYTES as f64),
+            ),
+        ))
+    }
+
+    /// A task's own error, as an error of the field of its section it names.
+    fn task_error(&self, section: &str, e: tasks::TaskError) -> ConfigError {
+        match e {
+            tasks::TaskError::InvalidSetting {
+                name,
+                value,
+                reason,
+                ..
+            } => self.invalid(&format!("task.{section}.{name}"), num(value), reason),
+            // Not reached by a config that passed the checks above; still named by section.
+            other => self.invalid(&format!("task.{section}"), "(section)", &other.to_string()),
+        }
+    }
+
+    /// Every `[[schedule]]` entry against the task's settings, named by its place in the file.
+    fn validate_schedule(&self, task: &mut dyn tasks::Task) -> Result<(), ConfigError> {
+        for (i, s) in self.schedule.iter().enumerate() {
+            task.set(&s.set, s.value).map_err(|e| match e {
+                tasks::TaskError::UnknownSetting { .. } => self.invalid(
+                    &format!("schedule[{i}].set"),
+                    format!("{:?}", s.set),
+                    &e.to_string(),
+                ),
+                tasks::TaskError::InvalidSetting {
+                    task, name, reason, ..
+                } => self.invalid(
+                    &format!("schedule[{i}].value"),
+                    num(s.value),
+                    &format!("task `{task}`, setting `{name}`: {reason}"),
+                ),
+                other => self.invalid(&format!("schedule[{i}]"), "(entry)", &other.to_string()),
+            })?;
+        }
         Ok(())
     }
 
@@ -503,14 +1010,19 @@ impl RunConfig {
                 "must name the program that runs a rollout worker, then its arguments",
             ));
         }
-        for (field, v) in [("parameters", e.parameters), ("steps", e.steps)] {
-            if !(1..=1_000_000).contains(&v) {
-                return Err(self.invalid(
-                    &format!("task.external.{field}"),
-                    v,
-                    "must be between 1 and 1000000",
-                ));
-            }
+        if !(1..=MAX_PARAMETERS).contains(&e.parameters) {
+            return Err(self.invalid(
+                "task.external.parameters",
+                e.parameters,
+                &format!("must be between 1 and {MAX_PARAMETERS}: {PARAMETERS_WHY}"),
+            ));
+        }
+        if !(1..=MAX_STEPS).contains(&e.steps) {
+            return Err(self.invalid(
+                "task.external.steps",
+                e.steps,
+                &format!("must be between 1 and {MAX_STEPS}"),
+            ));
         }
         if e.initial_mean.len() != e.parameters {
             return Err(self.invalid(
@@ -522,7 +1034,7 @@ impl RunConfig {
         if let Some(i) = e.initial_mean.iter().position(|v| !v.is_finite()) {
             return Err(self.invalid(
                 &format!("task.external.initial_mean[{i}]"),
-                e.initial_mean[i],
+                num(e.initial_mean[i]),
                 "must be finite",
             ));
         }
@@ -535,14 +1047,14 @@ impl RunConfig {
             if !well_formed {
                 return Err(self.invalid(
                     &format!("task.external.settings.{name}"),
-                    v,
+                    num(*v),
                     "a setting name is 1 to 32 of A-Z, a-z, 0-9, _ and -",
                 ));
             }
             if !v.is_finite() {
                 return Err(self.invalid(
                     &format!("task.external.settings.{name}"),
-                    v,
+                    num(*v),
                     "must be finite",
                 ));
             }
@@ -576,7 +1088,8 @@ impl RunConfig {
                 &format!("must have steps = {} rows", e.steps),
             ));
         }
-        let mut values = Vec::with_capacity(e.steps * e.parameters);
+        // Sized by what the file holds, not by the declared shape (a short row is an error).
+        let mut values = Vec::with_capacity(rows.iter().map(Vec::len).sum());
         for (i, row) in rows.iter().enumerate() {
             if row.len() != e.parameters {
                 return Err(self.invalid(
@@ -588,7 +1101,7 @@ impl RunConfig {
             if let Some(j) = row.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
                 return Err(self.invalid(
                     &format!("{field}[{i}][{j}]"),
-                    row[j],
+                    num(row[j]),
                     "must be finite and not negative",
                 ));
             }
@@ -971,5 +1484,468 @@ mod tests {
     fn malformed_toml_names_file() {
         let e = parse("[run\nname=").unwrap_err().to_string();
         assert!(e.starts_with("test.toml: "), "{e}");
+    }
+
+    /// `text` with each `(from, to)` replaced once; `from` must be there.
+    fn edit(text: &str, edits: &[(&str, &str)]) -> String {
+        edits.iter().fold(text.to_string(), |t, (from, to)| {
+            assert!(t.contains(from), "{from}");
+            t.replacen(from, to, 1)
+        })
+    }
+
+    fn error(text: &str) -> String {
+        parse(text).unwrap_err().to_string()
+    }
+
+    const TBALL: &str = include_str!("../../../config/tball.toml");
+    const EXTERNAL: &str = include_str!("../../../config/external-reach.toml");
+
+    #[test]
+    fn sizes_that_would_abort_or_hang_are_refused_before_anything_is_built() {
+        // K: the update keeps four K×K matrices (K = 100000 aborted on an allocation).
+        assert_eq!(
+            error(&edit(
+                DEFAULT_CONFIG,
+                &[("rollouts = 15", "rollouts = 100000")]
+            )),
+            "test.toml: optimizer.rollouts = 100000: must be at most 10000 (the update keeps \
+             four K×K matrices: 3.2 GB at K = 10000)"
+        );
+        let at_most = parse(&edit(
+            DEFAULT_CONFIG,
+            &[("rollouts = 15", "rollouts = 10000")],
+        ));
+        assert_eq!(at_most.unwrap().optimizer.rollouts, MAX_ROLLOUTS);
+        // P: a P×P covariance (P = 1000000 aborted on an 8 TB allocation).
+        assert_eq!(
+            error(&edit(
+                EXTERNAL,
+                &[("parameters = 10", "parameters = 1000000")]
+            )),
+            format!(
+                "test.toml: task.external.parameters = 1000000: must be between 1 and 5000: \
+                 {PARAMETERS_WHY}"
+            )
+        );
+        assert!(
+            error(&edit(EXTERNAL, &[("steps = 101", "steps = 1000001")])).starts_with(
+                "test.toml: task.external.steps = 1000001: must be between 1 and 1000000"
+            )
+        );
+        // N = duration/dt + 1, computed without building the DMP (which aborted in `check`).
+        assert_eq!(
+            error(&edit(DEFAULT_CONFIG, &[("dt = 0.01", "dt = 1e-12")])),
+            "test.toml: task.via-point.dt = 1e-12: N = duration/dt + 1 = 1000000000001 steps; \
+             at most 1000000"
+        );
+        assert_eq!(
+            error(&edit(TBALL, &[("dt = 0.001", "dt = 1e-12")])),
+            "test.toml: task.tball.dt = 1e-12: N = duration/dt + 1 = 1000000000001 steps; at \
+             most 1000000"
+        );
+        // Basis functions: building the DMP takes N·B² evaluations (3000: 23 s, 10000: hung),
+        // and P = dimensions × B.
+        let start = std::time::Instant::now();
+        let e = error(&edit(
+            DEFAULT_CONFIG,
+            &[("basis_functions = 2", "basis_functions = 3000")],
+        ));
+        assert!(
+            e.starts_with(
+                "test.toml: task.via-point.basis_functions = 3000: with N = 101 steps, building \
+                 the DMP takes N × basis_functions² = 9.1e8 basis-function evaluations"
+            ),
+            "{e}"
+        );
+        for b in ["10000", "100000000"] {
+            let e = error(&edit(
+                DEFAULT_CONFIG,
+                &[("basis_functions = 2", &format!("basis_functions = {b}"))],
+            ));
+            assert!(
+                e.starts_with(&format!(
+                    "test.toml: task.via-point.basis_functions = {b}: P must be at most 5000"
+                )),
+                "{e}"
+            );
+        }
+        let e = error(&edit(
+            TBALL,
+            &[("basis_functions = 3", "basis_functions = 800")],
+        ));
+        assert!(
+            e.starts_with(
+                "test.toml: task.tball.basis_functions = 800: P must be at most 5000 (7 joints × \
+                 800 = 5600 parameters)"
+            ),
+            "{e}"
+        );
+        assert!(start.elapsed() < std::time::Duration::from_secs(5));
+    }
+
+    #[test]
+    fn memory_the_run_would_need_is_checked_from_k_p_and_n() {
+        let per_time_step = |text: &str| {
+            edit(
+                text,
+                &[("weighting = \"episodic\"", "weighting = \"per-time-step\"")],
+            )
+        };
+        // K×N dominates; K is nearer its limit than N, so K is named.
+        let text = per_time_step(&edit(
+            DEFAULT_CONFIG,
+            &[
+                ("rollouts = 15", "rollouts = 5000"),
+                ("dt = 0.01", "dt = 1e-5"),
+            ],
+        ));
+        assert_eq!(
+            error(&text),
+            "test.toml: optimizer.rollouts = 5000: with K = 5000 rollouts, P = 2 parameters and \
+             N = 100001 steps the run would need about 12.8 GB of memory (K×N costs, cost-to-go \
+             and probabilities: 12.0 GB); at most 4.3 GB (4 GiB)"
+        );
+        // Episodic, a little fewer: the cost batch (3.2 GB) and the K×K matrices (0.5 GB).
+        let episodic = edit(
+            DEFAULT_CONFIG,
+            &[
+                ("rollouts = 15", "rollouts = 4000"),
+                ("dt = 0.01", "dt = 1e-5"),
+            ],
+        );
+        let need = parse(&episodic).unwrap().memory_need().unwrap();
+        assert!((3.70e9..3.75e9).contains(&need.total()), "{need:?}");
+        // N nearer its limit: the field that sets N is named.
+        let text = per_time_step(&edit(
+            EXTERNAL,
+            &[
+                ("rollouts = 10", "rollouts = 200"),
+                ("steps = 101", "steps = 1000000"),
+            ],
+        ));
+        assert_eq!(
+            error(&text),
+            "test.toml: task.external.steps = 1000000: with K = 200 rollouts, P = 10 parameters \
+             and N = 1000000 steps the run would need about 4.8 GB of memory (K×N costs, \
+             cost-to-go and probabilities: 4.8 GB); at most 4.3 GB (4 GiB)"
+        );
+        // The paper's runs need next to nothing.
+        for text in [DEFAULT_CONFIG, TBALL, EXTERNAL] {
+            assert!(parse(text).unwrap().memory_need().unwrap().total() < 1e6);
+        }
+        // The pieces that scale: K×K (4 matrices of the 14 rollouts that enter the update when
+        // rollout 0 does not), P×P, K×P.
+        let text = edit(
+            EXTERNAL,
+            &[
+                ("parameters = 10", "parameters = 3"),
+                (
+                    "evaluation_in_update = true",
+                    "evaluation_in_update = false",
+                ),
+            ],
+        )
+        .lines()
+        .map(|l| {
+            if l.starts_with("initial_mean") {
+                "initial_mean = [0.0, 0.0, 0.0]"
+            } else {
+                l
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+        let need = parse(&text).unwrap().memory_need().unwrap();
+        let part = |what: &str| need.parts.iter().find(|p| p.what == what).unwrap().bytes;
+        assert_eq!(part("K×K matrices of the update"), 8.0 * 4.0 * 9.0 * 9.0);
+        assert_eq!(part("P×P covariances"), 8.0 * 8.0 * 9.0);
+        assert_eq!(part("K×P samples"), 8.0 * 4.0 * 10.0 * 3.0);
+        assert_eq!(part("K×N costs"), 8.0 * 10.0 * 101.0);
+    }
+
+    #[test]
+    fn eliteness_and_lambdas_are_bounded_where_the_arithmetic_stays_finite() {
+        let e = error(&edit(
+            DEFAULT_CONFIG,
+            &[("eliteness = 15.0", "eliteness = 1e308")],
+        ));
+        assert!(
+            e.starts_with("test.toml: optimizer.eliteness = 1e308: must be at most 100: "),
+            "{e}"
+        );
+        parse(&edit(
+            DEFAULT_CONFIG,
+            &[("eliteness = 15.0", "eliteness = 100.0")],
+        ))
+        .unwrap();
+        let why = LAMBDA_WHY;
+        for (from, to, expect) in [
+            (
+                "lambda_init = 2000.0",
+                "lambda_init = 1e300",
+                format!("optimizer.lambda_init = 1e300: must be within [1e-50, 1e50]: {why}"),
+            ),
+            (
+                "lambda_min = 2.0",
+                "lambda_min = 1e-60",
+                format!(
+                    "optimizer.lambda_min = 1e-60: must be 0 (no lower bound) or within \
+                     [1e-50, 1e50]: {why}"
+                ),
+            ),
+            (
+                "lambda_max = inf",
+                "lambda_max = 1e60",
+                format!(
+                    "optimizer.lambda_max = 1e60: must be inf (no upper bound) or within \
+                     [1e-50, 1e50]: {why}"
+                ),
+            ),
+        ] {
+            let text = edit(DEFAULT_CONFIG, &[(from, to)]);
+            assert_eq!(error(&text), format!("test.toml: {expect}"));
+        }
+        // The ends of the range are allowed, and λ_min = 0 means no lower bound.
+        let text = edit(
+            DEFAULT_CONFIG,
+            &[
+                ("lambda_min = 2.0", "lambda_min = 0.0"),
+                ("lambda_max = inf", "lambda_max = 1e50"),
+            ],
+        );
+        parse(&text).unwrap();
+    }
+
+    /// Where the bounds come from: past them, runs of the default task end in NaN (if the core
+    /// learns to handle these, the bounds can be widened and this test changed).
+    #[test]
+    fn past_the_eliteness_and_lambda_bounds_runs_end_in_nan() {
+        let run = |cfg: &RunConfig| crate::run_session(cfg, cfg.run.seed, &mut crate::NoObserver);
+        // Two rollouts, λ = 1: the one exploration rollout's weight is about exp(−h), and the
+        // covariance it weights is squared in the 2×2 eigen-decomposition.
+        let mut cfg = parse(&edit(
+            DEFAULT_CONFIG,
+            &[
+                ("rollouts = 15", "rollouts = 2"),
+                ("eliteness = 15.0", "eliteness = 100.0"),
+                ("lambda_init = 2000.0", "lambda_init = 1.0"),
+                ("lambda_min = 2.0", "lambda_min = 1.0"),
+            ],
+        ))
+        .unwrap();
+        let (_, last) = run(&cfg).unwrap();
+        assert!(last.covariance.iter().all(|v| v.is_finite()));
+        cfg.optimizer.eliteness = Some(400.0);
+        let e = run(&cfg).unwrap_err().to_string();
+        assert!(e.contains("NaN"), "{e}");
+        // λ_init past about 1e154: its square overflows.
+        let mut cfg = parse(&edit(
+            DEFAULT_CONFIG,
+            &[("lambda_init = 2000.0", "lambda_init = 1e50")],
+        ))
+        .unwrap();
+        let (_, last) = run(&cfg).unwrap();
+        assert!(last.covariance.iter().all(|v| v.is_finite()));
+        cfg.optimizer.lambda_init = 1e200;
+        let e = run(&cfg).unwrap_err().to_string();
+        assert!(e.contains("NaN"), "{e}");
+    }
+
+    #[test]
+    fn a_bad_lambda_bound_is_named_itself_not_lambda_init() {
+        let why = LAMBDA_WHY;
+        for (from, to, expect) in [
+            (
+                "lambda_min = 2.0",
+                "lambda_min = inf",
+                format!(
+                    "optimizer.lambda_min = inf: must be 0 (no lower bound) or within \
+                     [1e-50, 1e50]: {why}"
+                ),
+            ),
+            (
+                "lambda_min = 2.0",
+                "lambda_min = nan",
+                format!(
+                    "optimizer.lambda_min = NaN: must be 0 (no lower bound) or within \
+                     [1e-50, 1e50]: {why}"
+                ),
+            ),
+            (
+                "lambda_max = inf",
+                "lambda_max = nan",
+                format!(
+                    "optimizer.lambda_max = NaN: must be inf (no upper bound) or within \
+                     [1e-50, 1e50]: {why}"
+                ),
+            ),
+            (
+                "lambda_max = inf",
+                "lambda_max = 1.0",
+                "optimizer.lambda_max = 1: must be >= lambda_min = 2".to_string(),
+            ),
+            (
+                "lambda_min = 2.0",
+                "lambda_min = 5000.0",
+                "optimizer.lambda_init = 2000: must lie within [lambda_min, lambda_max] = \
+                 [5000, inf]"
+                    .to_string(),
+            ),
+        ] {
+            let text = edit(DEFAULT_CONFIG, &[(from, to)]);
+            assert_eq!(error(&text), format!("test.toml: {expect}"));
+        }
+    }
+
+    #[test]
+    fn task_and_schedule_errors_name_the_field_and_value() {
+        for (text, expect) in [
+            (
+                edit(DEFAULT_CONFIG, &[("dt = 0.01", "dt = 0.0")]),
+                "task.via-point.dt = 0: must be > 0 and at most duration = 1",
+            ),
+            (
+                edit(DEFAULT_CONFIG, &[("dt = 0.01", "dt = 0.03")]),
+                "task.via-point.dt = 0.03: duration = 1 must be a whole number of steps",
+            ),
+            (
+                edit(
+                    DEFAULT_CONFIG,
+                    &[("basis_functions = 2", "basis_functions = 0")],
+                ),
+                "task.via-point.basis_functions = 0: must be at least 1",
+            ),
+            (
+                edit(DEFAULT_CONFIG, &[("goal = 1.0", "goal = nan")]),
+                "task.via-point.goal = NaN: must be finite",
+            ),
+            (
+                edit(
+                    DEFAULT_CONFIG,
+                    &[("viapoint_time = 0.5", "viapoint_time = 0.555")],
+                ),
+                "task.via-point.viapoint_time = 0.555: must be a grid point within [0, duration]",
+            ),
+            (
+                edit(TBALL, &[("ball_height = 0.52", "ball_height = 0.01")]),
+                "task.tball.ball_height = 0.01: the ball's centre must be at least its radius \
+                 above the ground",
+            ),
+            (
+                edit(TBALL, &[("start_pose = [0.8,", "start_pose = [nan,")]),
+                "task.tball.start_pose[0] = NaN: must be finite",
+            ),
+            (
+                edit(TBALL, &[("duration = 1.0", "duration = -1.0")]),
+                "task.tball.duration = -1: must be finite and > 0",
+            ),
+        ] {
+            assert_eq!(error(&text), format!("test.toml: {expect}"));
+        }
+        // Several [[schedule]] entries: the bad one is named by its place (0-based).
+        let three = |set: &str, value: &str| {
+            DEFAULT_CONFIG.replace(
+                "[[schedule]]",
+                &format!(
+                    "[[schedule]]\nfrom_update = 5\nset = \"viapoint\"\nvalue = 0.2\n\n\
+                     [[schedule]]\nfrom_update = 10\nset = \"{set}\"\nvalue = {value}\n\n\
+                     [[schedule]]"
+                ),
+            )
+        };
+        parse(&three("viapoint", "0.25")).unwrap();
+        assert_eq!(
+            error(&three("viapiont", "0.25")),
+            "test.toml: schedule[1].set = \"viapiont\": task `via-point` has no setting \
+             `viapiont` (it has: viapoint)"
+        );
+        assert_eq!(
+            error(&three("viapoint", "nan")),
+            "test.toml: schedule[1].value = NaN: task `via-point`, setting `viapoint`: must be \
+             finite"
+        );
+        let text = edit(TBALL, &[("value = 0.47", "value = 0.01")]);
+        assert_eq!(
+            error(&text),
+            "test.toml: schedule[0].value = 0.01: task `tball`, setting `ball_height`: the \
+             ball's centre must be at least its radius above the ground"
+        );
+    }
+
+    #[test]
+    fn two_task_sections_are_one_clear_error() {
+        let text = format!("{DEFAULT_CONFIG}\n[task.tball]\nduration = 1.0\n");
+        assert_eq!(
+            error(&text),
+            "test.toml: task: exactly one of [task.via-point], [task.tball], [task.external] \
+             (found: [task.tball], [task.via-point])"
+        );
+        let start = DEFAULT_CONFIG.find("[task.via-point]").unwrap();
+        let end = DEFAULT_CONFIG.find("[[schedule]]").unwrap();
+        let text = format!(
+            "{}[task]\n\n{}",
+            &DEFAULT_CONFIG[..start],
+            &DEFAULT_CONFIG[end..]
+        );
+        assert_eq!(
+            error(&text),
+            "test.toml: task: exactly one of [task.via-point], [task.tball], [task.external] \
+             (found: none)"
+        );
+    }
+
+    /// Rollout 0 is θ itself: with K = 1 the update sees only it and learns nothing, whether or
+    /// not it enters the update. K = 2 learns.
+    #[test]
+    fn one_rollout_is_refused_as_it_learns_nothing() {
+        for eval in ["true", "false"] {
+            for k in ["0", "1"] {
+                let text = edit(
+                    DEFAULT_CONFIG,
+                    &[
+                        ("rollouts = 15", &format!("rollouts = {k}")),
+                        (
+                            "evaluation_in_update = true",
+                            &format!("evaluation_in_update = {eval}"),
+                        ),
+                    ],
+                );
+                assert_eq!(
+                    error(&text),
+                    format!(
+                        "test.toml: optimizer.rollouts = {k}: too few rollouts: at least one \
+                         must enter the update besides the evaluation rollout (rollout 0 is θ \
+                         itself and cannot move the distribution, even when it enters the \
+                         update), so at least 2"
+                    )
+                );
+            }
+        }
+        // What K = 1 with the evaluation in the update would do (the core accepts it).
+        let mut cfg = RunConfig::default_config();
+        cfg.optimizer.rollouts = 1;
+        cfg.run.updates = Some(5);
+        let (summaries, last) =
+            crate::run_session(&cfg, cfg.run.seed, &mut crate::NoObserver).unwrap();
+        assert!(summaries
+            .iter()
+            .all(|s| s.eval_cost == summaries[0].eval_cost));
+        assert_eq!(
+            last.mean,
+            RunConfig::default_config()
+                .build_task()
+                .map(|t| { nalgebra::DVector::from_vec(t.initial_mean()) })
+                .unwrap()
+        );
+        // K = 2 learns, with or without the evaluation in the update.
+        for eval in [true, false] {
+            cfg.optimizer.rollouts = 2;
+            cfg.optimizer.evaluation_in_update = eval;
+            cfg.validate().unwrap();
+            let (summaries, _) =
+                crate::run_session(&cfg, cfg.run.seed, &mut crate::NoObserver).unwrap();
+            assert!(summaries[4].eval_cost < summaries[0].eval_cost, "{eval}");
+        }
     }
 }

@@ -9,9 +9,10 @@ mod config;
 mod start;
 
 pub use config::{
-    ConfigError, ExternalConfig, Method, OptimizerSection, PipelineSection, RecordingSection,
-    RunConfig, RunSection, ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName,
-    DEFAULT_CONFIG,
+    ConfigError, ExternalConfig, MemoryNeed, MemoryPart, Method, OptimizerSection, PipelineSection,
+    RecordingSection, RunConfig, RunSection, ScheduleEntry, TaskSection, TemporalName,
+    ViaPointConfig, WeightingName, DEFAULT_CONFIG, LAMBDA_RANGE, MAX_DMP_WORK, MAX_ELITENESS,
+    MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
 };
 
 pub use start::{Start, StartFileError};
