@@ -103,6 +103,15 @@ class WorkerError(Exception):
     pass
 
 
+class ConfigRefused(WorkerError):
+    """The task has another shape than the run's config declares: a restart would refuse it
+    again. Exits with 78 (crates/wire EXIT_CONFIG_REFUSED), which the supervisor does not
+    restart."""
+
+
+EXIT_CONFIG_REFUSED = 78
+
+
 class Shape:
     """What the run's config declares, and the service sizes crates/wire derives from it."""
 
@@ -154,7 +163,7 @@ def _check_shape(task, shape):
         ("settings", theirs, shape.settings),
     ]:
         if ours != declared:
-            raise WorkerError(
+            raise ConfigRefused(
                 f"the task has {what} {ours}, but task.external.{what} = {declared} "
                 f"in {shape.origin}"
             )
@@ -163,7 +172,7 @@ def _check_shape(task, shape):
     own = getattr(task, "basis_activations", None)
     if own is not None and shape.basis_activations is not None:
         if [list(map(float, row)) for row in own] != shape.basis_activations:
-            raise WorkerError(
+            raise ConfigRefused(
                 f"the task has other basis activations than task.external.basis_activations "
                 f"in {shape.origin}: the update weighs the rollouts by the config's, so put the "
                 f"task's own there"
@@ -172,7 +181,8 @@ def _check_shape(task, shape):
 
 def serve(make_task, argv=None):
     """Parses the supervisor's arguments, builds the task with `make_task(shape)` and runs
-    rollouts until SIGTERM/SIGINT. Exits the process: 0 when stopped, 1 on an error."""
+    rollouts until SIGTERM/SIGINT. Exits the process: 0 when stopped, 1 on an error, 78 when
+    the task does not match the config."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", required=True)
     p.add_argument("--run-dir", required=True)
@@ -183,6 +193,9 @@ def serve(make_task, argv=None):
     name = os.path.basename(sys.argv[0])
     try:
         _serve(make_task, args)
+    except ConfigRefused as e:
+        print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
+        sys.exit(EXIT_CONFIG_REFUSED)
     except WorkerError as e:
         print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
         sys.exit(1)

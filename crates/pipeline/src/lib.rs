@@ -309,14 +309,20 @@ pub fn announce_ready(
     })
 }
 
-/// Runs a process main: prints the error chain and returns exit code 1 on failure.
+/// Runs a process main: prints the error chain and returns exit code 1 on failure,
+/// [`wire::EXIT_CONFIG_REFUSED`] when the process refused the run's config
+/// ([`worker::ConfigRefused`]).
 pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
     match f().with_context(|| format!("{name} failed")) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
+            if e.downcast_ref::<worker::ConfigRefused>().is_some() {
+                std::process::ExitCode::from(wire::EXIT_CONFIG_REFUSED)
+            } else {
+                std::process::ExitCode::FAILURE
+            }
         }
     }
 }

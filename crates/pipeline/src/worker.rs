@@ -49,7 +49,7 @@ pub fn serve<T: Task>(
 ) -> anyhow::Result<()> {
     slot(args, |ctx| {
         let task = make_task(&ctx.config)?;
-        check_shape(&task, &ctx.config)?;
+        check_shape(&task, &ctx.config).map_err(|e| anyhow::Error::new(ConfigRefused(e)))?;
         Ok(task)
     })
 }
@@ -258,6 +258,19 @@ pub fn serve_main<T: Task>(
     let cli = Cli::parse();
     crate::run_main(name, || serve(&cli.worker, make_task))
 }
+
+/// Why a worker refuses the run's config; [`crate::run_main`] exits with
+/// [`wire::EXIT_CONFIG_REFUSED`] for it.
+#[derive(Debug)]
+pub struct ConfigRefused(pub anyhow::Error);
+
+impl std::fmt::Display for ConfigRefused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:#}", self.0)
+    }
+}
+
+impl std::error::Error for ConfigRefused {}
 
 /// A worker's task must match what the update side was configured with: it sizes θ and the
 /// cost trajectories, and settings travel by position.

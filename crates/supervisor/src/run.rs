@@ -352,10 +352,11 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     let pipe = cfg.pipeline();
     let target_workers = opts.workers.unwrap_or(pipe.workers);
     if !(1..=pipe.max_workers).contains(&target_workers) {
+        // The value came from the command line (the config's own is checked at load).
         bail!(
-            "{}: workers = {target_workers}: must be between 1 and pipeline.max_workers = {}",
-            origin.display(),
-            pipe.max_workers
+            "--workers {target_workers}: must be between 1 and pipeline.max_workers = {} of {}",
+            pipe.max_workers,
+            origin.display()
         );
     }
     let launcher = Launcher::find(opts.bin_dir.as_deref(), &cfg)?;
@@ -379,6 +380,21 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         }
         if let Some(point) = &point {
             point.check_output(&path, "--record")?;
+        }
+        // The recorder creates its file before the workers start, so a run that then fails
+        // (a worker refusing the config) would leave an empty recording in place of this one.
+        if let Some(bytes) = opts
+            .record
+            .as_ref()
+            .and_then(|p| std::fs::metadata(p).ok())
+            .filter(|m| m.is_file() && m.len() > 0)
+            .map(|m| m.len())
+        {
+            bail!(
+                "--record {}: a file of {bytes} bytes is there already; a run does not overwrite \
+                 it: remove it or record elsewhere",
+                path.display()
+            );
         }
         Some(Recording {
             path,
@@ -620,11 +636,18 @@ impl Supervisor {
             | Phase::StartUpdater
             | Phase::StartSampler
             | Phase::StartWorkers => {
+                // Workers between a crash and their restart have no process to wait for.
                 let waiting: Vec<String> = self
                     .procs
                     .values()
                     .filter(|p| !p.ready)
                     .map(|p| p.role.name())
+                    .chain(
+                        self.slots
+                            .iter()
+                            .filter(|(_, s)| s.pid.is_none())
+                            .map(|(w, _)| format!("worker-{w} (waiting to be restarted)")),
+                    )
                     .collect();
                 self.fail(format!(
                     "{} did not become ready within {} ms (pipeline.startup_timeout_ms)",
@@ -886,12 +909,19 @@ impl Supervisor {
         let printer = std::thread::Builder::new()
             .name(format!("out-{name}"))
             .spawn(move || {
+                // The reason a process died: its last error line, else its last line (after
+                // `error: …`, clap adds "For more information, try '--help'.").
+                let mut seen_error = false;
                 for line in BufReader::new(reader).lines() {
                     let Ok(line) = line else { break };
                     print_line(&name, &line);
-                    if let Ok(mut l) = last.lock() {
-                        *l = line;
+                    let error = line.trim_start().to_ascii_lowercase().starts_with("error");
+                    if error || !seen_error {
+                        if let Ok(mut l) = last.lock() {
+                            *l = line;
+                        }
                     }
+                    seen_error |= error;
                 }
             })?;
         let tx = self.tx.clone();
@@ -1202,7 +1232,17 @@ impl Supervisor {
         let Some(p) = self.procs.remove(&pid) else {
             return;
         };
-        let last = p.last_line.lock().map(|l| l.clone()).unwrap_or_default();
+        // Processes read the copy of the config in the run directory; the user knows theirs.
+        let last = p
+            .last_line
+            .lock()
+            .map(|l| {
+                l.replace(
+                    &self.config_file.display().to_string(),
+                    &self.cfg.origin.display().to_string(),
+                )
+            })
+            .unwrap_or_default();
         let cause = match (&p.hung, last.is_empty()) {
             (Some(_), _) => format!("{status}, killed after it hung"),
             (None, true) => status.to_string(),
@@ -1229,6 +1269,12 @@ impl Supervisor {
                 };
                 slot.pid = None;
                 if p.stopping || self.phase == Phase::Stopping {
+                    return;
+                }
+                if status.code() == Some(i32::from(wire::EXIT_CONFIG_REFUSED)) {
+                    self.fail(format!(
+                        "worker-{w} refused the config, not restarted ({cause})"
+                    ));
                     return;
                 }
                 let now = Instant::now();

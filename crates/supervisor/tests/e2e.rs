@@ -968,11 +968,21 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert!(run.text().contains("bad.toml"), "{}", run.text());
     assert_nothing_left(&run);
 
+    // A recording in the way: not overwritten (a run that then failed would leave an empty
+    // one in its place).
+    let keep = scratch.path("keep.mcap");
+    std::fs::write(&keep, b"a recording").unwrap();
+    let mut run = Run::start(&scratch, 509, &["--record", keep.to_str().unwrap()]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(run.text().contains("is there already"), "{}", run.text());
+    assert_eq!(std::fs::read(&keep).unwrap(), b"a recording");
+    assert_nothing_left(&run);
+
     // Worker count above the limit.
     let mut run = Run::start(&scratch, 501, &["--workers", "17"]);
     assert!(!run.wait(Duration::from_secs(10)).success());
     assert!(
-        run.text().contains("workers = 17") && run.text().contains("max_workers = 16"),
+        run.text().contains("--workers 17") && run.text().contains("max_workers = 16"),
         "{}",
         run.text()
     );
@@ -1347,6 +1357,17 @@ const DECLARE_12_PARAMETERS: [(&str, &str); 3] = [
 /// Runs config `text` (written as `file`), which must fail (exit 1) with output containing every
 /// one of `expected`, and leave nothing behind.
 fn assert_run_fails_saying(scratch: &Scratch, id: u64, file: &str, text: &str, expected: &[&str]) {
+    assert_run_fails_saying_not(scratch, id, file, text, expected, &[]);
+}
+
+fn assert_run_fails_saying_not(
+    scratch: &Scratch,
+    id: u64,
+    file: &str,
+    text: &str,
+    expected: &[&str],
+    unexpected: &[&str],
+) {
     let cfg = write_config(scratch, file, text);
     let mut run = Run::start(scratch, id, &[cfg.to_str().unwrap(), "--quiet"]);
     assert_eq!(
@@ -1358,6 +1379,9 @@ fn assert_run_fails_saying(scratch: &Scratch, id: u64, file: &str, text: &str, e
     let out = run.text();
     for e in expected {
         assert!(out.contains(e), "`{e}` not in:\n{out}");
+    }
+    for e in unexpected {
+        assert!(!out.contains(e), "`{e}` in:\n{out}");
     }
     assert_nothing_left(&run);
 }
@@ -1469,12 +1493,19 @@ fn a_task_of_your_own_learns_with_per_time_step_weighting_by_its_basis_activatio
 #[test]
 fn a_worker_whose_task_does_not_match_the_config_or_is_missing_is_named() {
     let scratch = Scratch::new("external-bad");
-    assert_run_fails_saying(
+    // A mismatch is the config's fault: the worker is not restarted, and the reason names the
+    // user's file, not the copy in the run directory.
+    let p12 = scratch.path("p12.toml").display().to_string();
+    assert_run_fails_saying_not(
         &scratch,
         810,
         "p12.toml",
         &external_config(&DECLARE_12_PARAMETERS),
-        &["task `reach` has 10 parameters, but task.external.parameters = 12"],
+        &[
+            "refused the config, not restarted",
+            &format!("task `reach` has 10 parameters, but task.external.parameters = 12 in {p12}"),
+        ],
+        &["restart 1 of"],
     );
     // A worker program that does not exist: refused before anything starts.
     let text = external_config(&[]).replacen("worker = [\"/", "worker = [\"/nonexistent/", 1);
@@ -1601,7 +1632,7 @@ w._check_shape(Task, shape)
 Task.basis_activations[3][1] += 0.25
 try:
     w._check_shape(Task, shape)
-except w.WorkerError as e:
+except w.ConfigRefused as e:  # exits 78: the supervisor does not restart it
     print(e)
 "#;
     let out = std::process::Command::new("python3")

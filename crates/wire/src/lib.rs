@@ -99,6 +99,12 @@ pub const MAX_NAME: usize = 32;
 /// "Something for you was published."
 pub const WAKE: EventId = EventId::new(1);
 
+/// The exit code of a process that refuses the run's config: a worker whose task has another
+/// shape than the config declares (parameters, steps, settings, basis activations). Its
+/// restart would refuse it again, so the supervisor fails the run at once, naming the config
+/// (sysexits' `EX_CONFIG`).
+pub const EXIT_CONFIG_REFUSED: u8 = 78;
+
 /// On `wake/recorder` only, from the updater: "I am holding back a distribution until you
 /// acknowledge more updates (see [`RecorderAck`]); ring `wake/updater` after your next
 /// acknowledgement."
