@@ -370,7 +370,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Recover(args) => println!("{}", record::recover::run(&args)?.describe()),
         Command::Check { configs } => {
             for path in &configs {
-                load(path)?;
+                // An external task's worker program too: `supervisor run` would refuse it.
+                load(path)?.external_worker_program()?;
                 println!("{}: ok", path.display());
             }
         }

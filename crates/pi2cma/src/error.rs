@@ -11,6 +11,15 @@ pub enum CostError {
         step: Option<usize>,
         value: f64,
     },
+    #[error(
+        "the update gives a non-finite {what} from finite costs: the costs' range or the \
+         covariance ({largest_variance:e} at most) overflows its arithmetic; the distribution \
+         stays as it was"
+    )]
+    NonFiniteUpdate {
+        what: &'static str,
+        largest_variance: f64,
+    },
     #[error("rollout index {rollout} out of range: the update has {rollouts} rollouts")]
     RolloutOutOfRange { rollout: usize, rollouts: usize },
     #[error("cost trajectory of rollout {rollout} has {got} steps, expected {expected}")]

@@ -446,3 +446,37 @@ fn threaded_low_rank_update_is_bit_identical_and_matches_algorithm_1() {
     assert!((&one.mean - &mean).amax() < 1e-12);
     assert!((&one.covariance - &cov).amax() < 1e-10 * (1.0 + cov.amax()));
 }
+
+/// Finite costs and a finite distribution can still overflow the update's arithmetic (here the
+/// 2×2 eigendecomposition squares covariance entries of 1e160): the update is refused, naming
+/// what went non-finite, instead of handing on a NaN distribution that fails one update later
+/// as NaN costs.
+#[test]
+fn an_update_that_overflows_is_refused() {
+    let mut rule = UpdateRule::new(
+        hp(
+            3,
+            CostMapping::Exponential { eliteness: 10.0 },
+            Exploration::Adaptive {
+                bounds: EigenvalueBounds::new(1.0, f64::INFINITY).unwrap(),
+            },
+            Weighting::Episodic,
+        ),
+        2,
+        2,
+        None,
+    )
+    .unwrap();
+    let old = Distribution::isotropic(DVector::zeros(2), 1e300).unwrap();
+    let samples = [0.0, 0.0, 1e150, 3e150, -2e150, 1e150];
+    let mut costs = CostBatch::new(3, 2);
+    costs.insert(0, &[1.0, 1.0], 0.0).unwrap();
+    costs.insert(1, &[0.0, 1.0], 0.0).unwrap();
+    costs.insert(2, &[2.0, 0.0], 0.0).unwrap();
+    let r = rule.update(&old, &samples, &costs);
+    assert!(
+        matches!(r, Err(CostError::NonFiniteUpdate { .. })),
+        "{:?}",
+        r.map(|(d, _)| d)
+    );
+}

@@ -398,6 +398,21 @@ impl UpdateRule {
             Exploration::Decay { factor } => &old.covariance * factor,
             Exploration::Adaptive { bounds } => self.finish_covariance(bounds, unbounded),
         };
+        // Finite costs can still overflow what follows from them (a covariance whose entries
+        // square past f64::MAX): refuse here, at the update that went wrong, rather than hand on
+        // a distribution whose samples fail the next update as NaN costs.
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        for (what, ok) in [
+            ("mean", finite(mean.as_slice())),
+            ("covariance", finite(covariance.as_slice())),
+        ] {
+            if !ok {
+                return Err(CostError::NonFiniteUpdate {
+                    what,
+                    largest_variance: old.covariance.diagonal().max(),
+                });
+            }
+        }
         let mut per_rollout = vec![0.0; k_all];
         per_rollout[first..].copy_from_slice(&self.mean_weights);
         Ok((

@@ -321,6 +321,24 @@ enum Blame {
     StepsParameters,
 }
 
+/// `program` as an absolute path to an executable file: a path as it is (made absolute, so that
+/// it does not depend on the children's working directory), a bare name looked up in PATH.
+pub fn resolve_program(program: &Path) -> Option<PathBuf> {
+    use std::os::unix::fs::PermissionsExt as _;
+    let executable = |p: &Path| {
+        p.metadata()
+            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+    };
+    if program.components().count() > 1 {
+        return executable(program)
+            .then(|| std::path::absolute(program).ok())
+            .flatten();
+    }
+    std::env::split_paths(&std::env::var_os("PATH")?)
+        .map(|dir| dir.join(program))
+        .find(|p| executable(p))
+}
+
 /// A number as a config would write it: plainly, or with an exponent when it is very large or
 /// very small (1e-12 rather than 0.000000000001).
 fn num(v: f64) -> String {
@@ -1125,6 +1143,29 @@ impl RunConfig {
         Some((program, args.to_vec()))
     }
 
+    /// [`RunConfig::external_worker`] with its program resolved to an executable file (an
+    /// absolute path); an error naming the field when there is none. Not part of
+    /// [`RunConfig::validate`]: the processes of a run read a copy of the config elsewhere, from
+    /// which a relative program would not resolve; the supervisor and `pi2cma check` call it.
+    pub fn external_worker_program(&self) -> Result<Option<(PathBuf, Vec<String>)>, ConfigError> {
+        let Some((program, args)) = self.external_worker() else {
+            return Ok(None);
+        };
+        match resolve_program(&program) {
+            Some(resolved) => Ok(Some((resolved, args))),
+            None => Err(self.invalid(
+                "task.external.worker",
+                format!("\"{}\"", program.display()),
+                if program.components().count() > 1 {
+                    "not an executable file (a path with a `/` is relative to the config file's \
+                     directory)"
+                } else {
+                    "not an executable file in PATH"
+                },
+            )),
+        }
+    }
+
     fn invalid_param(&self, e: pi2cma::ParameterError) -> ConfigError {
         match e {
             pi2cma::ParameterError::OutOfRange {
@@ -1238,6 +1279,42 @@ impl RunConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_worker_program_is_an_executable_path_or_found_in_path() {
+        let sh = resolve_program(Path::new("sh")).expect("sh in PATH");
+        assert!(sh.is_absolute() && sh.ends_with("sh"), "{}", sh.display());
+        assert_eq!(resolve_program(Path::new("no-such-program-p2c")), None);
+        let dir = std::env::temp_dir().join(format!("p2c-resolve-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("worker");
+        std::fs::write(&file, "#!/bin/sh\n").unwrap();
+        // Not executable yet.
+        assert_eq!(resolve_program(&file), None);
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::set_permissions(&file, std::fs::Permissions::from_mode(0o755)).unwrap();
+        assert_eq!(resolve_program(&file), Some(file.clone()));
+        assert_eq!(resolve_program(&dir), None, "a directory is not a program");
+        // Through the config: relative to its file, and named in the error.
+        let text = format!(
+            "{}\n[task.external]\nworker = [\"./worker\"]\nparameters = 2\nsteps = 3\ninitial_mean = [0.0, 0.0]\n",
+            DEFAULT_CONFIG
+                .split("[task.via-point]")
+                .next()
+                .unwrap()
+                .replace("[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n", "")
+        );
+        let cfg = RunConfig::parse(&text, &dir.join("c.toml")).unwrap();
+        let (program, _) = cfg.external_worker_program().unwrap().unwrap();
+        assert_eq!(program, file);
+        let elsewhere = RunConfig::parse(&text, Path::new("/nonexistent/c.toml")).unwrap();
+        let e = elsewhere.external_worker_program().unwrap_err().to_string();
+        assert!(
+            e.starts_with("/nonexistent/c.toml: task.external.worker = \"/nonexistent/./worker\": not an executable file"),
+            "{e}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     fn parse(text: &str) -> Result<RunConfig, ConfigError> {
         RunConfig::parse(text, Path::new("test.toml"))
@@ -1717,10 +1794,11 @@ mod tests {
         parse(&text).unwrap();
     }
 
-    /// Where the bounds come from: past them, runs of the default task end in NaN (if the core
-    /// learns to handle these, the bounds can be widened and this test changed).
+    /// Where the bounds come from: past them, an update of the default task overflows into
+    /// NaN, which the core refuses (if it learns to compute these, the bounds can be widened
+    /// and this test changed).
     #[test]
-    fn past_the_eliteness_and_lambda_bounds_runs_end_in_nan() {
+    fn past_the_eliteness_and_lambda_bounds_the_update_overflows() {
         let run = |cfg: &RunConfig| crate::run_session(cfg, cfg.run.seed, &mut crate::NoObserver);
         // Two rollouts, λ = 1: the one exploration rollout's weight is about exp(−h), and the
         // covariance it weights is squared in the 2×2 eigen-decomposition.
@@ -1736,9 +1814,11 @@ mod tests {
         .unwrap();
         let (_, last) = run(&cfg).unwrap();
         assert!(last.covariance.iter().all(|v| v.is_finite()));
+        // The core refuses the update whose arithmetic overflowed (before it did, the NaN
+        // distribution failed the next update as NaN costs).
         cfg.optimizer.eliteness = Some(400.0);
         let e = run(&cfg).unwrap_err().to_string();
-        assert!(e.contains("NaN"), "{e}");
+        assert!(e.contains("non-finite"), "{e}");
         // λ_init past about 1e154: its square overflows.
         let mut cfg = parse(&edit(
             DEFAULT_CONFIG,
@@ -1749,7 +1829,7 @@ mod tests {
         assert!(last.covariance.iter().all(|v| v.is_finite()));
         cfg.optimizer.lambda_init = 1e200;
         let e = run(&cfg).unwrap_err().to_string();
-        assert!(e.contains("NaN"), "{e}");
+        assert!(e.contains("non-finite"), "{e}");
     }
 
     #[test]

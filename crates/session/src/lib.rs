@@ -25,12 +25,10 @@ use tasks::{Delayed, Task, TaskChange, TaskError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SessionError {
-    #[error("update {update}: {source}")]
-    Cost {
-        update: u64,
-        #[source]
-        source: CostError,
-    },
+    /// The cost error is part of the message, not a source: chained, it would be printed twice
+    /// (`update 4: cost … is NaN: cost … is NaN`).
+    #[error("update {update}: {error}")]
+    Cost { update: u64, error: CostError },
     #[error(transparent)]
     Task(#[from] TaskError),
     #[error(transparent)]
@@ -302,7 +300,7 @@ impl InProcess {
         let summary = self
             .optimizer
             .tell(&self.costs)
-            .map_err(|source| SessionError::Cost { update, source })?;
+            .map_err(|error| SessionError::Cost { update, error })?;
         let settings = self.task.settings();
         observer.on_update(&UpdateRecord {
             before: &before,
@@ -367,6 +365,29 @@ pub(crate) fn bits(d: &Distribution) -> Vec<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Printed with its whole chain, as the binaries print errors, the cost error appears once.
+    #[test]
+    fn a_cost_error_is_printed_once() {
+        let e = SessionError::Cost {
+            update: 4,
+            error: CostError::NonFinite {
+                rollout: 1,
+                step: Some(0),
+                value: f64::NAN,
+            },
+        };
+        let mut chain = e.to_string();
+        let mut source = std::error::Error::source(&e);
+        while let Some(s) = source {
+            chain.push_str(&format!(": {s}"));
+            source = s.source();
+        }
+        assert_eq!(
+            chain,
+            "update 4: cost of rollout 1 at step 0 is NaN; costs must be finite"
+        );
+    }
 
     /// What an update produced: the distribution after it, and the settings it ran with.
     #[derive(Debug, Clone)]

@@ -128,24 +128,7 @@ enum Binaries {
 
 impl Launcher {
     fn find(bin_dir: Option<&Path>, cfg: &RunConfig) -> anyhow::Result<Self> {
-        let external_worker = match cfg.external_worker() {
-            Some((program, args)) => Some((
-                resolve_program(&program).with_context(|| {
-                    format!(
-                        "{}: task.external.worker = \"{}\": not an executable file{}",
-                        cfg.origin.display(),
-                        program.display(),
-                        if program.components().count() > 1 {
-                            " (a path with a `/` is relative to the config file's directory)"
-                        } else {
-                            " in PATH"
-                        }
-                    )
-                })?,
-                args,
-            )),
-            None => None,
-        };
+        let external_worker = cfg.external_worker_program()?;
         let binaries = Binaries::find(bin_dir)?;
         Ok(Self {
             binaries,
@@ -200,24 +183,6 @@ impl Binaries {
             Self::SelfHosted(exe)
         })
     }
-}
-
-/// `program` as an absolute path to an executable file: a path as it is (made absolute, so that
-/// it does not depend on the children's working directory), a bare name looked up in PATH.
-fn resolve_program(program: &Path) -> Option<PathBuf> {
-    use std::os::unix::fs::PermissionsExt as _;
-    let executable = |p: &Path| {
-        p.metadata()
-            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
-    };
-    if program.components().count() > 1 {
-        return executable(program)
-            .then(|| std::path::absolute(program).ok())
-            .flatten();
-    }
-    std::env::split_paths(&std::env::var_os("PATH")?)
-        .map(|dir| dir.join(program))
-        .find(|p| executable(p))
 }
 
 struct Proc {
@@ -1687,24 +1652,6 @@ fn die_with_parent(cmd: &mut Command) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_worker_program_is_an_executable_path_or_found_in_path() {
-        let sh = resolve_program(Path::new("sh")).expect("sh in PATH");
-        assert!(sh.is_absolute() && sh.ends_with("sh"), "{}", sh.display());
-        assert_eq!(resolve_program(Path::new("no-such-program-p2c")), None);
-        let dir = std::env::temp_dir().join(format!("p2c-resolve-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let file = dir.join("worker");
-        std::fs::write(&file, "#!/bin/sh\n").unwrap();
-        // Not executable yet.
-        assert_eq!(resolve_program(&file), None);
-        use std::os::unix::fs::PermissionsExt as _;
-        std::fs::set_permissions(&file, std::fs::Permissions::from_mode(0o755)).unwrap();
-        assert_eq!(resolve_program(&file), Some(file.clone()));
-        assert_eq!(resolve_program(&dir), None, "a directory is not a program");
-        let _ = std::fs::remove_dir_all(&dir);
-    }
 
     #[test]
     fn the_default_recording_is_under_runs_named_after_the_run_and_its_id() {
