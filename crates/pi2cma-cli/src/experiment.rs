@@ -286,12 +286,12 @@ pub fn summary_table(results: &[ConfigResult]) -> String {
             continue;
         }
         let at = |v: &[f64], u: usize| v.get(u).map_or("–".into(), |x| fmt(*x));
-        let after = r.change_at.unwrap_or(0) as usize;
-        let lmax = l
-            .iter()
-            .skip(after)
-            .cloned()
-            .fold(f64::NEG_INFINITY, f64::max);
+        // Without a change (or a change after the last update) there is no such maximum.
+        let lmax = r
+            .change_at
+            .map(|c| l.iter().skip(c as usize).cloned().fold(f64::NAN, f64::max))
+            .filter(|m| !m.is_nan())
+            .map_or("–".into(), fmt);
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
@@ -305,7 +305,7 @@ pub fn summary_table(results: &[ConfigResult]) -> String {
             at(&sd, 19),
             at(&l, 0),
             at(&l, 19),
-            fmt(lmax),
+            lmax,
             fmt(l[l.len() - 1]),
             match (r.change_at, r.reconvergence_update()) {
                 (None, _) => "no change".to_string(),

@@ -1370,10 +1370,13 @@ impl Supervisor {
                 self.target_workers,
                 self.total_restarts
             ));
-            say(&format!(
-                "  evaluation cost {:.4} → {:.4}, final λ {:.4}",
-                r.first_eval_cost, r.last_eval_cost, r.lambda
-            ));
+            // A run stopped before its first update has no costs to show.
+            if r.updates > 0 {
+                say(&format!(
+                    "  evaluation cost {:.4} → {:.4}, final λ {:.4}",
+                    r.first_eval_cost, r.last_eval_cost, r.lambda
+                ));
+            }
             say(&format!("  final mean θ = {:?}", r.mean));
             for c in &r.task_changes {
                 say(&format!(
