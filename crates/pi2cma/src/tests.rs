@@ -480,3 +480,30 @@ fn an_update_that_overflows_is_refused() {
         r.map(|(d, _)| d)
     );
 }
+
+/// One rollout is θ itself: with or without it in the update, nothing would be learned.
+#[test]
+fn one_rollout_is_refused_with_or_without_the_evaluation_in_the_update() {
+    for evaluation_in_update in [true, false] {
+        let h = Hyperparameters {
+            evaluation_in_update,
+            ..hp(
+                1,
+                CostMapping::Exponential { eliteness: 10.0 },
+                Exploration::Constant,
+                Weighting::Episodic,
+            )
+        };
+        assert!(
+            matches!(
+                h.check(),
+                Err(ParameterError::OutOfRange {
+                    field: "rollouts",
+                    ..
+                })
+            ),
+            "{evaluation_in_update}"
+        );
+        assert!(Hyperparameters { rollouts: 2, ..h }.check().is_ok());
+    }
+}

@@ -64,8 +64,9 @@ impl Hyperparameters {
     }
 
     pub fn check(&self) -> Result<(), ParameterError> {
-        let min = if self.evaluation_in_update { 1 } else { 2 };
-        if self.rollouts < min {
+        // Rollout 0 is θ itself (ε_0 = 0): entering the update or not, it cannot move the
+        // distribution, so one exploration rollout is the least either way.
+        if self.rollouts < 2 {
             return Err(ParameterError::OutOfRange {
                 field: "rollouts",
                 value: self.rollouts.to_string(),
