@@ -70,7 +70,9 @@ impl Hyperparameters {
             return Err(ParameterError::OutOfRange {
                 field: "rollouts",
                 value: self.rollouts.to_string(),
-                reason: "too few rollouts: at least one must enter the update besides the evaluation rollout",
+                reason: "too few rollouts: at least one must enter the update besides the \
+                         evaluation rollout (rollout 0 is θ itself and cannot move the \
+                         distribution, even when it enters the update), so at least 2",
             });
         }
         self.mapping

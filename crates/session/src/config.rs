@@ -533,17 +533,6 @@ impl RunConfig {
             ));
         }
         self.validate_lambdas()?;
-        // Rollout 0 is the noise-free evaluation θ_0 = θ (ε_0 = 0): whether or not it enters
-        // the update, it cannot move the distribution, so one exploration rollout is the least.
-        if o.rollouts < 2 {
-            return Err(self.invalid(
-                "optimizer.rollouts",
-                o.rollouts,
-                "too few rollouts: at least one must enter the update besides the evaluation \
-                 rollout (rollout 0 is θ itself and cannot move the distribution, even when it \
-                 enters the update), so at least 2",
-            ));
-        }
         if o.rollouts > MAX_ROLLOUTS {
             return Err(self.invalid(
                 "optimizer.rollouts",
