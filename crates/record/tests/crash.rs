@@ -258,12 +258,17 @@ fn damage_inside_a_file_loses_only_the_damaged_chunks() {
     let (got, report) = recovered_updates(&bytes, "zeros");
     assert_eq!(got, all_but(&[3]), "{report:?}");
     assert!(report.damage[0].why.contains("opcode 0x00"), "{report:?}");
-    // The readers stop there (the shifted summary no longer reads, so as at a killed writer's
-    // end), instead of reading on without update 3.
+    // The readers stop there instead of reading on without update 3: as at a killed writer's
+    // end when the summary no longer reads (the zeros are shorter than the chunk and shift it),
+    // as damage in a finished file when they are not (a chunk of a multiple of 9 bytes).
     std::fs::write(&path, &bytes).unwrap();
-    let r = read_recording(&path).unwrap();
-    assert!(r.truncated.as_deref().unwrap_or("").contains("opcode 0x00"));
-    assert_eq!(r.updates.len(), 3);
+    match read_recording(&path) {
+        Ok(r) => {
+            assert!(r.truncated.as_deref().unwrap_or("").contains("opcode 0x00"));
+            assert_eq!(r.updates.len(), 3);
+        }
+        Err(e) => assert!(e.to_string().contains("opcode 0x00"), "{e}"),
+    }
     let mut bytes = whole.clone();
     bytes[c3..c4].fill(0);
     bytes[(c7 + c8) / 2] ^= 1;
