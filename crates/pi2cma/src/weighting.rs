@@ -55,8 +55,27 @@ impl CostMapping {
                     return;
                 }
                 let scale = -eliteness / range;
-                for (o, &c) in out.iter_mut().zip(costs) {
-                    *o = exp_nonpositive((c - lo) * scale);
+                if scale.is_finite() && range.is_finite() {
+                    for (o, &c) in out.iter_mut().zip(costs) {
+                        *o = exp_nonpositive((c - lo) * scale);
+                    }
+                } else {
+                    // A range so small that h/range overflows (subnormal differences), or so
+                    // large that hi − lo does (costs near ±f64::MAX): (c − lo)·scale would be
+                    // 0·∞ = NaN for the best rollout. Normalising first keeps (c − lo)/range in
+                    // [0, 1]; an infinite range is normalised on halves, which cannot overflow.
+                    // Every other range takes the branch above, whose rounding the recorded
+                    // runs were made with.
+                    let normalised = |c: f64| {
+                        if range.is_finite() {
+                            (c - lo) / range
+                        } else {
+                            (c / 2.0 - lo / 2.0) / (hi / 2.0 - lo / 2.0)
+                        }
+                    };
+                    for (o, &c) in out.iter_mut().zip(costs) {
+                        *o = exp_nonpositive(-eliteness * normalised(c).min(1.0));
+                    }
                 }
                 let sum: f64 = out.iter().sum();
                 let inv = 1.0 / sum;
@@ -140,6 +159,32 @@ mod tests {
         for (a, b) in p.iter().zip(expect) {
             assert!((a - b).abs() < 1e-15, "{p:?}");
         }
+    }
+
+    #[test]
+    fn extreme_ranges_give_probabilities_not_nan() {
+        let m = CostMapping::Exponential { eliteness: 10.0 };
+        // h / range overflows: the best rollout would get 0·∞.
+        let tiny = probs(m, &[0.0, f64::from_bits(1), 0.0]);
+        // hi − lo overflows.
+        let huge = probs(m, &[-f64::MAX, f64::MAX, 0.0]);
+        for p in [&tiny, &huge] {
+            assert!(p.iter().all(|v| v.is_finite()), "{p:?}");
+            assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12, "{p:?}");
+        }
+        // The worst rollout gets e^−h relative to the best, as for any other range.
+        assert!(
+            (tiny[1] / tiny[0] - (-10.0f64).exp()).abs() < 1e-12,
+            "{tiny:?}"
+        );
+        assert!(
+            (huge[1] / huge[0] - (-10.0f64).exp()).abs() < 1e-12,
+            "{huge:?}"
+        );
+        assert!(
+            (huge[2] / huge[0] - (-5.0f64).exp()).abs() < 1e-12,
+            "{huge:?}"
+        );
     }
 
     #[test]
