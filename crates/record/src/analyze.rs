@@ -59,7 +59,20 @@ pub fn parse_tolerance(s: &str) -> Result<f64, String> {
 pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
     let mut out = String::new();
     let mut recs = Vec::with_capacity(args.files.len());
+    let mut read: Vec<(PathBuf, &Path)> = Vec::new();
     for f in &args.files {
+        // The same file twice (a shell glob and a name, or two spellings of a path) is one run.
+        let canonical = std::fs::canonicalize(f).map_err(io(f))?;
+        if let Some((_, first)) = read.iter().find(|(c, _)| *c == canonical) {
+            let _ = writeln!(
+                out,
+                "note: {} is {} again: read once\n",
+                f.display(),
+                first.display()
+            );
+            continue;
+        }
+        read.push((canonical, f));
         let rec = read_recording_slim(f)?;
         out.push_str(&info(&rec));
         if args.verify {
@@ -106,7 +119,8 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
     }
     // A run stopped and resumed is one run in two (or more) files: one curve, one session.
     let runs = join_resumed(recs);
-    for (rec, parts) in &runs {
+    let subdirs = output_dirs(&runs.iter().map(|(_, p)| p[0].as_path()).collect::<Vec<_>>());
+    for ((rec, parts), subdir) in runs.iter().zip(&subdirs) {
         if parts.len() > 1 {
             let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
             // A resumed run's files, or the parts of a split recording (or both).
@@ -124,7 +138,7 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             );
         }
         if let Some(dir) = &args.out {
-            let sub = dir.join(stem(&parts[0]));
+            let sub = dir.join(subdir);
             if !args.no_csv {
                 for p in export_csv(rec, &sub)? {
                     let _ = writeln!(out, "  wrote {}", p.display());
@@ -146,6 +160,41 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
         }
     }
     Ok(out)
+}
+
+/// One output directory name per run: its file's stem, or, where stems repeat (every
+/// `pi2cma run` records `run.mcap` in its own directory), the parent directory's name and the
+/// stem, numbered if even that repeats, so that no run's files overwrite another's.
+fn output_dirs(files: &[&Path]) -> Vec<String> {
+    let count = |names: &[String], n: &String| names.iter().filter(|m| *m == n).count();
+    let stems: Vec<String> = files.iter().map(|p| stem(p)).collect();
+    let named: Vec<String> = files
+        .iter()
+        .zip(&stems)
+        .map(|(p, s)| {
+            let parent = std::path::absolute(p).ok().and_then(|a| {
+                a.parent()?
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+            });
+            match parent {
+                Some(dir) if count(&stems, s) > 1 => format!("{dir}-{s}"),
+                _ => s.clone(),
+            }
+        })
+        .collect();
+    let mut seen: BTreeMap<&String, usize> = BTreeMap::new();
+    named
+        .iter()
+        .map(|n| {
+            if count(&named, n) == 1 {
+                return n.clone();
+            }
+            let i = seen.entry(n).or_default();
+            *i += 1;
+            format!("{n}-{i}")
+        })
+        .collect()
 }
 
 fn stem(p: &Path) -> String {
@@ -1188,19 +1237,22 @@ pub struct Segment {
     pub peak: f64,
     /// Final level: the lowest eval cost within the segment.
     pub level: f64,
-    /// First update from which every eval cost of the segment stays within the tolerance band.
-    pub converged_at: u64,
+    /// First update from which every eval cost of the segment stays within the tolerance band;
+    /// `None` if the segment has not settled: its last eval cost is outside the band, or only
+    /// the last one is inside (a curve still falling at the end has its lowest value last).
+    pub converged_at: Option<u64>,
 }
 
 impl Segment {
-    pub fn updates_to_converge(&self) -> u64 {
-        self.converged_at - self.start
+    pub fn updates_to_converge(&self) -> Option<u64> {
+        self.converged_at.map(|u| u - self.start)
     }
 }
 
 /// Splits the eval-cost curve at the task changes and finds, per segment, where it settles:
 /// with L the segment's lowest eval cost and H its highest, the first update from which every
-/// eval cost of the segment is ≤ L + tolerance·(H − L).
+/// eval cost of the segment is ≤ L + tolerance·(H − L), provided that is at least the last two
+/// updates; otherwise the segment has not settled.
 pub fn reconvergence(rec: &Recording, tolerance: f64) -> Vec<Segment> {
     let curve = rec.curve();
     let Some(last) = curve.last().map(|s| s.update + 1) else {
@@ -1233,14 +1285,12 @@ pub fn reconvergence(rec: &Recording, tolerance: f64) -> Vec<Segment> {
             .map(|c| c.eval_cost)
             .fold(f64::NEG_INFINITY, f64::max);
         let threshold = level + tolerance * (peak - level);
-        let mut converged_at = seg.last().map(|c| c.update).unwrap_or(s);
-        for c in seg.iter().rev() {
-            if c.eval_cost <= threshold {
-                converged_at = c.update;
-            } else {
-                break;
-            }
-        }
+        let inside = seg
+            .iter()
+            .rev()
+            .take_while(|c| c.eval_cost <= threshold)
+            .count();
+        let converged_at = (inside >= 2).then(|| seg[seg.len() - inside].update);
         out.push(Segment {
             start: s,
             end: e,
@@ -1271,19 +1321,87 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
-/// Over the sessions of an experiment (grouped by run name): the mean eval-cost curve ± std over
-/// sessions and mean λ per update (`mean_curves.svg`, `mean_curves.csv`), and the
-/// re-convergence table (`reconvergence.csv`; also returned as Markdown).
+/// The sessions of an experiment, grouped: by run name, and within a name by what makes runs
+/// comparable (hyperparameters, P, N), so that runs of one name with different settings (e.g.
+/// `pi2cma experiment --weighting`) are not averaged together. A recording given twice, or a
+/// copy of one (same seed and the same eval costs to the bit), counts once, with a note.
+fn group_sessions<'a>(
+    recs: &'a [Recording],
+    notes: &mut Vec<String>,
+) -> Vec<(String, Vec<&'a Recording>)> {
+    type Key = (String, String, u32, u32);
+    let key = |r: &Recording| -> Key {
+        let info = r.run_info();
+        (
+            r.name(),
+            info.and_then(|i| i.hyperparameters.as_ref())
+                .map(describe_hp)
+                .unwrap_or_default(),
+            info.map_or(0, |i| i.dim),
+            info.map_or(0, |i| i.steps),
+        )
+    };
+    let bits = |r: &Recording| -> Vec<(u64, u64)> {
+        r.curve()
+            .iter()
+            .map(|c| (c.update, c.eval_cost.to_bits()))
+            .collect()
+    };
+    let mut groups: BTreeMap<Key, Vec<&Recording>> = BTreeMap::new();
+    for r in recs {
+        let members = groups.entry(key(r)).or_default();
+        let seed = r.run_info().map(|i| i.seed);
+        let same = members
+            .iter()
+            .find(|m| m.run_info().map(|i| i.seed) == seed && bits(m) == bits(r));
+        match same {
+            Some(m) => notes.push(format!(
+                "{} is the same run as {} (same seed, same eval costs): counted once",
+                r.path.display(),
+                m.path.display()
+            )),
+            None => members.push(r),
+        }
+    }
+    // A name shared by groups gets what tells them apart.
+    let mut per_name: BTreeMap<&str, usize> = BTreeMap::new();
+    for k in groups.keys() {
+        *per_name.entry(k.0.as_str()).or_default() += 1;
+    }
+    let mut per_settings: BTreeMap<(&str, &str), usize> = BTreeMap::new();
+    for k in groups.keys() {
+        *per_settings
+            .entry((k.0.as_str(), k.1.as_str()))
+            .or_default() += 1;
+    }
+    let labels: Vec<String> = groups
+        .keys()
+        .map(|(name, hp, dim, steps)| {
+            match (
+                per_name[name.as_str()],
+                per_settings[&(name.as_str(), hp.as_str())],
+            ) {
+                (1, _) => name.clone(),
+                (_, 1) => format!("{name} ({hp})"),
+                _ => format!("{name} ({hp}, P = {dim}, N = {steps})"),
+            }
+        })
+        .collect();
+    labels.into_iter().zip(groups.into_values()).collect()
+}
+
+/// Over the sessions of an experiment (grouped as [`group_sessions`] says): the mean eval-cost
+/// curve ± std over sessions and mean λ per update (`mean_curves.svg`, `mean_curves.csv`) over
+/// the updates every session of the group has, and the re-convergence table
+/// (`reconvergence.csv`; also returned as Markdown).
 pub fn experiment(
     recs: &[Recording],
     out: Option<&Path>,
     tolerance: f64,
     figures: bool,
 ) -> Result<ExperimentReport, RecordError> {
-    let mut groups: BTreeMap<String, Vec<&Recording>> = BTreeMap::new();
-    for r in recs {
-        groups.entry(r.name()).or_default().push(r);
-    }
+    let mut notes = Vec::new();
+    let groups = group_sessions(recs, &mut notes);
     let mut report = ExperimentReport::default();
     let mut curves = Vec::new();
     let mut mean_csv =
@@ -1291,31 +1409,10 @@ pub fn experiment(
     let mut reconv_csv = String::from(
         "run,file,segment_start,segment_end,peak,level,converged_at,updates_to_converge\n",
     );
-    let t = &mut report.table;
-    let _ = writeln!(
-        t,
-        "## Experiment: {} sessions in {} run(s)\n",
-        recs.len(),
-        groups.len()
-    );
-    let _ = writeln!(
-        t,
-        "Re-convergence (tolerance {tolerance}): updates from the segment start until every later \
-         eval cost of the segment is within tolerance × (peak − lowest) of the lowest.\n"
-    );
-    let _ = writeln!(t, "| run | segment from update | sessions | updates to converge (mean ± std) | converged at (mean) | final eval cost (mean ± std) |");
-    let _ = writeln!(t, "|---|---|---|---|---|---|");
-    let changes: Vec<u64> = {
-        let mut c: Vec<u64> = recs
-            .iter()
-            .flat_map(|r| r.task_changes.iter().map(|c| c.update))
-            .collect();
-        c.sort_unstable();
-        c.dedup();
-        c
-    };
+    let mut rows = String::new();
     for (name, sessions) in &groups {
-        // Mean curve over the updates every session has.
+        // Mean curve over the updates every session has: where fewer sessions contribute, the
+        // mean would silently become that of fewer runs.
         let mut by_update: BTreeMap<u64, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
         for r in sessions {
             for s in r.curve() {
@@ -1323,6 +1420,18 @@ pub fn experiment(
                 e.0.push(s.eval_cost);
                 e.1.push(s.lambda);
             }
+        }
+        let all = by_update.len();
+        by_update.retain(|_, (costs, _)| costs.len() == sessions.len());
+        if by_update.len() < all {
+            let lengths: Vec<usize> = sessions.iter().map(|r| r.curve().len()).collect();
+            notes.push(format!(
+                "{name}: its sessions have {}–{} updates; the mean curve and the final eval cost \
+                 are over the {} updates every session has",
+                lengths.iter().min().unwrap_or(&0),
+                lengths.iter().max().unwrap_or(&0),
+                by_update.len()
+            ));
         }
         let mut c = Curve {
             label: format!("{name} ({} sessions)", sessions.len()),
@@ -1358,6 +1467,7 @@ pub fn experiment(
             .iter()
             .map(|r| (r.path.clone(), reconvergence(r, tolerance)))
             .collect();
+        let or_empty = |v: Option<u64>| v.map(|v| v.to_string()).unwrap_or_default();
         for (path, ss) in &segs {
             for s in ss {
                 let _ = writeln!(
@@ -1369,30 +1479,75 @@ pub fn experiment(
                     s.end,
                     f(s.peak),
                     f(s.level),
-                    s.converged_at,
-                    s.updates_to_converge()
+                    or_empty(s.converged_at),
+                    or_empty(s.updates_to_converge())
                 );
                 per_segment.entry(s.start).or_default().push(s);
             }
         }
-        let finals: Vec<f64> = sessions
-            .iter()
-            .filter_map(|r| r.curve().last().map(|s| s.eval_cost))
-            .collect();
-        let (fm, fs) = mean_std(&finals);
+        let (fm, fs) = by_update
+            .values()
+            .next_back()
+            .map_or((f64::NAN, f64::NAN), |(costs, _)| mean_std(costs));
         for (start, ss) in &per_segment {
-            let n: Vec<f64> = ss.iter().map(|s| s.updates_to_converge() as f64).collect();
-            let at: Vec<f64> = ss.iter().map(|s| s.converged_at as f64).collect();
-            let (m, sd) = mean_std(&n);
-            let (am, _) = mean_std(&at);
+            let n: Vec<f64> = ss
+                .iter()
+                .filter_map(|s| s.updates_to_converge())
+                .map(|n| n as f64)
+                .collect();
+            let at: Vec<f64> = ss
+                .iter()
+                .filter_map(|s| s.converged_at)
+                .map(|u| u as f64)
+                .collect();
+            let (to_converge, converged_at) = if n.is_empty() {
+                ("–".to_string(), "–".to_string())
+            } else {
+                let (m, sd) = mean_std(&n);
+                (
+                    format!("{m:.1} ± {sd:.1}"),
+                    format!("{:.1}", mean_std(&at).0),
+                )
+            };
             let _ = writeln!(
-                t,
-                "| {name} | {start}{} | {} | {m:.1} ± {sd:.1} | {am:.1} | {fm:.4} ± {fs:.4} |",
+                rows,
+                "| {name} | {start}{} | {} | {} of {} | {to_converge} | {converged_at} | {fm:.4} ± {fs:.4} |",
                 if *start > 0 { " (task change)" } else { "" },
+                ss.len(),
+                n.len(),
                 ss.len()
             );
         }
     }
+    let t = &mut report.table;
+    let _ = writeln!(
+        t,
+        "## Experiment: {} sessions in {} run(s)\n",
+        groups.iter().map(|(_, s)| s.len()).sum::<usize>(),
+        groups.len()
+    );
+    for n in &notes {
+        let _ = writeln!(t, "note: {n}\n");
+    }
+    let _ = writeln!(
+        t,
+        "Re-convergence (tolerance {tolerance}): updates from the segment start until every later \
+         eval cost of the segment is within tolerance × (peak − lowest) of the lowest; a segment \
+         whose last eval cost is outside that band, or whose band holds for its last update \
+         only, has not converged (\"–\"). Means are over the sessions that converged.\n"
+    );
+    let _ = writeln!(t, "| run | segment from update | sessions | converged | updates to converge (mean ± std) | converged at (mean) | final eval cost (mean ± std) |");
+    let _ = writeln!(t, "|---|---|---|---|---|---|---|");
+    t.push_str(&rows);
+    let changes: Vec<u64> = {
+        let mut c: Vec<u64> = recs
+            .iter()
+            .flat_map(|r| r.task_changes.iter().map(|c| c.update))
+            .collect();
+        c.sort_unstable();
+        c.dedup();
+        c
+    };
     if let Some(dir) = out {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         for (name, text) in [
@@ -1546,13 +1701,85 @@ mod tests {
         let r = rec_with(&[100.0, 30.0, 5.0, 1.0, 50.0, 10.0, 3.0, 2.0], Some(4));
         let s = reconvergence(&r, 0.05);
         assert_eq!(s.len(), 2);
-        assert_eq!((s[0].start, s[0].end, s[0].converged_at), (0, 4, 2));
+        assert_eq!((s[0].start, s[0].end, s[0].converged_at), (0, 4, Some(2)));
         assert_eq!(
             (s[1].start, s[1].converged_at, s[1].updates_to_converge()),
-            (4, 6, 2)
+            (4, Some(6), Some(2))
         );
         assert_eq!(s[1].peak, 50.0);
         assert_eq!(s[1].level, 2.0);
+    }
+
+    fn session(name: &str, seed: u64, eliteness: f64, costs: &[f64]) -> Recording {
+        let mut r = rec_with(costs, None);
+        r.path = PathBuf::from(format!("{name}-{seed}-{eliteness}.mcap"));
+        r.run.push(proto::RunInfo {
+            name: name.into(),
+            seed,
+            hyperparameters: Some(proto::Hyperparameters {
+                eliteness,
+                mapping: proto::CostMapping::Exponential as i32,
+                ..Default::default()
+            }),
+            ..Default::default()
+        });
+        r
+    }
+
+    #[test]
+    fn sessions_are_grouped_by_settings_and_counted_once() {
+        let recs = [
+            session("A1", 1, 10.0, &[4.0, 2.0, 1.0]),
+            session("A1", 2, 10.0, &[6.0, 4.0, 3.0, 0.0]),
+            session("A1", 1, 10.0, &[4.0, 2.0, 1.0]), // a copy of the first
+            session("A1", 1, 20.0, &[8.0, 8.0, 8.0]), // other settings, same name
+        ];
+        let r = experiment(&recs, None, 0.05, false).unwrap();
+        let t = &r.table;
+        assert!(t.contains("3 sessions in 2 run(s)"), "{t}");
+        assert!(t.contains("counted once"), "{t}");
+        // The two h = 10 sessions: their mean over the 3 updates both have, final cost
+        // (1 + 3)/2 = 2 (not update 3 of one session alone).
+        assert!(t.contains("its sessions have 3–4 updates"), "{t}");
+        assert!(
+            t.contains("| A1 (h = 10,") && t.contains("| 2.0000 ± 1.4142 |"),
+            "{t}"
+        );
+        assert!(
+            t.contains("| A1 (h = 20,") && t.contains("| 8.0000 ± 0.0000 |"),
+            "{t}"
+        );
+    }
+
+    #[test]
+    fn output_directories_never_collide() {
+        let files = [
+            Path::new("a/run.mcap"),
+            Path::new("b/run.mcap"),
+            Path::new("x/c/run.mcap"),
+            Path::new("y/c/run.mcap"),
+            Path::new("t.mcap"),
+        ];
+        assert_eq!(
+            output_dirs(&files),
+            ["a-run", "b-run", "c-run-1", "c-run-2", "t"]
+        );
+    }
+
+    #[test]
+    fn a_segment_that_has_not_settled_is_not_converged() {
+        // After the change the cost rises from its lowest value, 10 at update 3, to 40: the
+        // last cost is outside the band 10 + 0.05·30.
+        let rising = rec_with(&[5.0, 4.0, 4.0, 10.0, 20.0, 30.0, 40.0], Some(3));
+        let s = reconvergence(&rising, 0.05);
+        assert_eq!(s[0].converged_at, Some(1));
+        assert_eq!(
+            (s[1].converged_at, s[1].updates_to_converge()),
+            (None, None)
+        );
+        // Still falling steeply: only the last (and lowest) cost is inside the band.
+        let falling = rec_with(&[100.0, 80.0, 60.0, 40.0, 20.0], None);
+        assert_eq!(reconvergence(&falling, 0.05)[0].converged_at, None);
     }
 
     #[test]
