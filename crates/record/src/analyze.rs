@@ -234,6 +234,12 @@ pub fn info(rec: &Recording) -> String {
         (None, true) => {
             let _ = writeln!(s, "  complete, indexed");
         }
+        (_, _) if crate::being_written(&rec.path) => {
+            let _ = writeln!(
+                s,
+                "  being written (a running recorder holds it): read as far as it is written"
+            );
+        }
         (t, _) => {
             let _ = writeln!(
                 s,

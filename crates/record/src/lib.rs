@@ -50,6 +50,14 @@ pub use split::{
 };
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 
+/// Whether a writer ([`RunWriter::create`]: a running recorder, `pi2cma run`) holds `path`
+/// open: it keeps an exclusive advisory lock on the file while it writes, released when it
+/// finishes or its process dies. A file that cannot be opened is not being written.
+pub fn being_written(path: &std::path::Path) -> bool {
+    std::fs::File::open(path)
+        .is_ok_and(|f| matches!(f.try_lock_shared(), Err(std::fs::TryLockError::WouldBlock)))
+}
+
 /// The FileDescriptorSet of every schema (with `google/protobuf/timestamp.proto`), stored as the
 /// schema data of each channel.
 pub const DESCRIPTORS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/descriptors.bin"));

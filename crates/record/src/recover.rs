@@ -66,6 +66,15 @@ pub struct RecoverReport {
 /// chunk (where they are declared) is damaged keeps its later messages.
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError> {
     let mut file = File::open(input).map_err(|e| RecordError::io(input, e))?;
+    // Rewritten while its recorder still writes, the file would lose every later update to
+    // the replaced inode the recorder goes on writing to.
+    if crate::being_written(input) {
+        return Err(RecordError::invalid(
+            input,
+            "is still being written by a running recorder: recover it once the run has ended \
+             (a finished run needs no recovery; `mcap-tool info` reads a live recording as it is)",
+        ));
+    }
     let input_len = file
         .metadata()
         .map_err(|e| RecordError::io(input, e))?

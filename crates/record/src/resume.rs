@@ -62,6 +62,13 @@ pub struct ResumePoint {
 pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
     let last = last_part(path);
     let path = last.as_path();
+    if crate::being_written(path) {
+        return Err(RecordError::invalid(
+            path,
+            "is still being written by a running recorder: its run has not ended (stop it \
+             first, e.g. `supervisor stop`)",
+        ));
+    }
     // Streamed: the recording of a long continual run may not fit in memory.
     let rec = read_ends(path)?;
     let Some(last) = rec.last_update.as_ref() else {

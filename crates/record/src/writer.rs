@@ -3,7 +3,6 @@
 //! and the pipeline's recorder process write through it.
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::io::{Seek, Write};
 
 use crate::reserve::ReservingFile;
@@ -145,9 +144,29 @@ pub struct RunWriter<W: Write + Seek> {
 pub type FileSink = SeekBuffer<ReservingFile>;
 
 impl RunWriter<FileSink> {
-    /// Creates (truncates) `path`.
+    /// Creates (truncates) `path`, holding an exclusive advisory lock on it until the writer is
+    /// dropped (or its process dies, even by SIGKILL): `recover` and `--resume` see a recording
+    /// that is still being written ([`crate::being_written`]) and leave it alone, and a second
+    /// writer of the same file is refused before it truncates it.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
-        let f = File::create(path).map_err(|e| RecordError::io(path, e))?;
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path)
+            .map_err(|e| RecordError::io(path, e))?;
+        match f.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                return Err(RecordError::invalid(
+                    path,
+                    "is being written by another process (a running recorder); choose another \
+                     file",
+                ))
+            }
+            Err(std::fs::TryLockError::Error(e)) => return Err(RecordError::io(path, e)),
+        }
+        f.set_len(0).map_err(|e| RecordError::io(path, e))?;
         Self::new(SeekBuffer::new(ReservingFile::new(f)), path)
     }
 }

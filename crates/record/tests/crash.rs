@@ -55,8 +55,20 @@ fn start(out: &Path, until: u64) -> (Child, Vec<u64>, impl BufRead) {
 fn sigkill_then_recover_keeps_every_flushed_update() {
     let out = tmp("killed.mcap");
     let (mut child, mut seen, mut lines) = start(&out, 5);
+    // While its writer runs, the file is left alone: rewritten, the updates the writer goes on
+    // appending would go to the replaced file.
+    assert!(record::being_written(&out));
+    let e = recover(&out, &out).unwrap_err().to_string();
+    assert!(e.contains("still being written"), "{e}");
+    let e = record::resume::resume_point(&out).unwrap_err().to_string();
+    assert!(e.contains("still being written"), "{e}");
+    let e = record::RunWriter::create(&out).err().unwrap().to_string();
+    assert!(e.contains("being written by another process"), "{e}");
+    assert!(std::fs::metadata(&out).unwrap().len() > 0);
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
+    // The lock dies with its process.
+    assert!(!record::being_written(&out));
     // Updates reported between our last read and the kill were flushed too.
     let mut rest = String::new();
     while lines.read_line(&mut rest).unwrap_or(0) > 0 {}
