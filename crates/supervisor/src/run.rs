@@ -266,6 +266,8 @@ struct Supervisor {
     phase_deadline: Option<Instant>,
     outcome: Option<Outcome>,
     killed: bool,
+    /// Workers that outlasted the shutdown timeout were killed; the others stop in order.
+    killed_workers: bool,
     started: Instant,
     progress: Option<Progress>,
     rate: f64,
@@ -416,6 +418,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         phase_deadline: None,
         outcome: None,
         killed: false,
+        killed_workers: false,
         started: Instant::now(),
         progress: None,
         rate: 0.0,
@@ -620,20 +623,38 @@ impl Supervisor {
                     self.pipe.startup_timeout_ms
                 ));
             }
-            Phase::Stopping if !self.killed => {
-                let names: Vec<String> = self
+            Phase::Stopping if !self.killed && !self.killed_workers => {
+                // A worker in a long rollout (a robot's episode) or a hung one: only it is
+                // killed. The sampler, updater and recorder then stop in order, with a timeout
+                // of their own, so that the recording is finished with every completed update.
+                let workers: Vec<(u32, String)> = self
                     .procs
                     .iter()
-                    .map(|(pid, p)| format!("{} (pid {pid})", p.role.name()))
+                    .filter(|(_, p)| matches!(p.role, Role::Worker(_)))
+                    .map(|(pid, p)| (*pid, format!("{} (pid {pid})", p.role.name())))
                     .collect();
-                say(&format!(
-                    "shutdown took longer than {} ms; killing {}",
-                    self.pipe.shutdown_timeout_ms,
-                    names.join(", ")
-                ));
-                self.kill_all();
-                self.phase_deadline = Some(now + Duration::from_secs(5));
+                if !workers.is_empty() {
+                    say(&format!(
+                        "{} did not stop within {} ms (pipeline.shutdown_timeout_ms); killing \
+                         it, then stopping the others in order",
+                        workers
+                            .iter()
+                            .map(|(_, n)| n.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                        self.pipe.shutdown_timeout_ms
+                    ));
+                    for (pid, _) in &workers {
+                        signal_group(*pid, libc::SIGKILL);
+                    }
+                    self.killed_workers = true;
+                    self.phase_deadline =
+                        Some(now + Duration::from_millis(self.pipe.shutdown_timeout_ms));
+                    return;
+                }
+                self.kill_everything_left(now);
             }
+            Phase::Stopping if !self.killed => self.kill_everything_left(now),
             Phase::Stopping => {
                 // Killed processes that still have not been reaped: nothing more to do.
                 let names: Vec<String> = self.procs.values().map(|p| p.role.name()).collect();
@@ -645,6 +666,21 @@ impl Supervisor {
             }
             Phase::Running => self.phase_deadline = None,
         }
+    }
+
+    fn kill_everything_left(&mut self, now: Instant) {
+        let names: Vec<String> = self
+            .procs
+            .iter()
+            .map(|(pid, p)| format!("{} (pid {pid})", p.role.name()))
+            .collect();
+        say(&format!(
+            "shutdown took longer than {} ms; killing {}",
+            self.pipe.shutdown_timeout_ms,
+            names.join(", ")
+        ));
+        self.kill_all();
+        self.phase_deadline = Some(now + Duration::from_secs(5));
     }
 
     fn kill_all(&mut self) {
@@ -1274,7 +1310,7 @@ impl Supervisor {
                 ));
             }
             Role::Updater => {
-                if self.phase == Phase::Stopping && p.stopping {
+                if self.phase == Phase::Stopping && (p.stopping || self.killed) {
                     // Told to stop, it exits 0 (or is killed at the shutdown timeout); exit
                     // code 1 is an error of its own, such as a cost it refused just before.
                     if status.code() == Some(1) {
@@ -1292,7 +1328,7 @@ impl Supervisor {
                 }
             }
             Role::Sampler => {
-                if self.phase == Phase::Stopping && p.stopping {
+                if self.phase == Phase::Stopping && (p.stopping || self.killed) {
                     if status.code() == Some(1) {
                         self.fail(format!("sampler exited ({cause})"));
                     }

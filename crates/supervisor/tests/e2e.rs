@@ -1218,6 +1218,57 @@ fn sigint_mid_run_leaves_a_finished_recording_with_every_completed_update() {
     assert_nothing_left(&run);
 }
 
+/// A worker that does not stop in time (a robot's long episode; here one stopped with SIGSTOP)
+/// is killed alone: the sampler, updater and recorder still stop in order, and the recording is
+/// finished with every completed update.
+#[test]
+fn a_worker_that_outlasts_the_shutdown_timeout_is_killed_alone_and_the_recording_finished() {
+    let scratch = Scratch::new("stuck-stop");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nshutdown_timeout_ms = 1000",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "stuck.toml", &text);
+    let mcap = scratch.path("stuck.mcap");
+    let result = scratch.path("result.toml");
+    let mut run = start_recorded(&scratch, 707, &cfg, &mcap, &result);
+    let status = run.wait_status("5 updates", |s| updates_in(s) >= 5);
+    let (_, worker) = pids_in(&status)
+        .into_iter()
+        .find(|(n, _)| n == "worker-1")
+        .expect("worker-1 in the status");
+    let stopped = Command::new("kill")
+        .args(["-STOP", &worker.to_string()])
+        .status()
+        .unwrap();
+    assert!(stopped.success());
+    let interrupted = Command::new("kill")
+        .args(["-INT", &run.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(interrupted.success());
+    let exit = run.wait(Duration::from_secs(20));
+    let out = run.text();
+    assert_eq!(exit.code(), Some(130), "{out}");
+    assert!(
+        out.contains(&format!(
+            "worker-1 (pid {worker}) did not stop within 1000 ms"
+        )),
+        "{out}"
+    );
+    assert!(!out.contains("shutdown took longer"), "{out}");
+    assert!(!out.contains("failed"), "{out}");
+    let r = RunResult::read(&result).unwrap();
+    let rec = record::read_recording(&mcap).unwrap();
+    assert!(rec.indexed, "{out}");
+    assert_recorded(&rec, r.updates);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_the_file() {
     let scratch = Scratch::new("rec-kill");
