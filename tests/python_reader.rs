@@ -113,3 +113,37 @@ fn python_reader_joins_the_parts_of_a_split_recording() {
     assert!(!ok && text.contains("does not go on where"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `pi2cma_worker.serve(make_task)` calls `make_task(shape)`, or `make_task()` when it takes no
+/// argument: the README's `serve(MyTask)` with a plain `__init__(self)` failed with a TypeError
+/// in every restart of the worker.
+#[test]
+fn python_worker_builds_tasks_with_or_without_the_shape() {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let script = r#"
+import sys
+sys.path.insert(0, sys.argv[1])
+import pi2cma_worker as w
+class Plain:
+    def __init__(self): pass
+class WithShape:
+    def __init__(self, shape): pass
+def plain(): pass
+def with_shape(shape): pass
+got = [w._takes_an_argument(f) for f in (Plain, WithShape, plain, with_shape, print)]
+assert got == [False, True, False, True, True], got
+print("ok")
+"#;
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(repo.join("tools"))
+        .output()
+        .expect("python3 starts");
+    assert!(
+        out.status.success() && out.stdout.starts_with(b"ok"),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

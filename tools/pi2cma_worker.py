@@ -15,6 +15,7 @@ in `[task.external] worker`; the supervisor starts, restarts and scales it like 
 
 import argparse
 import ctypes
+import inspect
 import os
 import signal
 import sys
@@ -180,9 +181,11 @@ def _check_shape(task, shape):
 
 
 def serve(make_task, argv=None):
-    """Parses the supervisor's arguments, builds the task with `make_task(shape)` and runs
-    rollouts until SIGTERM/SIGINT. Exits the process: 0 when stopped, 1 on an error, 78 when
-    the task does not match the config."""
+    """Parses the supervisor's arguments, builds the task with `make_task(shape)` (a `Shape`:
+    what the config declares: `parameters`, `steps`, `settings`, `basis_activations`, ...), or
+    with `make_task()` if it takes no argument (a task class whose `__init__` takes none), and
+    runs rollouts until SIGTERM/SIGINT. Exits the process: 0 when stopped, 1 on an error, 78
+    when the task does not match the config."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", required=True)
     p.add_argument("--run-dir", required=True)
@@ -205,6 +208,20 @@ def serve(make_task, argv=None):
     sys.exit(0)
 
 
+def _takes_an_argument(make_task):
+    """Whether `make_task` can be called with the shape: a class whose `__init__(self)` takes
+    nothing, or a function of no arguments, is called without it."""
+    try:
+        sig = inspect.signature(make_task)
+    except (TypeError, ValueError):  # a builtin without a signature: assume the documented form
+        return True
+    try:
+        sig.bind(None)
+        return True
+    except TypeError:
+        return False
+
+
 def _serve(make_task, args):
     stop = []
     for s in (signal.SIGTERM, signal.SIGINT):
@@ -212,7 +229,7 @@ def _serve(make_task, args):
     shape = Shape(args.config)
     if not 0 <= args.worker < shape.max_workers:
         raise WorkerError(f"worker slot {args.worker} is beyond pipeline.max_workers = {shape.max_workers}")
-    task = make_task(shape)
+    task = make_task(shape) if _takes_an_argument(make_task) else make_task()
     _check_shape(task, shape)
     run_id, w, inc = args.run_id, args.worker, args.incarnation
     node = _node(run_id, w, inc)
