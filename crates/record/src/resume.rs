@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use pi2cma::{Hyperparameters, TemporalAveraging, Weighting};
-use session::{RunConfig, Start};
+use session::{RunConfig, Start, TaskSection};
 
 use crate::recompute::same_bits;
 use crate::{
@@ -123,7 +123,73 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
     })
 }
 
+/// A task section as far as it decides a rollout's cost, in `Debug` form.
+fn comparable(task: &TaskSection) -> String {
+    let mut t = task.clone();
+    match &mut t {
+        TaskSection::ViaPoint(v) => v.rollout_delay_ms = 0.0,
+        TaskSection::Tball(b) => b.rollout_delay_ms = 0.0,
+        TaskSection::External(e) => e.worker.clear(),
+    }
+    format!("{t:?}")
+}
+
+/// The `name: value` fields of two `Debug` forms of one struct that differ, as "name: a → b".
+fn differing_fields(was: &str, now: &str) -> String {
+    // Top-level fields: split at ", " outside brackets, braces and parentheses (1 deep: inside
+    // the variant's own braces).
+    fn fields(s: &str) -> Vec<&str> {
+        let (mut out, mut depth, mut start) = (Vec::new(), 0i32, None);
+        for (i, c) in s.char_indices() {
+            match c {
+                '{' | '[' | '(' => {
+                    depth += 1;
+                    if depth == 2 && c == '{' && start.is_none() {
+                        start = Some(i + 1);
+                    }
+                }
+                '}' | ']' | ')' => {
+                    if depth == 2 && c == '}' {
+                        if let Some(b) = start.take() {
+                            out.push(s[b..i].trim());
+                        }
+                    }
+                    depth -= 1;
+                }
+                ',' if depth == 2 => {
+                    if let Some(b) = start {
+                        out.push(s[b..i].trim());
+                        start = Some(i + 1);
+                    }
+                }
+                _ => {}
+            }
+        }
+        out
+    }
+    let (a, b) = (fields(was), fields(now));
+    let changed: Vec<String> = a
+        .iter()
+        .zip(&b)
+        .filter(|(x, y)| x != y)
+        .map(|(x, y)| match (x.split_once(": "), y.split_once(": ")) {
+            (Some((name, from)), Some((_, to))) => format!("{name}: {from} → {to}"),
+            _ => format!("{x} → {y}"),
+        })
+        .collect();
+    if changed.is_empty() || a.len() != b.len() {
+        format!("{was} → {now}")
+    } else {
+        changed.join("; ")
+    }
+}
+
 impl ResumePoint {
+    /// The task section of the recorded config, if the recording has one that parses.
+    fn recorded_task(&self) -> Option<TaskSection> {
+        self.recorded_config().ok().map(|(cfg, _)| cfg.task)
+    }
+
     /// The config the recorded run was started with, and its text: what a resume without a
     /// config of its own continues with.
     pub fn recorded_config(&self) -> Result<(RunConfig, String), RecordError> {
@@ -224,6 +290,19 @@ impl ResumePoint {
                  the update weighs by them (temporal_averaging = \"basis-activation\")"
                     .into(),
             ));
+        }
+        // The task itself: another cost function would make the files one run only in name.
+        // Only what does not change a rollout's cost may differ: the stand-in delay of a
+        // simulated rollout and the command that starts an external worker.
+        if let Some(recorded) = self.recorded_task() {
+            let (was, now) = (comparable(&recorded), comparable(&config.task));
+            if was != now {
+                return Err(refuse(format!(
+                    "its task differs from the recorded run's (recording vs config): {} (a task \
+                     change while learning goes through [[schedule]] or `supervisor set`)",
+                    differing_fields(&was, &now)
+                )));
+            }
         }
         if let Some(n) = config.run.updates.filter(|n| *n <= self.start.update) {
             return Err(RecordError::invalid(
@@ -336,6 +415,21 @@ mod tests {
             e.starts_with(&format!("{}: cannot resume with c.toml:", path.display())),
             "{e}"
         );
+        // Another cost function is another run; a stand-in delay is not.
+        let e = refused(config(&[(
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 500.0",
+        )]));
+        assert!(
+            e.contains("its task differs from the recorded run's (recording vs config): viapoint_weight: 1000.0 → 500.0 ("),
+            "{e}"
+        );
+        point
+            .check(&config(&[(
+                "viapoint_weight = 1000.0",
+                "viapoint_weight = 1000.0\nrollout_delay_ms = 3.0",
+            )]))
+            .unwrap();
 
         // Resumed in-process, the new recording's `/run` holds the settings the run resumed
         // with (the via-point moved at update 20), not the config's initial ones (0.3).
