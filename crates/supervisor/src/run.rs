@@ -272,6 +272,9 @@ struct Supervisor {
     progress: Option<Progress>,
     rate: f64,
     last_shown: Option<Instant>,
+    /// When the newest update arrived, and whether its silence since was reported.
+    last_update_at: Option<Instant>,
+    stall_reported: bool,
     total_restarts: u32,
     ports: Option<Ports>,
 }
@@ -423,6 +426,8 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         progress: None,
         rate: 0.0,
         last_shown: None,
+        last_update_at: None,
+        stall_reported: false,
         total_restarts: 0,
         ports: None,
         cfg,
@@ -550,6 +555,7 @@ impl Supervisor {
             }
             self.poll_ports()?;
             self.check_deadlines();
+            self.check_stall();
             self.advance()?;
             if self.phase == Phase::Stopping && self.procs.is_empty() {
                 return Ok(());
@@ -557,9 +563,55 @@ impl Supervisor {
         }
     }
 
+    /// How long a running run may go without an update before the supervisor says so: 20
+    /// times the usual time per update, at least 10 s.
+    fn stall_after(&self) -> Duration {
+        let usual = if self.rate > 0.0 {
+            1.0 / self.rate
+        } else {
+            0.0
+        };
+        Duration::from_secs_f64((20.0 * usual).clamp(10.0, 86_400.0))
+    }
+
+    /// A run without updates for [`Self::stall_after`] is reported once (until updates go on):
+    /// a hung worker without `rollout_timeout_ms`, a stopped recorder that holds the updater,
+    /// a robot waiting for its operator. Nothing is killed; `status` shows the age as well.
+    fn check_stall(&mut self) {
+        let Some(at) = self.last_update_at else {
+            return;
+        };
+        if self.phase != Phase::Running || self.stall_reported || at.elapsed() < self.stall_after()
+        {
+            return;
+        }
+        self.stall_reported = true;
+        let timeout = match self.pipe.rollout_timeout_ms {
+            Some(ms) => format!("hung workers are restarted after {ms} ms per rollout"),
+            None => "pipeline.rollout_timeout_ms is not set, so a hung worker is never \
+                     restarted"
+                .to_string(),
+        };
+        say(&format!(
+            "warning: no update for {:.0} s since update {} (they came every {:.3} s before): \
+             a worker or the recorder may hang ({timeout}); `supervisor status` shows the \
+             processes",
+            at.elapsed().as_secs_f64(),
+            self.progress.map_or(0, |p| p.updates),
+            if self.rate > 0.0 {
+                1.0 / self.rate
+            } else {
+                0.0
+            },
+        ));
+    }
+
     fn deadlines(&self) -> Vec<Instant> {
         let mut d: Vec<Instant> = self.slots.values().filter_map(|s| s.restart_at).collect();
         d.extend(self.phase_deadline);
+        if self.phase == Phase::Running && !self.stall_reported {
+            d.extend(self.last_update_at.map(|t| t + self.stall_after()));
+        }
         if self.phase == Phase::Stopping {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
         }
@@ -1001,6 +1053,18 @@ impl Supervisor {
             if p.run_id != self.run_id {
                 continue;
             }
+            if self.progress.is_none_or(|prev| p.updates > prev.updates) {
+                if self.stall_reported {
+                    say(&format!(
+                        "updates go on: update {} after {:.1} s without one",
+                        p.updates,
+                        self.last_update_at
+                            .map_or(0.0, |t| t.elapsed().as_secs_f64())
+                    ));
+                }
+                self.last_update_at = Some(Instant::now());
+                self.stall_reported = false;
+            }
             if let Some(prev) = &self.progress {
                 let dt = (p.elapsed_ns.saturating_sub(prev.elapsed_ns)) as f64 * 1e-9;
                 if dt > 0.0 && p.updates > prev.updates {
@@ -1212,13 +1276,15 @@ impl Supervisor {
                     .map(|(n, v)| format!("{n} = {v}"))
                     .collect();
                 s += &format!(
-                    "updates: {} of {}, {:.1} updates/s\ncurrent cost: {}\nlambda: {}\ntask: {}\n",
+                    "updates: {} of {}, {:.1} updates/s, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n",
                     p.updates,
                     self.cfg
                         .run
                         .updates
                         .map_or("unbounded".to_string(), |n| n.to_string()),
                     self.rate,
+                    self.last_update_at
+                        .map_or(0.0, |t| t.elapsed().as_secs_f64()),
                     p.eval_cost,
                     p.lambda,
                     settings.join(", ")

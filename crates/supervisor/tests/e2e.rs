@@ -1269,6 +1269,61 @@ fn a_worker_that_outlasts_the_shutdown_timeout_is_killed_alone_and_the_recording
     assert_nothing_left(&run);
 }
 
+/// A run that stops making updates (a worker stopped with SIGSTOP, no rollout timeout) is
+/// reported after at least 10 s, `status` shows how long ago the last update was, and the
+/// supervisor says so when updates go on.
+#[test]
+fn a_run_without_updates_is_reported_and_its_age_shown() {
+    let scratch = Scratch::new("stall");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        ("viapoint_weight = 1000.0", DELAYED),
+    ]);
+    let cfg = write_config(&scratch, "stall.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 708, &cfg, &result);
+    let status = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    assert!(status.contains(" s ago\n"), "{status}");
+    let workers: Vec<u32> = pids_in(&status)
+        .into_iter()
+        .filter(|(n, _)| n.starts_with("worker-"))
+        .map(|(_, pid)| pid)
+        .collect();
+    let signal_all = |sig: &str| {
+        for pid in &workers {
+            let ok = Command::new("kill")
+                .args([sig, &pid.to_string()])
+                .status()
+                .unwrap();
+            assert!(ok.success());
+        }
+    };
+    signal_all("-STOP");
+    let end = Instant::now() + Duration::from_secs(30);
+    while !run.text().contains("warning: no update for") {
+        assert!(Instant::now() < end, "no stall warning:\n{}", run.text());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (_, status) = run.ctl(&["status"]);
+    let age: f64 = status
+        .split(", the last ")
+        .nth(1)
+        .and_then(|s| s.split(" s ago").next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("{status}"));
+    assert!(age >= 10.0, "{status}");
+    signal_all("-CONT");
+    while !run.text().contains("updates go on: update") {
+        assert!(Instant::now() < end, "{}", run.text());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let (ok, _) = run.ctl(&["stop"]);
+    assert!(ok);
+    let exit = run.wait(Duration::from_secs(20));
+    assert!(exit.success(), "{}", run.text());
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_the_file() {
     let scratch = Scratch::new("rec-kill");
