@@ -321,6 +321,16 @@ pub fn info(rec: &Recording) -> String {
         let list: Vec<String> = events.iter().map(|(k, v)| format!("{k} {v}")).collect();
         let _ = writeln!(s, "  health events: {}", list.join(", "));
     }
+    if rec.run.is_empty() {
+        // A run that ended before its first update: what happened is all there is.
+        let _ = writeln!(
+            s,
+            "  no update recorded: the run ended before its first; its last events:"
+        );
+        for l in rec.logs.iter().rev().take(3).rev() {
+            let _ = writeln!(s, "    {} {}: {}", l.event, l.name, l.message);
+        }
+    }
     let topics: Vec<String> = rec
         .topic_counts
         .iter()

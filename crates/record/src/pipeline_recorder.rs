@@ -396,7 +396,7 @@ impl WriterState {
                         self.current_update,
                         event,
                         &format!("worker-{}", c.worker),
-                        0,
+                        c.pid,
                         &format!(
                             "worker-{} (incarnation {}) {what} ({}); the rollouts it held go to \
                              the other workers",

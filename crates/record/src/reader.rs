@@ -470,7 +470,15 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
         }
         Ok(())
     })?;
-    if rec.run.is_empty() {
+    // A run that ended before its first update (a worker that cannot start) recorded only its
+    // health events: still ours (every topic one of ours, events on /log), and what the user
+    // wants to read. Anything else without /run is some other file.
+    let only_events = !rec.logs.is_empty()
+        && rec
+            .topic_counts
+            .keys()
+            .all(|t| topics::ALL.iter().any(|(ours, _)| ours == t));
+    if rec.run.is_empty() && !only_events {
         return Err(no_run(path, truncated.as_deref()));
     }
     // A finished file is whole: damage inside it is an error, not a killed writer's end.
@@ -644,6 +652,27 @@ mod tests {
                 );
             }
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_run_that_ended_before_its_first_update_reads_as_its_events() {
+        let dir = std::env::temp_dir().join(format!("reader-events-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("failed.mcap");
+        let mut w = crate::RunWriter::create(&path).unwrap();
+        w.write_event(0, crate::Event::Crash, "worker-1", 42, "worker-1 crashed")
+            .unwrap();
+        w.finish().unwrap();
+        let rec = read_recording(&path).unwrap();
+        assert!(rec.run.is_empty() && rec.updates.is_empty());
+        assert_eq!(rec.logs.len(), 1);
+        assert_eq!(rec.logs[0].pid, 42);
+        let info = crate::analyze::info(&rec);
+        assert!(info.contains("no update recorded"), "{info}");
+        assert!(info.contains("crash worker-1: worker-1 crashed"), "{info}");
+        // Nothing to resume from.
+        assert!(read_ends(&path).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -1329,7 +1329,7 @@ impl Supervisor {
                     wire::lost::CRASHED
                 };
                 let how = status.to_string();
-                let lost = Control::worker_lost(self.run_id, w, p.incarnation, reason, &how);
+                let lost = Control::worker_lost(self.run_id, w, p.incarnation, pid, reason, &how);
                 let _ = self.send_control(lost, false);
                 let Some(slot) = self.slots.get_mut(&w) else {
                     return; // scaled away

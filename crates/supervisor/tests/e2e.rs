@@ -478,10 +478,12 @@ fn killed_worker_is_restarted_and_the_result_stays_bit_identical() {
     assert_bit_identical(&text, &result);
     // The recording's health log has the loss and the restart.
     let rec = record::read_recording(&scratch.recording("A1", 100)).unwrap();
-    let crash = rec
-        .logs
-        .iter()
-        .any(|l| l.event == "crash" && l.name == "worker-1" && l.message.contains("SIGKILL"));
+    let crash = rec.logs.iter().any(|l| {
+        l.event == "crash"
+            && l.name == "worker-1"
+            && l.message.contains("SIGKILL")
+            && l.pid == victim
+    });
     assert!(crash, "{:#?}", rec.logs);
     assert!(logged(&rec, "restart", "worker-1"), "{:#?}", rec.logs);
     assert_recorded(&rec, 200);

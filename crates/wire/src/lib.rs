@@ -309,7 +309,8 @@ pub struct Control {
     pub reason: u32,
     /// Length of `name` in bytes (UTF-8).
     pub name_len: u32,
-    pub _reserved: u32,
+    /// For [`Control::WORKER_LOST`]: the process id the worker had (0 if unknown).
+    pub pid: u32,
     /// The task setting of [`Control::SET_TASK`]; for [`Control::WORKER_LOST`], how the process
     /// ended (e.g. `signal: 9 (SIGKILL)`), cut to [`MAX_NAME`] bytes.
     pub name: [u8; MAX_NAME],
@@ -352,10 +353,18 @@ impl Control {
 
     /// `reason` is one of [`lost`]; `how` (e.g. the exit status) is cut to [`MAX_NAME`] bytes at
     /// a character boundary.
-    pub fn worker_lost(run_id: u64, worker: u32, incarnation: u32, reason: u32, how: &str) -> Self {
+    pub fn worker_lost(
+        run_id: u64,
+        worker: u32,
+        incarnation: u32,
+        pid: u32,
+        reason: u32,
+        how: &str,
+    ) -> Self {
         Self {
             worker,
             incarnation,
+            pid,
             reason,
             ..Self::plain(run_id, Self::WORKER_LOST).with_name(how)
         }
@@ -855,7 +864,7 @@ mod tests {
         let c = Control::set_task(7, "viapoint", 0.1).unwrap();
         assert_eq!(c.name(), "viapoint");
         assert!(Control::set_task(7, &"x".repeat(MAX_NAME + 1), 0.0).is_none());
-        let c = Control::worker_lost(7, 2, 1, lost::CRASHED, "signal: 9 (SIGKILL)");
+        let c = Control::worker_lost(7, 2, 1, 42, lost::CRASHED, "signal: 9 (SIGKILL)");
         assert_eq!(
             (c.kind, c.worker, c.incarnation),
             (Control::WORKER_LOST, 2, 1)
@@ -863,7 +872,7 @@ mod tests {
         assert_eq!((c.reason, c.name()), (lost::CRASHED, "signal: 9 (SIGKILL)"));
         // Cut to MAX_NAME bytes, never inside a character.
         let long = format!("{}é", "x".repeat(MAX_NAME - 1));
-        let c = Control::worker_lost(7, 0, 0, lost::EXITED, &long);
+        let c = Control::worker_lost(7, 0, 0, 42, lost::EXITED, &long);
         assert_eq!(c.name(), "x".repeat(MAX_NAME - 1));
     }
 }
