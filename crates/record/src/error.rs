@@ -12,7 +12,7 @@ pub enum RecordError {
         file: PathBuf,
         error: std::io::Error,
     },
-    #[error("{file}: MCAP: {error}")]
+    #[error("{file}: MCAP: {}", mcap_message(error))]
     Mcap {
         file: PathBuf,
         error: mcap::McapError,
@@ -68,5 +68,27 @@ impl RecordError {
 impl From<session::ConfigError> for RecordError {
     fn from(e: session::ConfigError) -> Self {
         Self::Config(e)
+    }
+}
+
+/// mcap's I/O error says "I/O error from writing, or reading a compression stream" and keeps
+/// the cause (a full disk, a vanished directory) as its source: the cause is what to say.
+fn mcap_message(error: &mcap::McapError) -> String {
+    match error {
+        mcap::McapError::Io(e) => format!("I/O error: {e}"),
+        other => other.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn an_mcap_io_error_names_its_cause() {
+        let full = std::io::Error::from_raw_os_error(28);
+        let e = super::RecordError::mcap("r.mcap", mcap::McapError::Io(full)).to_string();
+        assert!(
+            e.starts_with("r.mcap: MCAP: I/O error: No space left on device"),
+            "{e}"
+        );
     }
 }

@@ -82,60 +82,14 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
     let summary =
         crate::reader::summary_of(&mut file, input_len).map_err(|e| RecordError::io(input, e))?;
     let tmp = tmp_path(output);
-    let f = File::create(&tmp).map_err(|e| RecordError::io(&tmp, e))?;
-    let mut w = WriteOptions::new()
-        .compression(Some(Compression::Zstd))
-        .compression_threads(0)
-        .library(concat!(
-            "pi2cma-record/",
-            env!("CARGO_PKG_VERSION"),
-            " recover"
-        ))
-        .create(BufWriter::new(f))
-        .map_err(|e| RecordError::mcap(&tmp, e))?;
-    let mut report = RecoverReport {
-        input: input.to_path_buf(),
-        output: output.to_path_buf(),
-        input_bytes: input_len,
-        ..Default::default()
-    };
-    let mut copier = Copier {
-        schemas: HashMap::new(),
-        channels: HashMap::new(),
-        tmp: &tmp,
-    };
-    if let Some(summary) = &summary {
-        copier.declare(&mut w, summary)?;
-    }
-    let mut from = 0;
-    loop {
-        let stop = copy_from(
-            &mut file,
-            input,
-            from,
-            input_len,
-            &mut copier,
-            &mut w,
-            &mut report,
-        )?;
-        let Some((at, why)) = stop else { break };
-        let next = next_chunk(&file, at + 1, input_len).map_err(|e| RecordError::io(input, e))?;
-        let end = next.unwrap_or(input_len);
-        report.damage.push(Damage {
-            offset: at,
-            len: end - at,
-            why,
-        });
-        report.dropped_bytes += end - at;
-        match next {
-            Some(n) => from = n,
-            None => break,
+    // A failed rewrite (a full disk) leaves no half-written copy behind.
+    let mut report = match rewrite(&mut file, input, input_len, summary.as_ref(), &tmp, output) {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
         }
-    }
-    w.finish().map_err(|e| RecordError::mcap(&tmp, e))?;
-    let mut inner = w.into_inner();
-    std::io::Write::flush(&mut inner).map_err(|e| RecordError::io(&tmp, e))?;
-    drop(inner);
+    };
     // Nothing readable: not a recording at all (a config given by mistake, an empty file), or
     // damaged beyond reading. Writing an empty MCAP over it would destroy it for nothing.
     if report.messages + report.metadata + report.attachments == 0 {
@@ -168,6 +122,72 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
         report.kept_original = Some(kept);
     }
     std::fs::rename(&tmp, output).map_err(|e| RecordError::io(output, e))?;
+    Ok(report)
+}
+
+/// Writes every readable record of `input` into `tmp`, a complete, indexed MCAP.
+fn rewrite(
+    file: &mut File,
+    input: &Path,
+    input_len: u64,
+    summary: Option<&mcap::Summary>,
+    tmp: &Path,
+    output: &Path,
+) -> Result<RecoverReport, RecordError> {
+    let f = File::create(tmp).map_err(|e| RecordError::io(tmp, e))?;
+    let mut w = WriteOptions::new()
+        .compression(Some(Compression::Zstd))
+        .compression_threads(0)
+        .library(concat!(
+            "pi2cma-record/",
+            env!("CARGO_PKG_VERSION"),
+            " recover"
+        ))
+        .create(BufWriter::new(f))
+        .map_err(|e| RecordError::mcap(tmp, e))?;
+    let mut report = RecoverReport {
+        input: input.to_path_buf(),
+        output: output.to_path_buf(),
+        input_bytes: input_len,
+        ..Default::default()
+    };
+    let mut copier = Copier {
+        schemas: HashMap::new(),
+        channels: HashMap::new(),
+        tmp,
+    };
+    if let Some(summary) = &summary {
+        copier.declare(&mut w, summary)?;
+    }
+    let mut from = 0;
+    loop {
+        let stop = copy_from(
+            file,
+            input,
+            from,
+            input_len,
+            &mut copier,
+            &mut w,
+            &mut report,
+        )?;
+        let Some((at, why)) = stop else { break };
+        let next = next_chunk(&file, at + 1, input_len).map_err(|e| RecordError::io(input, e))?;
+        let end = next.unwrap_or(input_len);
+        report.damage.push(Damage {
+            offset: at,
+            len: end - at,
+            why,
+        });
+        report.dropped_bytes += end - at;
+        match next {
+            Some(n) => from = n,
+            None => break,
+        }
+    }
+    w.finish().map_err(|e| RecordError::mcap(tmp, e))?;
+    let mut inner = w.into_inner();
+    std::io::Write::flush(&mut inner).map_err(|e| RecordError::io(tmp, e))?;
+    drop(inner);
     Ok(report)
 }
 
