@@ -171,7 +171,7 @@ fn rewrite(
             &mut report,
         )?;
         let Some((at, why)) = stop else { break };
-        let next = next_chunk(&file, at + 1, input_len).map_err(|e| RecordError::io(input, e))?;
+        let next = next_chunk(file, at + 1, input_len).map_err(|e| RecordError::io(input, e))?;
         let end = next.unwrap_or(input_len);
         report.damage.push(Damage {
             offset: at,
