@@ -1071,7 +1071,9 @@ impl Supervisor {
                     self.rate = (p.updates - prev.updates) as f64 / dt;
                 }
             } else if p.elapsed_ns > 0 {
-                self.rate = p.updates as f64 / (p.elapsed_ns as f64 * 1e-9);
+                // A resumed run counts its updates from where it resumed.
+                let first = self.start.as_ref().map_or(0, |s| s.update);
+                self.rate = p.updates.saturating_sub(first) as f64 / (p.elapsed_ns as f64 * 1e-9);
             }
             self.progress = Some(p);
             // At most one line a second, plus one at every tenth of a bounded run.
@@ -1481,10 +1483,19 @@ impl Supervisor {
             }
             say(&format!("  final mean θ = {:?}", r.mean));
             for c in &r.task_changes {
-                say(&format!(
-                    "  task change {} = {} from update {} ({})",
-                    c.name, c.value, c.from_update, c.source
-                ));
+                // A resumed run's settings were in force where it resumed; when they were set
+                // is in the recording it resumed from.
+                say(&if c.source == "resume" {
+                    format!(
+                        "  task setting {} = {} in force where the run resumed (update {})",
+                        c.name, c.value, c.from_update
+                    )
+                } else {
+                    format!(
+                        "  task change {} = {} from update {} ({})",
+                        c.name, c.value, c.from_update, c.source
+                    )
+                });
             }
         }
         match &self.outcome {
