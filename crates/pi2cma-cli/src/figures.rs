@@ -85,7 +85,10 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
             s.distributions.first().is_some_and(|d| d.0.len() == 2) && lim[0].is_finite()
         }) {
             let mut chart = ChartBuilder::on(&cells[2 * i])
-                .caption(format!("{title}: θ and Σ (session 0)"), ("sans-serif", 14))
+                .caption(
+                    format!("{title}: θ and 1σ ellipse of Σ (session 0; axes not to scale)"),
+                    ("sans-serif", 14),
+                )
                 .margin(6)
                 .x_label_area_size(28)
                 .y_label_area_size(52)
@@ -150,13 +153,13 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
         let (lmin, lmax) = (lmin.max(1e-6) / 2.0, lmax.max(1e-6) * 2.0);
         let mut chart = ChartBuilder::on(&cells[2 * i + 1])
             .caption(
-                format!("{title}: cost (blue) and λ (green)"),
+                format!("{title}: eval cost ± expl. std (blue), λ (green, log)"),
                 ("sans-serif", 14),
             )
             .margin(6)
             .x_label_area_size(28)
             .y_label_area_size(52)
-            .right_y_label_area_size(52)
+            .right_y_label_area_size(64)
             .build_cartesian_2d(0.0..n, 0.0..ymax)
             .map_err(|e| err(&e))?
             .set_secondary_coord(0.0..n, (lmin..lmax).log_scale());
@@ -169,7 +172,7 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
             .map_err(|e| err(&e))?;
         chart
             .configure_secondary_axes()
-            .y_desc("λ")
+            .y_desc("λ (log)")
             .draw()
             .map_err(|e| err(&e))?;
         let upper: Vec<(f64, f64)> = e

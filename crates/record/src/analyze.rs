@@ -609,7 +609,7 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     ]
     .map(String::from)
     .to_vec();
-    header.extend(names("mean_", p));
+    header.extend(names("mean_next_", p));
     let mut sum = Csv::new(dir, "summary.csv", &header)?;
     for s in &rec.summaries {
         let mut row = vec![
@@ -1101,19 +1101,36 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     }
     let (x0, x1) = padded(x0, x1);
     let (y0, y1) = padded(y0, y1);
-    let root = SVGBackend::new(path, (750, 700)).into_drawing_area();
+    let (width, height) = (750u32, 700u32);
+    let (margin, x_labels, y_labels, caption) = (10u32, 35u32, 70u32, 18u32);
+    // Both axes to one scale: an ellipse's shape and tilt are what the figure is for (with
+    // the data's ranges, Σ = λ·I was drawn 3× wider than tall).
+    let plot_w = f64::from(width - 2 * margin - y_labels);
+    let plot_h = f64::from(height - 2 * margin - x_labels - caption - margin);
+    let per_pixel = ((x1 - x0) / plot_w).max((y1 - y0) / plot_h);
+    let widen = |a: f64, b: f64, pixels: f64| {
+        let mid = 0.5 * (a + b);
+        (
+            mid - 0.5 * per_pixel * pixels,
+            mid + 0.5 * per_pixel * pixels,
+        )
+    };
+    let (x0, x1) = widen(x0, x1, plot_w);
+    let (y0, y1) = widen(y0, y1, plot_h);
+    let root = SVGBackend::new(path, (width, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             format!(
-                "{}: search distribution (2σ ellipses, dark = late)",
+                "{}: 2σ ellipses of the search distribution (dark = late; red = first update \
+                 after a task change)",
                 rec.name()
             ),
-            ("sans-serif", 18),
+            ("sans-serif", caption),
         )
-        .margin(10)
-        .x_label_area_size(35)
-        .y_label_area_size(70)
+        .margin(margin)
+        .x_label_area_size(x_labels)
+        .y_label_area_size(y_labels)
         .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(|x| e(&x))?;
     chart
@@ -1197,6 +1214,13 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
         .values()
         .flat_map(|v| v.iter().map(|p| p.1))
         .fold(0.0f64, f64::max);
+    // In-process via-point rollouts take well under a millisecond: µs then, not "0.000 ms".
+    let (scale, unit) = if ymax < 1.0 {
+        (1e3, "µs")
+    } else {
+        (1.0, "ms")
+    };
+    let ymax = ymax * scale;
     let root = SVGBackend::new(path, (900, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
@@ -1212,20 +1236,20 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
     chart
         .configure_mesh()
         .x_desc("update")
-        .y_desc("rollout time [ms]")
+        .y_desc(format!("rollout time [{unit}]"))
         .draw()
         .map_err(|x| e(&x))?;
     for (i, (worker, pts)) in times.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
-        let mean = pts.iter().map(|p| p.1).sum::<f64>() / pts.len().max(1) as f64;
+        let mean = scale * pts.iter().map(|p| p.1).sum::<f64>() / pts.len().max(1) as f64;
         chart
             .draw_series(
                 pts.iter()
-                    .map(|(u, ms)| Circle::new((*u as f64, *ms), 2, color.filled())),
+                    .map(|(u, ms)| Circle::new((*u as f64, *ms * scale), 2, color.filled())),
             )
             .map_err(|x| e(&x))?
             .label(format!(
-                "{worker}: {} rollouts, mean {mean:.3} ms",
+                "{worker}: {} rollouts, mean {mean:.3} {unit}",
                 pts.len()
             ))
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));

@@ -10,7 +10,8 @@
 //!
 //! It is not an executor and does not know how rollouts are run: the in-process runner calls it
 //! through [`session::Observer`], the multiprocess pipeline's recorder process through
-//! [`RunWriter`]. Topic names and schemas are documented in `README-section.md`.
+//! [`RunWriter`]. Topic names and schemas are documented in the repository README, section
+//! "Recording (MCAP) and analysis".
 
 pub mod analyze;
 pub mod assemble;
