@@ -97,9 +97,13 @@ struct Progress {
 
 impl Observer for Progress {
     fn on_task_change(&mut self, update: u64, change: &tasks::TaskChange) {
+        // The progress lines count updates from 1; tables and configs index them from 0.
         println!(
-            "update {update:>3}: task change {} = {}",
-            change.name, change.value
+            "task change {} = {} from update {}/{} on (index {update})",
+            change.name,
+            change.value,
+            update + 1,
+            self.total.map_or("∞".to_string(), |t| t.to_string())
         );
     }
     fn on_update(&mut self, r: &UpdateRecord<'_>) {

@@ -1135,7 +1135,7 @@ impl Supervisor {
             .updates
             .map_or("∞".to_string(), |n| n.to_string());
         format!(
-            "update {}/{of}  eval cost {:.4}  λ {:.4}  {:.0} updates/s  {} workers",
+            "update {}/{of}  eval cost {:.4}  λ now {:.4}  {:.0} updates/s  {} workers",
             p.updates,
             p.eval_cost,
             p.lambda,
