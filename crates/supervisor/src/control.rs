@@ -109,9 +109,59 @@ fn handle(stream: UnixStream, tx: Sender<super::run::Event>) {
     };
 }
 
-/// Finds the run to talk to: `run` if given, else the only active run.
+/// The active runs' directories under `base`.
+fn active_runs(base: &Path) -> Vec<PathBuf> {
+    let mut found: Vec<PathBuf> = std::fs::read_dir(base)
+        .map(|entries| {
+            entries
+                .flatten()
+                .map(|e| e.path())
+                .filter(|p| serving(p))
+                .collect()
+        })
+        .unwrap_or_default();
+    found.sort();
+    found
+}
+
+/// "ID (name, config FILE)" of a run directory, for choosing among several.
+fn describe_run(dir: &Path) -> String {
+    let id = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_default();
+    match session::RunConfig::load(&dir.join("config.toml")) {
+        Ok(cfg) => format!("{id} ({})", cfg.run.name),
+        Err(_) => id,
+    }
+}
+
+/// Finds the run to talk to: `run` (a whole id, or the start of exactly one active run's) if
+/// given, else the only active run.
 fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
     let base = runs_dir();
+    if let Some(prefix) = run.filter(|id| !base.join(id).exists()) {
+        let matching: Vec<PathBuf> = active_runs(&base)
+            .into_iter()
+            .filter(|d| {
+                d.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with(prefix))
+            })
+            .collect();
+        match matching.len() {
+            0 => {}
+            1 => return Ok(matching.into_iter().next().expect("one match")),
+            _ => bail!(
+                "`{prefix}` is the start of {} active runs' ids: {}",
+                matching.len(),
+                matching
+                    .iter()
+                    .map(|d| describe_run(d))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }
+    }
     if let Some(id) = run {
         let dir = base.join(id);
         if !socket_path(&dir).exists() {
@@ -126,24 +176,17 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
         }
         return Ok(dir);
     }
-    let mut found = Vec::new();
-    if let Ok(entries) = std::fs::read_dir(&base) {
-        for e in entries.flatten() {
-            if serving(&e.path()) {
-                found.push(e.path());
-            }
-        }
-    }
+    let mut found = active_runs(&base);
     match found.len() {
         0 => bail!("no active run under {}", base.display()),
         1 => Ok(found.remove(0)),
         _ => bail!(
-            "{} active runs under {}; choose one with --run: {}",
+            "{} active runs under {}; choose one with --run (the start of its id will do): {}",
             found.len(),
             base.display(),
             found
                 .iter()
-                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
+                .map(|d| describe_run(d))
                 .collect::<Vec<_>>()
                 .join(", ")
         ),
