@@ -29,7 +29,7 @@ use crate::assemble::{Assembler, CostOutcome};
 use crate::{now_ns, Event, RolloutTiming, RunFiles, RunStart, UpdateData};
 use anyhow::Context as _;
 use pipeline::{announce_ready, iox, Context};
-use wire::{Control, CostHeader, DistributionHeader, Lifecycle};
+use wire::{Control, CostHeader, DistributionHeader, Lifecycle, RunNote};
 
 /// The `lifecycle` role this process announces.
 pub const ROLE_RECORDER: u32 = wire::role::RECORDER;
@@ -53,6 +53,7 @@ enum Msg {
     Cost(CostHeader, Vec<f64>, u64),
     Control(Control),
     Lifecycle(Lifecycle),
+    Note(Box<RunNote>),
 }
 
 fn role_name(l: &Lifecycle) -> String {
@@ -99,6 +100,12 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             .subscriber_builder()
             .create(),
         "lifecycle subscriber",
+    )?;
+    let notes_sub = iox(
+        wire::notes(&ctx.node, ctx.run_id, &ctx.limits)?
+            .subscriber_builder()
+            .create(),
+        "notes subscriber",
     )?;
     let doorbell = ctx.listener("recorder")?;
     let updater_bell = ctx.notifier("updater")?;
@@ -166,6 +173,11 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         while let Some(s) = iox(lifecycle_sub.receive(), "receive lifecycle")? {
             if s.payload().run_id == ctx.run_id {
                 state.handle(Msg::Lifecycle(*s.payload()))?;
+            }
+        }
+        while let Some(s) = iox(notes_sub.receive(), "receive notes")? {
+            if s.payload().run_id == ctx.run_id {
+                state.handle(Msg::Note(Box::new(*s.payload())))?;
             }
         }
         // Every subscriber has been drained once: what is still missing can no longer arrive.
@@ -427,6 +439,15 @@ impl WriterState {
                 )?,
                 _ => {}
             },
+            Msg::Note(n) => {
+                let event = match n.level {
+                    RunNote::ERROR => Event::Error,
+                    RunNote::WARNING => Event::Warning,
+                    _ => Event::Info,
+                };
+                self.writer
+                    .write_event(self.current_update, event, "supervisor", 0, n.text())?;
+            }
             Msg::Lifecycle(l) => {
                 if l.pid == pid {
                     return Ok(());

@@ -89,8 +89,10 @@ pub enum Event {
     Restart,
     Scale,
     Info,
-    /// Something went wrong that is not a process crash (e.g. lost messages).
+    /// Something went wrong that is not a process crash (e.g. lost messages, a failed run).
     Error,
+    /// Something that may be going wrong (e.g. a run without updates for a while).
+    Warning,
 }
 
 impl Event {
@@ -103,6 +105,7 @@ impl Event {
             Event::Scale => "scale",
             Event::Info => "info",
             Event::Error => "error",
+            Event::Warning => "warning",
         }
     }
 
@@ -110,7 +113,7 @@ impl Event {
         use proto::foxglove::log::Level;
         match self {
             Event::Crash | Event::Error => Level::Error,
-            Event::Restart => Level::Warning,
+            Event::Restart | Event::Warning => Level::Warning,
             _ => Level::Info,
         }
     }

@@ -23,7 +23,7 @@ use iceoryx2::prelude::*;
 use pipeline::iox;
 use pipeline::result::RunResult;
 use session::{PipelineSection, RunConfig};
-use wire::{Control, Lifecycle, Limits, Overdue, Progress, Service};
+use wire::{Control, Lifecycle, Limits, Overdue, Progress, RunNote, Service};
 
 use crate::control::{self, Command as Cmd, Request};
 use crate::EXIT_INTERRUPTED;
@@ -226,6 +226,7 @@ struct Ports {
     overdue: Subscriber<Service, Overdue, ()>,
     progress: Subscriber<Service, Progress, ()>,
     control: Publisher<Service, Control, ()>,
+    notes: Publisher<Service, RunNote, ()>,
     sampler_bell: Notifier<Service>,
     updater_bell: Notifier<Service>,
     /// Rung after every control message, so the recorder logs it when it happens.
@@ -477,6 +478,12 @@ impl Supervisor {
                     .create(),
                 "control publisher",
             )?,
+            notes: iox(
+                wire::notes(&node, self.run_id, limits)?
+                    .publisher_builder()
+                    .create(),
+                "notes publisher",
+            )?,
             sampler_bell: iox(
                 wire::doorbell(&node, self.run_id, "sampler", limits)?
                     .notifier_builder()
@@ -592,10 +599,9 @@ impl Supervisor {
                      restarted"
                 .to_string(),
         };
-        say(&format!(
-            "warning: no update for {:.0} s since update {} (they came every {:.3} s before): \
-             a worker or the recorder may hang ({timeout}); `supervisor status` shows the \
-             processes",
+        let text = format!(
+            "no update for {:.0} s since update {} (they came every {:.3} s before): a worker \
+             or the recorder may hang ({timeout}); `supervisor status` shows the processes",
             at.elapsed().as_secs_f64(),
             self.progress.map_or(0, |p| p.updates),
             if self.rate > 0.0 {
@@ -603,7 +609,9 @@ impl Supervisor {
             } else {
                 0.0
             },
-        ));
+        );
+        say(&format!("warning: {text}"));
+        self.note(RunNote::WARNING, &text);
     }
 
     fn deadlines(&self) -> Vec<Instant> {
@@ -626,6 +634,7 @@ impl Supervisor {
             None | Some(Outcome::Complete) | Some(Outcome::Stopped)
         ) {
             say(&format!("error: {reason}"));
+            self.note(RunNote::ERROR, &format!("the run failed: {reason}"));
             self.outcome = Some(Outcome::Failed(reason));
         }
         self.begin_stop();
@@ -1002,6 +1011,17 @@ impl Supervisor {
             self.slots.entry(w).or_default().pid = Some(pid);
         }
         Ok(())
+    }
+
+    /// Puts `text` into the recording (the recorder logs it as the supervisor's), if there are
+    /// ports and a recorder to take it; never a reason to fail.
+    fn note(&self, level: u32, text: &str) {
+        if let Some(ports) = &self.ports {
+            let _ = ports
+                .notes
+                .send_copy(RunNote::new(self.run_id, level, text));
+            let _ = ports.recorder_bell.notify_with_custom_event_id(wire::WAKE);
+        }
     }
 
     fn send_control(&self, msg: Control, to_updater: bool) -> anyhow::Result<()> {

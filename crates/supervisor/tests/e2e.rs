@@ -574,6 +574,15 @@ fn exhausted_restart_limit_stops_the_run_with_the_reason() {
             "{name} (pid {pid}) survived"
         );
     }
+    // The recording says why the run ended, not only that worker-2 crashed.
+    let rec = record::read_recording(&scratch.recording("A1", 150)).unwrap();
+    let failed = rec.logs.iter().any(|l| {
+        l.event == "error"
+            && l.name == "supervisor"
+            && l.message.starts_with("the run failed: worker-2 died")
+            && l.message.contains("restart limit")
+    });
+    assert!(failed, "{:#?}", rec.logs);
     assert_nothing_left(&run);
 }
 
@@ -1323,6 +1332,11 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
     assert!(ok);
     let exit = run.wait(Duration::from_secs(20));
     assert!(exit.success(), "{}", run.text());
+    let rec = record::read_recording(&scratch.recording("A1", 708)).unwrap();
+    let warned = rec.logs.iter().any(|l| {
+        l.event == "warning" && l.name == "supervisor" && l.message.starts_with("no update for")
+    });
+    assert!(warned, "{:#?}", rec.logs);
     assert_nothing_left(&run);
 }
 

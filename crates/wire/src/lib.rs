@@ -277,6 +277,69 @@ pub struct Lifecycle {
     pub incarnation: u32,
 }
 
+/// What the supervisor has to say about the run that belongs in its recording: why it failed,
+/// or that it stalled. The recorder logs it on `/log` as an event of the supervisor.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.RunNote.v1")]
+pub struct RunNote {
+    pub run_id: u64,
+    /// One of the `RunNote::` levels.
+    pub level: u32,
+    /// Length of `text` in bytes (UTF-8).
+    pub text_len: u32,
+    pub text: [u8; MAX_NOTE],
+}
+
+/// The longest start of `text` of at most `max` bytes that ends at a character boundary.
+fn char_prefix(text: &str, max: usize) -> &str {
+    let mut cut = text.len().min(max);
+    while !text.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    &text[..cut]
+}
+
+/// Length of a [`RunNote`]'s text: room for a failure reason with the process's last line.
+pub const MAX_NOTE: usize = 1024;
+
+impl Default for RunNote {
+    fn default() -> Self {
+        Self {
+            run_id: 0,
+            level: 0,
+            text_len: 0,
+            text: [0; MAX_NOTE],
+        }
+    }
+}
+
+impl RunNote {
+    pub const INFO: u32 = 0;
+    pub const WARNING: u32 = 1;
+    /// The run failed; `text` says why.
+    pub const ERROR: u32 = 2;
+
+    /// `text` cut to [`MAX_NOTE`] bytes at a character boundary.
+    pub fn new(run_id: u64, level: u32, text: &str) -> Self {
+        let text = char_prefix(text, MAX_NOTE);
+        let mut note = Self {
+            run_id,
+            level,
+            text_len: text.len() as u32,
+            ..Self::default()
+        };
+        note.text[..text.len()].copy_from_slice(text.as_bytes());
+        note
+    }
+
+    pub fn text(&self) -> &str {
+        let len = (self.text_len as usize).min(MAX_NOTE);
+        // Written by `new`, whole characters; anything else reads as empty.
+        std::str::from_utf8(&self.text[..len]).unwrap_or("")
+    }
+}
+
 /// The sampler's report of a worker that holds its chunk for longer than
 /// `pipeline.rollout_timeout_ms` per rollout: it has held `rollouts` rollouts of update `update`
 /// for `held_ms`. The supervisor kills that incarnation and restarts it; its rollouts go to the
@@ -380,13 +443,10 @@ impl Control {
 
     /// Sets `name`, cut to [`MAX_NAME`] bytes at a character boundary.
     fn with_name(mut self, text: &str) -> Self {
-        let mut cut = text.len().min(MAX_NAME);
-        while !text.is_char_boundary(cut) {
-            cut -= 1;
-        }
+        let text = char_prefix(text, MAX_NAME);
         self.name = [0; MAX_NAME];
-        self.name[..cut].copy_from_slice(&text.as_bytes()[..cut]);
-        self.name_len = cut as u32;
+        self.name[..text.len()].copy_from_slice(text.as_bytes());
+        self.name_len = text.len() as u32;
         self
     }
 
@@ -766,6 +826,15 @@ pub fn overdue(
     )
 }
 
+/// `notes`: 2 publishers (the supervisor), 2 subscribers (the recorder), a buffer of 16.
+pub fn notes(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<RunNote>, WireError> {
+    fixed_service(node, run_id, "notes", 2, 2, 16, l.nodes())
+}
+
 /// `control`: 2 publishers, 4 subscribers, a buffer of 2·max_workers + 16.
 pub fn control(
     node: &Node<Service>,
@@ -822,6 +891,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
         assert_eq!(std::mem::size_of::<Overdue>(), 48);
+        assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);
     }
 
     #[test]
@@ -857,6 +927,20 @@ mod tests {
         );
         assert_eq!(parse_worker_node_name("sampler"), None);
         assert_eq!(parse_worker_node_name("worker-3"), None);
+    }
+
+    #[test]
+    fn run_notes_round_trip_and_are_cut_at_a_character() {
+        let n = RunNote::new(7, RunNote::ERROR, "worker-1 died: restart limit exhausted");
+        assert_eq!(
+            (n.level, n.text()),
+            (RunNote::ERROR, "worker-1 died: restart limit exhausted")
+        );
+        let long = format!("{}é", "x".repeat(MAX_NOTE - 1));
+        assert_eq!(
+            RunNote::new(7, RunNote::INFO, &long).text(),
+            "x".repeat(MAX_NOTE - 1)
+        );
     }
 
     #[test]
