@@ -1389,6 +1389,13 @@ fn group_sessions<'a>(
     };
     let mut groups: BTreeMap<Key, Vec<&Recording>> = BTreeMap::new();
     for r in recs {
+        if r.run_info().is_none() || r.curve().is_empty() {
+            notes.push(format!(
+                "{} has no recorded update (the run ended before its first): not a session",
+                r.path.display()
+            ));
+            continue;
+        }
         let members = groups.entry(key(r)).or_default();
         let seed = r.run_info().map(|i| i.seed);
         let same = members

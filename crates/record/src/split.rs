@@ -122,11 +122,22 @@ impl RunFiles {
     /// Creates (truncates) `path`, the first part. Parts that an earlier recording to the same
     /// path left are removed: they continued the file just overwritten.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
-        for stale in recording_parts(path).into_iter().skip(1) {
+        // A recording in progress is refused before anything of it is touched: its writer
+        // holds only the part it is writing, which need not be the first.
+        let parts = recording_parts(path);
+        if let Some(live) = parts.iter().find(|p| crate::being_written(p)) {
+            return Err(RecordError::invalid(
+                live,
+                "is being written by another process (a running recorder); choose another file",
+            ));
+        }
+        // Taken before the stale parts go, so that no other writer starts in between.
+        let writer = RunWriter::create(path)?;
+        for stale in parts.into_iter().skip(1) {
             std::fs::remove_file(&stale).map_err(|e| RecordError::io(&stale, e))?;
         }
         Ok(Self {
-            writer: Some(RunWriter::create(path)?),
+            writer: Some(writer),
             first: path.to_path_buf(),
             part: 1,
             split_bytes: None,
@@ -282,6 +293,28 @@ impl RunFiles {
 mod tests {
     use super::*;
     use crate::{join_resumed, read_recording, recompute::verify, McapRecorder, Recording};
+
+    #[test]
+    fn a_split_recording_being_written_is_left_whole() {
+        let dir = std::env::temp_dir().join(format!("split-live-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("x.mcap");
+        std::fs::write(&first, b"a finished first part").unwrap();
+        // Part 2 is the one its recorder is writing (it holds only that part's lock).
+        let live = crate::RunWriter::create(&part_path(&first, 2)).unwrap();
+        let e = RunFiles::create(&first).err().unwrap().to_string();
+        assert!(
+            e.contains("x.part-2.mcap") && e.contains("being written"),
+            "{e}"
+        );
+        assert!(part_path(&first, 2).exists());
+        assert_eq!(std::fs::read(&first).unwrap(), b"a finished first part");
+        // Once it has finished, a new recording to the path replaces the old parts.
+        live.finish().unwrap();
+        drop(RunFiles::create(&first).unwrap());
+        assert!(!part_path(&first, 2).exists());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     fn record(path: &Path, updates: u64, split_mb: Option<u64>) -> pi2cma::Distribution {
         let mut cfg = session::RunConfig::default_config();

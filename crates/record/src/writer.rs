@@ -158,16 +158,34 @@ impl RunWriter<FileSink> {
             .truncate(false)
             .open(path)
             .map_err(|e| RecordError::io(path, e))?;
-        match f.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                return Err(RecordError::invalid(
-                    path,
-                    "is being written by another process (a running recorder); choose another \
-                     file",
-                ))
+        // A reader's probe (`being_written`, e.g. a `watch mcap-tool info`) holds a shared lock
+        // for a moment: only a lock held for 100 ms is another writer's.
+        let mut tries = 0;
+        loop {
+            match f.try_lock() {
+                Ok(()) => break,
+                Err(std::fs::TryLockError::WouldBlock) if tries < 10 => {
+                    tries += 1;
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                }
+                Err(std::fs::TryLockError::WouldBlock) => {
+                    return Err(RecordError::invalid(
+                        path,
+                        "is being written by another process (a running recorder); choose \
+                         another file",
+                    ))
+                }
+                // A file system without flock (some NFS mounts): recording matters more than
+                // the lock, which only keeps recover and --resume off a live file.
+                Err(std::fs::TryLockError::Error(e)) => {
+                    eprintln!(
+                        "warning: {}: cannot lock it ({e}); recording without the lock, so \
+                         `recover` and `--resume` cannot tell that it is being written",
+                        path.display()
+                    );
+                    break;
+                }
             }
-            Err(std::fs::TryLockError::Error(e)) => return Err(RecordError::io(path, e)),
         }
         f.set_len(0).map_err(|e| RecordError::io(path, e))?;
         Self::new(SeekBuffer::new(ReservingFile::new(f)), path)

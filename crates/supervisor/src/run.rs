@@ -190,6 +190,8 @@ struct Proc {
     incarnation: u32,
     ready: bool,
     stopping: bool,
+    /// SIGKILLed after it was asked to stop and did not within `shutdown_timeout_ms`.
+    sigkilled: bool,
     /// Killed because it held its chunk too long (`pipeline.rollout_timeout_ms`): why.
     hung: Option<String>,
     last_line: Arc<Mutex<String>>,
@@ -267,8 +269,6 @@ struct Supervisor {
     phase_deadline: Option<Instant>,
     outcome: Option<Outcome>,
     killed: bool,
-    /// Workers that outlasted the shutdown timeout were killed; the others stop in order.
-    killed_workers: bool,
     started: Instant,
     progress: Option<Progress>,
     rate: f64,
@@ -276,6 +276,8 @@ struct Supervisor {
     /// When the newest update arrived, and whether its silence since was reported.
     last_update_at: Option<Instant>,
     stall_reported: bool,
+    /// When the run started (START sent): a first update that never comes is a stall too.
+    running_since: Option<Instant>,
     total_restarts: u32,
     ports: Option<Ports>,
 }
@@ -422,13 +424,13 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         phase_deadline: None,
         outcome: None,
         killed: false,
-        killed_workers: false,
         started: Instant::now(),
         progress: None,
         rate: 0.0,
         last_shown: None,
         last_update_at: None,
         stall_reported: false,
+        running_since: None,
         total_restarts: 0,
         ports: None,
         cfg,
@@ -585,7 +587,7 @@ impl Supervisor {
     /// a hung worker without `rollout_timeout_ms`, a stopped recorder that holds the updater,
     /// a robot waiting for its operator. Nothing is killed; `status` shows the age as well.
     fn check_stall(&mut self) {
-        let Some(at) = self.last_update_at else {
+        let Some(at) = self.last_update_at.or(self.running_since) else {
             return;
         };
         if self.phase != Phase::Running || self.stall_reported || at.elapsed() < self.stall_after()
@@ -599,16 +601,19 @@ impl Supervisor {
                      restarted"
                 .to_string(),
         };
-        let text = format!(
-            "no update for {:.0} s since update {} (they came every {:.3} s before): a worker \
-             or the recorder may hang ({timeout}); `supervisor status` shows the processes",
-            at.elapsed().as_secs_f64(),
-            self.progress.map_or(0, |p| p.updates),
-            if self.rate > 0.0 {
+        let since = match self.progress {
+            Some(p) if self.rate > 0.0 => format!(
+                "since update {} (they came every {:.3} s before)",
+                p.updates,
                 1.0 / self.rate
-            } else {
-                0.0
-            },
+            ),
+            Some(p) => format!("since update {}", p.updates),
+            None => "since the start".to_string(),
+        };
+        let text = format!(
+            "no update for {:.0} s {since}: a worker or the recorder may hang ({timeout}); \
+             `supervisor status` shows the processes",
+            at.elapsed().as_secs_f64(),
         );
         say(&format!("warning: {text}"));
         self.note(RunNote::WARNING, &text);
@@ -618,7 +623,11 @@ impl Supervisor {
         let mut d: Vec<Instant> = self.slots.values().filter_map(|s| s.restart_at).collect();
         d.extend(self.phase_deadline);
         if self.phase == Phase::Running && !self.stall_reported {
-            d.extend(self.last_update_at.map(|t| t + self.stall_after()));
+            d.extend(
+                self.last_update_at
+                    .or(self.running_since)
+                    .map(|t| t + self.stall_after()),
+            );
         }
         if self.phase == Phase::Stopping {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
@@ -684,38 +693,66 @@ impl Supervisor {
                     self.pipe.startup_timeout_ms
                 ));
             }
-            Phase::Stopping if !self.killed && !self.killed_workers => {
-                // A worker in a long rollout (a robot's episode) or a hung one: only it is
-                // killed. The sampler, updater and recorder then stop in order, with a timeout
-                // of their own, so that the recording is finished with every completed update.
-                let workers: Vec<(u32, String)> = self
+            Phase::Stopping if !self.killed => {
+                // The stage that was asked to stop and has not (a worker in a robot's long
+                // episode, a hung one, a stuck sampler): only it is killed. The stages after it
+                // are then asked in order, each with a timeout of its own, so the recorder
+                // still finishes the file unless it is the one that hangs.
+                let stuck: Vec<(u32, String)> = self
                     .procs
                     .iter()
-                    .filter(|(_, p)| matches!(p.role, Role::Worker(_)))
+                    .filter(|(_, p)| p.stopping && !p.sigkilled)
                     .map(|(pid, p)| (*pid, format!("{} (pid {pid})", p.role.name())))
                     .collect();
-                if !workers.is_empty() {
+                if !stuck.is_empty() {
+                    let others = self.procs.values().any(|p| !p.stopping);
                     say(&format!(
-                        "{} did not stop within {} ms (pipeline.shutdown_timeout_ms); killing \
-                         it, then stopping the others in order",
-                        workers
+                        "{} did not stop within {} ms (pipeline.shutdown_timeout_ms); killing {}{}",
+                        stuck
                             .iter()
                             .map(|(_, n)| n.as_str())
                             .collect::<Vec<_>>()
                             .join(", "),
-                        self.pipe.shutdown_timeout_ms
+                        self.pipe.shutdown_timeout_ms,
+                        if stuck.len() == 1 { "it" } else { "them" },
+                        if others {
+                            ", then stopping the others in order"
+                        } else {
+                            ""
+                        }
                     ));
-                    for (pid, _) in &workers {
+                    for (pid, _) in &stuck {
                         signal_group(*pid, libc::SIGKILL);
+                        if let Some(p) = self.procs.get_mut(pid) {
+                            p.sigkilled = true;
+                        }
                     }
-                    self.killed_workers = true;
-                    self.phase_deadline =
-                        Some(now + Duration::from_millis(self.pipe.shutdown_timeout_ms));
+                    self.phase_deadline = Some(now + Duration::from_secs(5));
                     return;
                 }
-                self.kill_everything_left(now);
+                let unreaped: Vec<u32> = self
+                    .procs
+                    .iter()
+                    .filter(|(_, p)| p.sigkilled)
+                    .map(|(pid, _)| *pid)
+                    .collect();
+                if !unreaped.is_empty() {
+                    let names: Vec<String> = unreaped
+                        .iter()
+                        .map(|pid| self.procs[pid].role.name())
+                        .collect();
+                    say(&format!(
+                        "giving up waiting for {} after SIGKILL",
+                        names.join(", ")
+                    ));
+                    for pid in unreaped {
+                        self.procs.remove(&pid);
+                    }
+                }
+                // The next stage sets its own deadline when it is asked (or the recorder's
+                // `term_at` wakes the loop).
+                self.phase_deadline = None;
             }
-            Phase::Stopping if !self.killed => self.kill_everything_left(now),
             Phase::Stopping => {
                 // Killed processes that still have not been reaped: nothing more to do.
                 let names: Vec<String> = self.procs.values().map(|p| p.role.name()).collect();
@@ -727,21 +764,6 @@ impl Supervisor {
             }
             Phase::Running => self.phase_deadline = None,
         }
-    }
-
-    fn kill_everything_left(&mut self, now: Instant) {
-        let names: Vec<String> = self
-            .procs
-            .iter()
-            .map(|(pid, p)| format!("{} (pid {pid})", p.role.name()))
-            .collect();
-        say(&format!(
-            "shutdown took longer than {} ms; killing {}",
-            self.pipe.shutdown_timeout_ms,
-            names.join(", ")
-        ));
-        self.kill_all();
-        self.phase_deadline = Some(now + Duration::from_secs(5));
     }
 
     fn kill_all(&mut self) {
@@ -817,6 +839,7 @@ impl Supervisor {
                     if workers.len() >= self.target_workers && workers.iter().all(|p| p.ready) {
                         self.send_control(Control::plain(self.run_id, Control::START), true)?;
                         self.phase = Phase::Running;
+                        self.running_since = Some(Instant::now());
                         self.phase_deadline = None;
                         say(&format!(
                             "all {} processes ready after {} ms; run started",
@@ -859,12 +882,19 @@ impl Supervisor {
                 } else {
                     vec![]
                 };
+                let mut asked = false;
                 for pid in stage {
                     let p = self.procs.get_mut(&pid).expect("pid from procs");
                     if !p.stopping {
                         p.stopping = true;
+                        asked = true;
                         signal_group(pid, libc::SIGTERM);
                     }
+                }
+                // Each stage has `shutdown_timeout_ms` of its own, from when it is asked.
+                if asked {
+                    self.phase_deadline =
+                        Some(Instant::now() + Duration::from_millis(self.pipe.shutdown_timeout_ms));
                 }
             }
         }
@@ -1003,6 +1033,7 @@ impl Supervisor {
                 incarnation,
                 ready: false,
                 stopping: false,
+                sigkilled: false,
                 hung: None,
                 last_line,
             },
@@ -1079,6 +1110,7 @@ impl Supervisor {
                         "updates go on: update {} after {:.1} s without one",
                         p.updates,
                         self.last_update_at
+                            .or(self.running_since)
                             .map_or(0.0, |t| t.elapsed().as_secs_f64())
                     ));
                 }
@@ -1441,6 +1473,9 @@ impl Supervisor {
                     return;
                 };
                 if starting {
+                    // It recorded nothing: the path may even be another run's live file (which
+                    // it refused), so the summary must not point to it.
+                    self.recording = None;
                     self.fail(format!(
                         "recorder exited before it was ready ({cause}); run with --no-record to \
                          run without a recording"
