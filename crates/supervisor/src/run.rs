@@ -278,6 +278,8 @@ struct Supervisor {
     stall_reported: bool,
     /// When the run started (START sent): a first update that never comes is a stall too.
     running_since: Option<Instant>,
+    /// Workers that announced themselves without being started here, by pid.
+    joined: BTreeMap<u32, u32>,
     total_restarts: u32,
     ports: Option<Ports>,
 }
@@ -431,6 +433,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         last_update_at: None,
         stall_reported: false,
         running_since: None,
+        joined: BTreeMap::new(),
         total_restarts: 0,
         ports: None,
         cfg,
@@ -1098,6 +1101,14 @@ impl Supervisor {
             }
             if let Some(p) = self.procs.get_mut(&l.pid) {
                 p.ready = true;
+            } else if l.role == wire::role::WORKER {
+                // A worker the user started (a robot's driver, a debugger session): not ours
+                // to stop or restart, but part of the run.
+                say(&format!(
+                    "worker-{} (pid {}) joined the run (started outside the supervisor)",
+                    l.worker, l.pid
+                ));
+                self.joined.insert(l.pid, l.worker);
             }
         }
         for p in progress {
@@ -1284,11 +1295,21 @@ impl Supervisor {
             self.phase,
             self.started.elapsed().as_secs_f64()
         );
+        let joined = self
+            .joined
+            .keys()
+            .filter(|pid| process_alive(**pid))
+            .count();
         s += &format!(
-            "workers: {} running (target {}, max {}), restarts {}\n",
+            "workers: {} running (target {}, max {}){}, restarts {}\n",
             self.worker_count(),
             self.target_workers,
             self.pipe.max_workers,
+            if joined > 0 {
+                format!(", and {joined} joined from outside")
+            } else {
+                String::new()
+            },
             self.total_restarts
         );
         s += &match &self.recording {
@@ -1308,6 +1329,11 @@ impl Supervisor {
             },
             None => "recording: off (--no-record)\n".to_string(),
         };
+        for (pid, w) in &self.joined {
+            if process_alive(*pid) {
+                s += &format!("  worker-{w} pid {pid} (joined; not started by the supervisor)\n");
+            }
+        }
         for (pid, p) in &self.procs {
             s += &format!(
                 "  {} pid {pid} incarnation {}{}{}\n",

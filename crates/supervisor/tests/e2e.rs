@@ -635,6 +635,19 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
         assert!(Instant::now() < end, "w5 never got work:\n{}", run.text());
         std::thread::sleep(Duration::from_millis(10));
     }
+    // The supervisor says it joined, and status lists it.
+    let pid = foreign.id();
+    let joined = format!("worker-5 (pid {pid}) joined the run (started outside");
+    while !run.text().contains(&joined) {
+        assert!(Instant::now() < end, "{}", run.text());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let (_, status) = run.ctl(&["status"]);
+    assert!(
+        status.contains(&format!("worker-5 pid {pid} (joined;"))
+            && status.contains(", and 1 joined from outside"),
+        "{status}"
+    );
     foreign.kill().unwrap();
     foreign.wait().unwrap();
     let exit = run.wait(Duration::from_secs(60));
