@@ -1189,7 +1189,10 @@ impl Supervisor {
     }
 
     fn progress_line(&self) -> String {
-        let Some(p) = &self.progress else {
+        // A resumed run counts from where it resumed; before its first update there is no
+        // eval cost to show (the updater reports NaN).
+        let first = self.start.as_ref().map_or(0, |s| s.update);
+        let Some(p) = self.progress.filter(|p| p.updates > first) else {
             return "no update finished yet".into();
         };
         let of = self
@@ -1197,13 +1200,15 @@ impl Supervisor {
             .run
             .updates
             .map_or("∞".to_string(), |n| n.to_string());
+        // While stopping, the workers are going: their count says nothing about the run.
+        let workers = if self.phase == Phase::Stopping {
+            String::new()
+        } else {
+            format!("  {} workers", self.worker_count())
+        };
         format!(
-            "update {}/{of}  eval cost {:.4}  λ now {:.4}  {:.0} updates/s  {} workers",
-            p.updates,
-            p.eval_cost,
-            p.lambda,
-            self.rate,
-            self.worker_count()
+            "update {}/{of}  eval cost {:.4}  λ now {:.4}  {:.0} updates/s{workers}",
+            p.updates, p.eval_cost, p.lambda, self.rate,
         )
     }
 
@@ -1546,7 +1551,7 @@ impl Supervisor {
                 format!(" (resumed at update {first} from {})", s.origin)
             });
             say(&format!(
-                "summary: run {} ({}): {} updates of {of}{resumed} in {:.2} s ({:.0} updates/s), {} workers at the end, {} restarts",
+                "summary: run {} ({}): {} updates of {of}{resumed} in {:.2} s ({:.0} updates/s), {} workers targeted at the end, {} restarts",
                 wire::run_id_hex(self.run_id),
                 r.name,
                 r.updates,
