@@ -184,7 +184,7 @@ fn output_dirs(files: &[&Path]) -> Vec<String> {
         })
         .collect();
     let mut seen: BTreeMap<&String, usize> = BTreeMap::new();
-    named
+    let numbered: Vec<String> = named
         .iter()
         .map(|n| {
             if count(&named, n) == 1 {
@@ -194,7 +194,20 @@ fn output_dirs(files: &[&Path]) -> Vec<String> {
             *i += 1;
             format!("{n}-{i}")
         })
-        .collect()
+        .collect();
+    // A number can make a name that another file's stem already is (`a-run-1` beside two
+    // `a-run`s): such a later one is numbered on until it is free.
+    let mut out: Vec<String> = Vec::with_capacity(numbered.len());
+    for n in numbered {
+        let mut name = n.clone();
+        let mut k = 2;
+        while out.contains(&name) {
+            name = format!("{n}-{k}");
+            k += 1;
+        }
+        out.push(name);
+    }
+    out
 }
 
 fn stem(p: &Path) -> String {
@@ -1811,6 +1824,14 @@ mod tests {
             output_dirs(&files),
             ["a-run", "b-run", "c-run-1", "c-run-2", "t"]
         );
+        // A stem that numbering produces too.
+        let files = [
+            Path::new("x/a/run.mcap"),
+            Path::new("y/a/run.mcap"),
+            Path::new("a-run-1.mcap"),
+        ];
+        let dirs = output_dirs(&files);
+        assert_eq!(dirs, ["a-run-1", "a-run-2", "a-run-1-2"]);
     }
 
     #[test]
