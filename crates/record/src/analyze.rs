@@ -716,7 +716,8 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
 // ---------------------------------------------------------------------------------------------
 // Figures
 
-const PALETTE: [RGBColor; 8] = [
+/// matplotlib's tab10.
+const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),
@@ -725,6 +726,8 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(140, 86, 75),
     RGBColor(227, 119, 194),
     RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
 ];
 
 fn perr<E: std::fmt::Debug>(file: &Path, figure: &str) -> impl FnOnce(E) -> RecordError {
@@ -945,6 +948,9 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
 /// How many of the last updates `worker_timeline.svg` shows.
 pub const TIMELINE_UPDATES: usize = 10;
 
+// No two updates of a timeline share a colour.
+const _: () = assert!(PALETTE.len() >= TIMELINE_UPDATES);
+
 /// One rollout on the timeline: its worker's row, update, rollout index and interval (ns).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TimelineBar {
@@ -996,12 +1002,15 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
         bars.iter().map(|b| b.update).min().unwrap_or(0),
         bars.iter().map(|b| b.update).max().unwrap_or(0),
     );
-    let root = SVGBackend::new(path, (1000, 120 + 40 * workers.len() as u32)).into_drawing_area();
+    // Tall enough for the legend of TIMELINE_UPDATES entries, which sits in room kept free at
+    // the right (the x range runs 18 % past the last bar).
+    let height = (120 + 40 * workers.len() as u32).max(330);
+    let root = SVGBackend::new(path, (1000, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
             format!(
-                "{}: what each worker ran, updates {first} to {last} (colour: update)",
+                "{}: what each worker ran, updates {first} to {last}",
                 rec.name()
             ),
             ("sans-serif", 18),
@@ -1010,7 +1019,7 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
         .x_label_area_size(30)
         .y_label_area_size(90)
         .build_cartesian_2d(
-            0f64..(xmax * 1.02).max(1e-3),
+            0f64..(xmax * 1.18).max(1e-3),
             -0.5f64..(workers.len() as f64 - 0.5),
         )
         .map_err(|x| e(&x))?;
@@ -1032,18 +1041,33 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
         .disable_y_mesh()
         .draw()
         .map_err(|x| e(&x))?;
+    // One colour per update shown (TIMELINE_UPDATES of them), named in the legend.
+    let mut updates: Vec<u64> = bars.iter().map(|b| b.update).collect();
+    updates.sort_unstable();
+    updates.dedup();
+    for (i, u) in updates.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        chart
+            .draw_series(bars.iter().filter(|b| b.update == *u).map(|b| {
+                let y = row(&b.worker);
+                Rectangle::new(
+                    [
+                        (ms(b.start_ns), y - 0.35),
+                        (ms(b.end_ns).max(ms(b.start_ns) + xmax * 1e-4), y + 0.35),
+                    ],
+                    color.filled(),
+                )
+            }))
+            .map_err(|x| e(&x))?
+            .label(format!("update {u}"))
+            .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 12, y + 4)], color.filled()));
+    }
     chart
-        .draw_series(bars.iter().map(|b| {
-            let y = row(&b.worker);
-            let color = PALETTE[(b.update % PALETTE.len() as u64) as usize];
-            Rectangle::new(
-                [
-                    (ms(b.start_ns), y - 0.35),
-                    (ms(b.end_ns).max(ms(b.start_ns) + xmax * 1e-4), y + 0.35),
-                ],
-                color.filled(),
-            )
-        }))
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
         .map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
