@@ -183,27 +183,16 @@ fn output_dirs(files: &[&Path]) -> Vec<String> {
             }
         })
         .collect();
-    let mut seen: BTreeMap<&String, usize> = BTreeMap::new();
-    let numbered: Vec<String> = named
-        .iter()
-        .map(|n| {
-            if count(&named, n) == 1 {
-                return n.clone();
-            }
-            let i = seen.entry(n).or_default();
-            *i += 1;
-            format!("{n}-{i}")
-        })
-        .collect();
-    // A number can make a name that another file's stem already is (`a-run-1` beside two
-    // `a-run`s): such a later one is numbered on until it is free.
-    let mut out: Vec<String> = Vec::with_capacity(numbered.len());
-    for n in numbered {
+    // Names that repeat are numbered from 1; a name that numbering made already (`a-run-1`
+    // beside two `a-run`s) is numbered on from 2 until it is free.
+    let mut out: Vec<String> = Vec::with_capacity(named.len());
+    for n in &named {
+        let repeats = count(&named, n) > 1;
+        let mut k = usize::from(!repeats);
         let mut name = n.clone();
-        let mut k = 2;
-        while out.contains(&name) {
-            name = format!("{n}-{k}");
+        while (repeats && k == 0) || out.contains(&name) {
             k += 1;
+            name = format!("{n}-{k}");
         }
         out.push(name);
     }
@@ -1418,42 +1407,40 @@ fn group_sessions<'a>(
             info.map_or(0, |i| i.steps),
         )
     };
-    let bits = |r: &Recording| -> Vec<(u64, u64)> {
-        r.curve()
-            .iter()
-            .map(|c| (c.update, c.eval_cost.to_bits()))
-            .collect()
-    };
-    let mut groups: BTreeMap<Key, Vec<&Recording>> = BTreeMap::new();
+    // A session's identity for spotting copies: its seed and eval costs, to the bit.
+    type Identity = (u64, Vec<(u64, u64)>);
+    let mut groups: BTreeMap<Key, Vec<(&Recording, Identity)>> = BTreeMap::new();
     for r in recs {
-        if r.run_info().is_none() || r.curve().is_empty() {
+        let curve = r.curve();
+        let Some(info) = r.run_info().filter(|_| !curve.is_empty()) else {
             notes.push(format!(
                 "{} has no recorded update (the run ended before its first): not a session",
                 r.path.display()
             ));
             continue;
-        }
+        };
+        let identity = (
+            info.seed,
+            curve
+                .iter()
+                .map(|c| (c.update, c.eval_cost.to_bits()))
+                .collect(),
+        );
         let members = groups.entry(key(r)).or_default();
-        let seed = r.run_info().map(|i| i.seed);
-        let same = members
-            .iter()
-            .find(|m| m.run_info().map(|i| i.seed) == seed && bits(m) == bits(r));
-        match same {
-            Some(m) => notes.push(format!(
+        match members.iter().find(|(_, id)| *id == identity) {
+            Some((m, _)) => notes.push(format!(
                 "{} is the same run as {} (same seed, same eval costs): counted once",
                 r.path.display(),
                 m.path.display()
             )),
-            None => members.push(r),
+            None => members.push((r, identity)),
         }
     }
     // A name shared by groups gets what tells them apart.
     let mut per_name: BTreeMap<&str, usize> = BTreeMap::new();
-    for k in groups.keys() {
-        *per_name.entry(k.0.as_str()).or_default() += 1;
-    }
     let mut per_settings: BTreeMap<(&str, &str), usize> = BTreeMap::new();
     for k in groups.keys() {
+        *per_name.entry(k.0.as_str()).or_default() += 1;
         *per_settings
             .entry((k.0.as_str(), k.1.as_str()))
             .or_default() += 1;
@@ -1471,7 +1458,14 @@ fn group_sessions<'a>(
             }
         })
         .collect();
-    labels.into_iter().zip(groups.into_values()).collect()
+    labels
+        .into_iter()
+        .zip(
+            groups
+                .into_values()
+                .map(|members| members.into_iter().map(|(r, _)| r).collect()),
+        )
+        .collect()
 }
 
 /// Over the sessions of an experiment (grouped as [`group_sessions`] says): the mean eval-cost

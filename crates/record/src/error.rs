@@ -63,6 +63,13 @@ impl RecordError {
             what: what.into(),
         }
     }
+    /// A writer refused: another process writes `file` ([`crate::being_written`]).
+    pub(crate) fn written_elsewhere(file: impl Into<PathBuf>) -> Self {
+        Self::invalid(
+            file,
+            "is being written by another process (a running recorder); choose another file",
+        )
+    }
 }
 
 impl From<session::ConfigError> for RecordError {

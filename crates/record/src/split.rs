@@ -123,13 +123,11 @@ impl RunFiles {
     /// path left are removed: they continued the file just overwritten.
     pub fn create(path: &Path) -> Result<Self, RecordError> {
         // A recording in progress is refused before anything of it is touched: its writer
-        // holds only the part it is writing, which need not be the first.
+        // holds only the part it is writing, which need not be the first (whose lock
+        // `RunWriter::create` tries below).
         let parts = recording_parts(path);
-        if let Some(live) = parts.iter().find(|p| crate::being_written(p)) {
-            return Err(RecordError::invalid(
-                live,
-                "is being written by another process (a running recorder); choose another file",
-            ));
+        if let Some(live) = parts.iter().skip(1).find(|p| crate::being_written(p)) {
+            return Err(RecordError::written_elsewhere(live));
         }
         // Taken before the stale parts go, so that no other writer starts in between.
         let writer = RunWriter::create(path)?;

@@ -169,11 +169,7 @@ impl RunWriter<FileSink> {
                     std::thread::sleep(std::time::Duration::from_millis(10));
                 }
                 Err(std::fs::TryLockError::WouldBlock) => {
-                    return Err(RecordError::invalid(
-                        path,
-                        "is being written by another process (a running recorder); choose \
-                         another file",
-                    ))
+                    return Err(RecordError::written_elsewhere(path))
                 }
                 // A file system without flock (some NFS mounts): recording matters more than
                 // the lock, which only keeps recover and --resume off a live file.

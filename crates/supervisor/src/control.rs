@@ -124,16 +124,21 @@ fn active_runs(base: &Path) -> Vec<PathBuf> {
     found
 }
 
-/// "ID (name, config FILE)" of a run directory, for choosing among several.
-fn describe_run(dir: &Path) -> String {
-    let id = dir
-        .file_name()
-        .map(|n| n.to_string_lossy().to_string())
-        .unwrap_or_default();
-    match session::RunConfig::load(&dir.join("config.toml")) {
-        Ok(cfg) => format!("{id} ({})", cfg.run.name),
-        Err(_) => id,
-    }
+/// "ID (name), ID (name), …" of run directories, for choosing among several.
+fn describe_runs(dirs: &[PathBuf]) -> String {
+    dirs.iter()
+        .map(|dir| {
+            let id = dir
+                .file_name()
+                .map(|n| n.to_string_lossy().to_string())
+                .unwrap_or_default();
+            match session::RunConfig::load(&dir.join("config.toml")) {
+                Ok(cfg) => format!("{id} ({})", cfg.run.name),
+                Err(_) => id,
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Finds the run to talk to: `run` (a whole id, or the start of exactly one active run's) if
@@ -154,11 +159,7 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
             _ => bail!(
                 "`{prefix}` is the start of {} active runs' ids: {}",
                 matching.len(),
-                matching
-                    .iter()
-                    .map(|d| describe_run(d))
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                describe_runs(&matching)
             ),
         }
     }
@@ -184,11 +185,7 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
             "{} active runs under {}; choose one with --run (the start of its id will do): {}",
             found.len(),
             base.display(),
-            found
-                .iter()
-                .map(|d| describe_run(d))
-                .collect::<Vec<_>>()
-                .join(", ")
+            describe_runs(&found)
         ),
     }
 }

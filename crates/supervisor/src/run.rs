@@ -273,11 +273,10 @@ struct Supervisor {
     progress: Option<Progress>,
     rate: f64,
     last_shown: Option<Instant>,
-    /// When the newest update arrived, and whether its silence since was reported.
+    /// When the newest update arrived (when the run started, before the first: a first
+    /// update that never comes is a stall too), and whether the silence since was reported.
     last_update_at: Option<Instant>,
     stall_reported: bool,
-    /// When the run started (START sent): a first update that never comes is a stall too.
-    running_since: Option<Instant>,
     /// Workers that announced themselves without being started here, by pid.
     joined: BTreeMap<u32, u32>,
     total_restarts: u32,
@@ -432,7 +431,6 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         last_shown: None,
         last_update_at: None,
         stall_reported: false,
-        running_since: None,
         joined: BTreeMap::new(),
         total_restarts: 0,
         ports: None,
@@ -590,7 +588,7 @@ impl Supervisor {
     /// a hung worker without `rollout_timeout_ms`, a stopped recorder that holds the updater,
     /// a robot waiting for its operator. Nothing is killed; `status` shows the age as well.
     fn check_stall(&mut self) {
-        let Some(at) = self.last_update_at.or(self.running_since) else {
+        let Some(at) = self.last_update_at else {
             return;
         };
         if self.phase != Phase::Running || self.stall_reported || at.elapsed() < self.stall_after()
@@ -626,11 +624,7 @@ impl Supervisor {
         let mut d: Vec<Instant> = self.slots.values().filter_map(|s| s.restart_at).collect();
         d.extend(self.phase_deadline);
         if self.phase == Phase::Running && !self.stall_reported {
-            d.extend(
-                self.last_update_at
-                    .or(self.running_since)
-                    .map(|t| t + self.stall_after()),
-            );
+            d.extend(self.last_update_at.map(|t| t + self.stall_after()));
         }
         if self.phase == Phase::Stopping {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
@@ -842,7 +836,7 @@ impl Supervisor {
                     if workers.len() >= self.target_workers && workers.iter().all(|p| p.ready) {
                         self.send_control(Control::plain(self.run_id, Control::START), true)?;
                         self.phase = Phase::Running;
-                        self.running_since = Some(Instant::now());
+                        self.last_update_at = Some(Instant::now());
                         self.phase_deadline = None;
                         say(&format!(
                             "all {} processes ready after {} ms; run started",
@@ -1121,7 +1115,6 @@ impl Supervisor {
                         "updates go on: update {} after {:.1} s without one",
                         p.updates,
                         self.last_update_at
-                            .or(self.running_since)
                             .map_or(0.0, |t| t.elapsed().as_secs_f64())
                     ));
                 }
@@ -1300,18 +1293,19 @@ impl Supervisor {
             self.phase,
             self.started.elapsed().as_secs_f64()
         );
-        let joined = self
+        let joined: Vec<(u32, u32)> = self
             .joined
-            .keys()
-            .filter(|pid| process_alive(**pid))
-            .count();
+            .iter()
+            .filter(|(pid, _)| process_alive(**pid))
+            .map(|(pid, w)| (*pid, *w))
+            .collect();
         s += &format!(
             "workers: {} running (target {}, max {}){}, restarts {}\n",
             self.worker_count(),
             self.target_workers,
             self.pipe.max_workers,
-            if joined > 0 {
-                format!(", and {joined} joined from outside")
+            if !joined.is_empty() {
+                format!(", and {} joined from outside", joined.len())
             } else {
                 String::new()
             },
@@ -1334,10 +1328,8 @@ impl Supervisor {
             },
             None => "recording: off (--no-record)\n".to_string(),
         };
-        for (pid, w) in &self.joined {
-            if process_alive(*pid) {
-                s += &format!("  worker-{w} pid {pid} (joined; not started by the supervisor)\n");
-            }
+        for (pid, w) in &joined {
+            s += &format!("  worker-{w} pid {pid} (joined; not started by the supervisor)\n");
         }
         for (pid, p) in &self.procs {
             s += &format!(
