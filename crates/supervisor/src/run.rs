@@ -281,7 +281,25 @@ struct Supervisor {
     joined: BTreeMap<u32, u32>,
     total_restarts: u32,
     ports: Option<Ports>,
+    /// `supervisor set` requests sent to the updater, counted, and those still waiting for the
+    /// updater to say which update they take effect from.
+    task_changes_sent: u64,
+    pending_sets: Vec<PendingSet>,
 }
+
+/// A `supervisor set` whose reply waits for the updater's [`Progress::TASK_CHANGE`].
+struct PendingSet {
+    /// Its number among the task changes sent (1-based), as the updater counts them.
+    seq: u64,
+    what: String,
+    reply: std::sync::mpsc::Sender<Result<String, String>>,
+    /// After this, the reply goes without the update index (an updater held back by a stopped
+    /// recorder, say, takes control messages only when it runs again).
+    until: Instant,
+}
+
+/// How long `supervisor set` waits for the updater to name the update of a change.
+const SET_REPLY_WAIT: Duration = Duration::from_secs(2);
 
 fn say(msg: &str) {
     print_line("supervisor", msg);
@@ -434,6 +452,8 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         joined: BTreeMap::new(),
         total_restarts: 0,
         ports: None,
+        task_changes_sent: 0,
+        pending_sets: Vec::new(),
         cfg,
         start: point.map(|p| p.start),
     };
@@ -564,6 +584,7 @@ impl Supervisor {
                 self.handle(ev)?;
             }
             self.poll_ports()?;
+            self.answer_sets(0, None, self.phase == Phase::Stopping);
             self.check_deadlines();
             self.check_stall();
             self.advance()?;
@@ -629,6 +650,7 @@ impl Supervisor {
         if self.phase == Phase::Stopping {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
         }
+        d.extend(self.pending_sets.iter().map(|p| p.until));
         d
     }
 
@@ -1109,6 +1131,10 @@ impl Supervisor {
             if p.run_id != self.run_id {
                 continue;
             }
+            if p.flags & Progress::TASK_CHANGE != 0 {
+                self.answer_sets(p.task_changes, Some(p.last_change_from), false);
+                continue;
+            }
             if self.progress.is_none_or(|prev| p.updates > prev.updates) {
                 if self.stall_reported {
                     say(&format!(
@@ -1228,6 +1254,20 @@ impl Supervisor {
                 }
                 Ok(())
             }
+            Event::Command((Cmd::Set(name, value), reply)) => {
+                match self.set_task(&name, value) {
+                    Ok(seq) => self.pending_sets.push(PendingSet {
+                        seq,
+                        what: format!("{name} = {value}"),
+                        reply,
+                        until: Instant::now() + SET_REPLY_WAIT,
+                    }),
+                    Err(e) => {
+                        let _ = reply.send(Err(e));
+                    }
+                }
+                Ok(())
+            }
             Event::Command((cmd, reply)) => {
                 let r = self.command(cmd);
                 let _ = reply.send(r);
@@ -1268,21 +1308,46 @@ impl Supervisor {
                 say(&format!("scaling from {was} to {n} workers"));
                 Ok(format!("scaling from {was} to {n} workers"))
             }
-            Cmd::Set(name, value) => {
-                if self.phase == Phase::Stopping {
-                    return Err("the run is stopping".into());
-                }
-                let mut task = self.cfg.build_task().map_err(|e| e.to_string())?;
-                task.set(&name, value).map_err(|e| e.to_string())?;
-                let msg = Control::set_task(self.run_id, &name, value)
-                    .ok_or_else(|| format!("setting name `{name}` is too long"))?;
-                self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
-                say(&format!("task change {name} = {value} sent to the updater"));
-                Ok(format!(
-                    "{name} = {value}: takes effect at the next update; the updater prints and records its index"
-                ))
-            }
+            Cmd::Set(..) => Err("internal: `set` is answered by `set_task`".into()),
         }
+    }
+
+    /// Sends a task change to the updater; returns its number, which the updater's
+    /// [`Progress::TASK_CHANGE`] answer carries.
+    fn set_task(&mut self, name: &str, value: f64) -> Result<u64, String> {
+        if self.phase == Phase::Stopping {
+            return Err("the run is stopping".into());
+        }
+        let mut task = self.cfg.build_task().map_err(|e| e.to_string())?;
+        task.set(name, value).map_err(|e| e.to_string())?;
+        let msg = Control::set_task(self.run_id, name, value)
+            .ok_or_else(|| format!("setting name `{name}` is too long"))?;
+        self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
+        self.task_changes_sent += 1;
+        say(&format!("task change {name} = {value} sent to the updater"));
+        Ok(self.task_changes_sent)
+    }
+
+    /// Answers the `supervisor set` requests the updater has taken (`taken` of them so far, the
+    /// last from update `from`), and, with `flush`, all others: those it has not answered in
+    /// [`SET_REPLY_WAIT`] or at all.
+    fn answer_sets(&mut self, taken: u64, from: Option<u64>, flush: bool) {
+        let now = Instant::now();
+        self.pending_sets.retain(|p| {
+            let reply = match from {
+                Some(u) if p.seq == taken => {
+                    format!("{}: takes effect from update {u} (0-based)", p.what)
+                }
+                // Taken, but its answer was overtaken by a later change's; or not answered.
+                _ if p.seq <= taken || flush || now >= p.until => format!(
+                    "{}: sent; takes effect at the next update the updater starts (it prints and records the index)",
+                    p.what
+                ),
+                _ => return true,
+            };
+            let _ = p.reply.send(Ok(reply));
+            false
+        });
     }
 
     fn status(&self) -> String {

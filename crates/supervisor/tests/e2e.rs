@@ -959,6 +959,13 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     assert!(!ok && reply.contains("no setting `goal`"), "{reply}");
     let (ok, reply) = run.ctl(&["set", "viapoint", "0.2"]);
     assert!(ok, "{reply}");
+    // The reply names the update the change takes effect from, as the updater decided it.
+    let said: u64 = reply
+        .split("takes effect from update ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no update index in the reply: {reply}"));
     run.wait_status("task change applied", |s| s.contains("viapoint = 0.2"));
     let (ok, reply) = run.ctl(&["stop"]);
     assert!(ok, "{reply}");
@@ -973,6 +980,7 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
         .expect("runtime change recorded");
     assert_eq!((change.name.as_str(), change.value), ("viapoint", 0.2));
     assert!(change.from_update >= 3 && change.from_update <= r.updates);
+    assert_eq!(change.from_update, said, "{reply}");
     // The same change scheduled in the config reproduces the run in-process, bit for bit.
     let replay = format!(
         "{text}\n[[schedule]]\nfrom_update = {}\nset = \"viapoint\"\nvalue = 0.2\n",

@@ -216,10 +216,11 @@ impl Ready {
     pub const NO_CHUNK: u64 = u64::MAX;
 }
 
-/// What the updater reports to the supervisor (rate-limited, and always for the last update).
+/// What the updater reports to the supervisor (rate-limited, and always for the last update),
+/// and its answer to each runtime task change ([`Progress::TASK_CHANGE`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Progress.v1")]
+#[type_name("pi2cma.Progress.v2")]
 pub struct Progress {
     pub run_id: u64,
     /// Updates completed.
@@ -233,11 +234,18 @@ pub struct Progress {
     pub flags: u32,
     pub settings_len: u32,
     pub settings: [f64; MAX_SETTINGS],
+    /// [`Control::SET_TASK`] messages the updater has taken so far.
+    pub task_changes: u64,
+    /// The update the last of them takes effect from.
+    pub last_change_from: u64,
 }
 
 impl Progress {
     /// The run is complete (bounded run) or the updater is stopping.
     pub const FINAL: u32 = 1;
+    /// Sent at once when a task change arrives, so that `supervisor set` can say which update it
+    /// takes effect from; the other fields are as of the last report, not a new update.
+    pub const TASK_CHANGE: u32 = 2;
 }
 
 /// The recorder's acknowledgement on `recorded`, sent after each update it has written and
@@ -888,7 +896,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 8);
-        assert_eq!(std::mem::size_of::<Progress>(), 48 + 8 * MAX_SETTINGS);
+        assert_eq!(std::mem::size_of::<Progress>(), 64 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
         assert_eq!(std::mem::size_of::<Overdue>(), 48);
         assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);
