@@ -114,9 +114,10 @@ fn python_reader_joins_the_parts_of_a_split_recording() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// `pi2cma_worker.serve(make_task)` calls `make_task(shape)`, or `make_task()` when it takes no
-/// argument: the README's `serve(MyTask)` with a plain `__init__(self)` failed with a TypeError
-/// in every restart of the worker.
+/// `pi2cma_worker.serve(make_task)` calls `make_task(shape)` when its first parameter must be
+/// given or is named `shape`, else `make_task()`: the README's `serve(MyTask)` with a plain
+/// `__init__(self)` failed with a TypeError in every restart of the worker, and one with only
+/// options (`gain=1.0`) got the shape as its gain.
 #[test]
 fn python_worker_builds_tasks_with_or_without_the_shape() {
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
@@ -128,10 +129,16 @@ class Plain:
     def __init__(self): pass
 class WithShape:
     def __init__(self, shape): pass
+class Options:
+    def __init__(self, gain=1.0): pass
+class OptionalShape:
+    def __init__(self, shape=None, gain=1.0): pass
 def plain(): pass
 def with_shape(shape): pass
-got = [w._takes_an_argument(f) for f in (Plain, WithShape, plain, with_shape, print)]
-assert got == [False, True, False, True, True], got
+def needs_two(shape, other): pass
+cases = (Plain, WithShape, Options, OptionalShape, plain, with_shape, needs_two, print)
+got = [w._takes_an_argument(f) for f in cases]
+assert got == [False, True, False, True, False, True, True, True], got
 print("ok")
 "#;
     let out = Command::new("python3")

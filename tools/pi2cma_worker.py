@@ -209,17 +209,23 @@ def serve(make_task, argv=None):
 
 
 def _takes_an_argument(make_task):
-    """Whether `make_task` can be called with the shape: a class whose `__init__(self)` takes
-    nothing, or a function of no arguments, is called without it."""
+    """Whether `make_task` is called with the shape: when its first parameter must be given,
+    or is named `shape`. A class whose `__init__` takes nothing, or only options with defaults
+    (`def __init__(self, gain=1.0)`: the shape is not a gain), is called without it."""
     try:
         sig = inspect.signature(make_task)
     except (TypeError, ValueError):  # a builtin without a signature: assume the documented form
         return True
     try:
-        sig.bind(None)
-        return True
+        sig.bind()
     except TypeError:
+        return True  # it needs an argument (if it cannot take one, Python says so)
+    first = next(iter(sig.parameters.values()), None)
+    if first is None:
         return False
+    if first.kind == first.VAR_POSITIONAL:
+        return True  # `*args`: a wrapper that passes on what it gets
+    return first.name == "shape" and first.kind in (first.POSITIONAL_ONLY, first.POSITIONAL_OR_KEYWORD)
 
 
 def _serve(make_task, args):
