@@ -1320,6 +1320,11 @@ impl Supervisor {
         }
         let mut task = self.cfg.build_task().map_err(|e| e.to_string())?;
         task.set(name, value).map_err(|e| e.to_string())?;
+        // The control service keeps no history: a change sent before the updater subscribed
+        // would be lost.
+        if !self.role_ready(Role::Updater) {
+            return Err("the updater is not running yet: try again in a moment".into());
+        }
         let msg = Control::set_task(self.run_id, name, value)
             .ok_or_else(|| format!("setting name `{name}` is too long"))?;
         self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
@@ -1338,10 +1343,19 @@ impl Supervisor {
                 Some(u) if p.seq == taken => {
                     format!("{}: takes effect from update {u} (0-based)", p.what)
                 }
-                // Taken, but its answer was overtaken by a later change's; or not answered.
-                _ if p.seq <= taken || flush || now >= p.until => format!(
-                    "{}: sent; takes effect at the next update the updater starts (it prints and records the index)",
+                // Taken, but its answer was overtaken by a later change's.
+                _ if p.seq <= taken => format!(
+                    "{}: takes effect at the next update the updater starts (it prints and records the index)",
                     p.what
+                ),
+                _ if flush || now >= p.until => format!(
+                    "{}: sent to the updater, which has not answered{}; if it takes the change, it prints and records the update it takes effect from",
+                    p.what,
+                    if flush {
+                        " before the run stopped".to_string()
+                    } else {
+                        format!(" in {} s", SET_REPLY_WAIT.as_secs())
+                    }
                 ),
                 _ => return true,
             };
