@@ -51,6 +51,46 @@ fn default_run_prints_progress_and_saves_results() {
         .is_some_and(|l| l.starts_with("A1,episodic,0,1,0,")));
 }
 
+/// A closed stdout (`pi2cma run | head`) does not end the run, and SIGINT stops it after the
+/// current update with a finished recording, the results so far and exit code 130. Before, the
+/// first progress line after `head` exited panicked ("failed printing to stdout"), and SIGINT
+/// killed the run, leaving an unindexed recording and no results.
+#[test]
+fn a_run_survives_a_closed_stdout_and_stops_cleanly_on_sigint() {
+    use std::io::{BufRead, BufReader};
+    let d = scratch("sigint");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args(["run", "--out", "res", "--updates", "100000000"])
+        .current_dir(&d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("pi2cma starts");
+    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+    for _ in 0..3 {
+        lines.next().expect("a line").expect("utf-8");
+    }
+    drop(lines); // as `head -3` does
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(
+        child.try_wait().expect("wait").is_none(),
+        "the run ended with its stdout"
+    );
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(sent.success());
+    let out = child.wait_with_output().expect("exit");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{stderr}");
+    let mcap = std::fs::read(d.join("res/run.mcap")).expect("recording");
+    // A finished MCAP ends with its footer and the magic; an abandoned one does not.
+    assert!(mcap.ends_with(b"\x89MCAP0\r\n"), "recording not finished");
+    let csv = std::fs::read_to_string(d.join("res/updates.csv")).expect("updates.csv");
+    assert!(csv.lines().count() > 2, "{csv}");
+}
+
 #[test]
 fn every_paper_config_is_valid() {
     let configs: Vec<String> = ["C1", "C2", "C3", "D", "A1", "A2", "A3", "A4"]

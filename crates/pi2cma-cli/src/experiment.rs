@@ -50,17 +50,19 @@ impl Observer for Collector {
 
 /// Runs one session in-process and collects its curve; `observer` sees every hook too (progress
 /// printing, MCAP recording).
+/// Runs one session; `stop` is asked after every update (true: end the session there).
 pub fn run_one(
     config: &RunConfig,
     seed: u64,
     observer: &mut dyn Observer,
+    stop: &dyn Fn() -> bool,
 ) -> Result<SessionResult, SessionError> {
     let mut exec = InProcess::new(config, seed)?;
     let mut c = Collector {
         summaries: Vec::new(),
         distributions: Vec::new(),
     };
-    exec.run(&mut Observers(vec![&mut c, observer]), &|| false)?;
+    exec.run(&mut Observers(vec![&mut c, observer]), stop)?;
     Ok(SessionResult {
         seed,
         summaries: c.summaries,
@@ -71,7 +73,14 @@ pub fn run_one(
 /// Runs `sessions` sessions with seeds run.seed, run.seed + 1, ….
 pub fn run_config(config: &RunConfig, sessions: usize) -> Result<ConfigResult, SessionError> {
     let sessions = (0..sessions as u64)
-        .map(|s| run_one(config, config.run.seed + s, &mut session::NoObserver))
+        .map(|s| {
+            run_one(
+                config,
+                config.run.seed + s,
+                &mut session::NoObserver,
+                &|| false,
+            )
+        })
         .collect::<Result<Vec<_>, _>>()?;
     summarize(config, sessions)
 }

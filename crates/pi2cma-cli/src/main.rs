@@ -3,6 +3,20 @@
 //! `supervisor` binary; this command never starts processes.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// `println!` that ignores a closed stdout: `pi2cma run | head` must not abandon the run (and
+/// leave its recording unfinished) when `head` exits.
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout().lock(), $($t)*);
+    }};
+}
+
+/// Set by SIGINT/SIGTERM during `run`: the session stops after the current update, the
+/// recording is finished, and the process exits with 130.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
@@ -98,7 +112,7 @@ struct Progress {
 impl Observer for Progress {
     fn on_task_change(&mut self, update: u64, change: &tasks::TaskChange) {
         // The progress lines count updates from 1; tables and configs index them from 0.
-        println!(
+        say!(
             "task change {} = {} from update {}/{} on (index {update})",
             change.name,
             change.value,
@@ -109,7 +123,7 @@ impl Observer for Progress {
     fn on_update(&mut self, r: &UpdateRecord<'_>) {
         let s = r.summary;
         let total = self.total.map_or("∞".to_string(), |t| t.to_string());
-        println!(
+        say!(
             "update {:>3}/{total}: eval cost {:>10.4}  exploration {:>10.4} ± {:<10.4} λ {:>10.4}",
             s.update + 1,
             s.eval_cost,
@@ -156,6 +170,7 @@ fn write_outputs(out: &Path, results: &[experiment::ConfigResult]) -> Result<Str
 fn main() -> std::process::ExitCode {
     // Errors are for users: the chain of causes, without a backtrace.
     match run(Cli::parse()) {
+        Ok(()) if INTERRUPTED.load(Ordering::SeqCst) => std::process::ExitCode::from(130),
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
@@ -180,7 +195,7 @@ fn run_resumed(
         point.check_output(&mcap, "--out")?;
     }
     let start = point.start;
-    println!(
+    say!(
         "pi2cma: run {} ({}), seed {}, resumed at update {} of {} from {}, in-process",
         cfg.run.name,
         cfg.origin.display(),
@@ -190,24 +205,43 @@ fn run_resumed(
         start.origin
     );
     if let Some(why) = &point.truncated {
-        println!("(the recording was cut off: {why}; resuming after its last complete update)");
+        say!("(the recording was cut off: {why}; resuming after its last complete update)");
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let recorder = (!no_record)
         .then(|| recorder(&mcap, text).map(|r| r.with_resumed_from(start.origin.clone())))
         .transpose()?;
     let origin = start.origin.clone();
+    let origin_update = start.update;
     let mut exec = session::InProcess::resume(cfg, cfg.run.seed, start)?;
     run_observed(cfg, recorder, quiet, |observer| {
-        exec.run(observer, &|| false)
+        exec.run(observer, &interrupted)
     })?;
+    say_if_interrupted(exec.optimizer().update_index() - origin_update);
     let d = exec.optimizer().distribution();
-    println!("final mean θ = {:?}", d.mean.as_slice());
-    println!("final λ = {:.4}", exec.optimizer().lambda());
+    say!("final mean θ = {:?}", d.mean.as_slice());
+    say!("final λ = {:.4}", exec.optimizer().lambda());
     if !no_record {
         print_recording(&mcap, out, Some(&origin));
     }
     Ok(())
+}
+
+/// Stops `run` after the current update on SIGINT/SIGTERM, as `mcap-tool record` and the
+/// supervisor do: the recording is finished and the results so far are written.
+fn stop_on_signal() -> Result<()> {
+    ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
+        .context("cannot install the SIGINT/SIGTERM handler")
+}
+
+fn interrupted() -> bool {
+    INTERRUPTED.load(Ordering::SeqCst)
+}
+
+fn say_if_interrupted(updates: u64) {
+    if interrupted() {
+        say!("interrupted after {updates} updates (exit code 130); the recording is complete");
+    }
 }
 
 /// The MCAP recorder of a `run` at `mcap`, recording the config as `text`.
@@ -249,7 +283,7 @@ fn run_observed<T>(
 /// Where the recording is and how to analyse it; a resumed run's analysis joins the file it
 /// resumed (`resumed_from`), for the whole learning curve.
 fn print_recording(mcap: &Path, out: &Path, resumed_from: Option<&str>) {
-    println!(
+    say!(
         "recording: {}\nanalyse it with: {} --out {}",
         record::describe_parts(mcap),
         record::analyze_command(mcap, resumed_from.map(Path::new)),
@@ -287,12 +321,13 @@ fn run(cli: Cli) -> Result<()> {
             // Before anything in OUT is written: a config that cannot run in-process (an
             // external task) must not cost the results and recording OUT may hold.
             session::build_task(&cfg)?;
+            stop_on_signal()?;
             if let Some(point) = point {
                 point.check(&cfg)?;
                 return run_resumed(&cfg, text, point, &out, quiet, no_record);
             }
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            println!(
+            say!(
                 "pi2cma: run {} ({}), seed {}, {} updates, in-process",
                 cfg.run.name,
                 cfg.origin.display(),
@@ -302,18 +337,19 @@ fn run(cli: Cli) -> Result<()> {
             let mcap = out.join("run.mcap");
             let recorder = (!no_record).then(|| recorder(&mcap, text)).transpose()?;
             let session = run_observed(&cfg, recorder, quiet, |observer| {
-                experiment::run_one(&cfg, cfg.run.seed, observer)
+                experiment::run_one(&cfg, cfg.run.seed, observer, &interrupted)
             })?;
+            say_if_interrupted(session.summaries.len() as u64);
             let result = experiment::summarize(&cfg, vec![session])?;
             let table = write_outputs(&out, std::slice::from_ref(&result))?;
-            println!("\n{table}");
+            say!("\n{table}");
             if let Some((mean, _)) = result.sessions[0].distributions.last() {
-                println!("final mean θ = {:?}", mean.as_slice());
+                say!("final mean θ = {:?}", mean.as_slice());
             }
             if let Some(s) = result.sessions[0].summaries.last() {
-                println!("final λ = {:.4}", s.lambda_next);
+                say!("final λ = {:.4}", s.lambda_next);
             }
-            println!(
+            say!(
                 "results in {}/ (updates.csv, mean_curves.csv, fig2.svg, summary.md)",
                 out.display()
             );
@@ -352,42 +388,45 @@ fn run(cli: Cli) -> Result<()> {
                         let file = dir.join(format!("{}-seed{seed}.mcap", cfg.run.name));
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;
-                        let r = experiment::run_one(&cfg, seed, &mut rec);
+                        let r = experiment::run_one(&cfg, seed, &mut rec, &|| false);
                         rec.finish()
                             .with_context(|| format!("recording {}", file.display()))?;
                         r
                     } else {
-                        experiment::run_one(&cfg, seed, &mut session::NoObserver)
+                        experiment::run_one(&cfg, seed, &mut session::NoObserver, &|| false)
                     };
                     done.push(result.with_context(|| format!("running {}", path.display()))?);
                 }
                 results.push(experiment::summarize(&cfg, done)?);
             }
             let table = write_outputs(&out, &results)?;
-            println!("{table}");
-            println!(
+            say!("{table}");
+            say!(
                 "re-converged at: first update from which the mean eval cost stays within 10% of its jump above the optimum of the changed task\nresults in {}/",
                 out.display()
             );
         }
-        Command::Analyze(args) => print!("{}", record::analyze::run(&args)?),
-        Command::Recover(args) => println!("{}", record::recover::run(&args)?.describe()),
+        Command::Analyze(args) => say!("{}", record::analyze::run(&args)?.trim_end_matches('\n')),
+        Command::Recover(args) => say!("{}", record::recover::run(&args)?.describe()),
         Command::Check { configs } => {
             for path in &configs {
                 // An external task's worker program too: `supervisor run` would refuse it.
                 load(path)?.external_worker_program()?;
-                println!("{}: ok", path.display());
+                say!("{}: ok", path.display());
             }
         }
         Command::Bench { quick, only } => {
             for m in bench::run_all(quick, &only) {
-                println!(
+                say!(
                     "{:<90} median {:>12.3?}  min {:>12.3?}  ({} samples)",
-                    m.label, m.median, m.min, m.samples
+                    m.label,
+                    m.median,
+                    m.min,
+                    m.samples
                 );
             }
         }
-        Command::DefaultConfig => print!("{}", session::DEFAULT_CONFIG),
+        Command::DefaultConfig => say!("{}", session::DEFAULT_CONFIG.trim_end_matches('\n')),
     }
     Ok(())
 }
