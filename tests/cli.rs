@@ -91,6 +91,36 @@ fn a_run_survives_a_closed_stdout_and_stops_cleanly_on_sigint() {
     assert!(csv.lines().count() > 2, "{csv}");
 }
 
+/// A recording in a directory given by `--out` is never replaced; the default directory,
+/// runs/latest, is the latest run's and is.
+#[test]
+fn a_recording_given_by_out_is_not_overwritten() {
+    let d = scratch("keep");
+    let first = pi2cma(&["run", "--out", "mine", "--updates", "3"], &d);
+    assert!(first.status.success());
+    let kept = std::fs::read(d.join("mine/run.mcap")).expect("recording");
+    let again = pi2cma(
+        &["run", "--out", "mine", "--updates", "3", "--seed", "2"],
+        &d,
+    );
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        !again.status.success()
+            && err.contains("mine/run.mcap")
+            && err.contains("is there already"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(d.join("mine/run.mcap")).expect("kept"), kept);
+    for seed in ["1", "2"] {
+        let latest = pi2cma(&["run", "--updates", "3", "--seed", seed], &d);
+        assert!(
+            latest.status.success(),
+            "{}",
+            String::from_utf8_lossy(&latest.stderr)
+        );
+    }
+}
+
 #[test]
 fn every_paper_config_is_valid() {
     let configs: Vec<String> = ["C1", "C2", "C3", "D", "A1", "A2", "A3", "A4"]

@@ -49,9 +49,10 @@ enum Command {
         /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
         #[arg(long)]
         updates: Option<u64>,
-        /// Directory for updates.csv, mean_curves.csv and fig2.svg.
-        #[arg(long, default_value = "runs/latest")]
-        out: PathBuf,
+        /// Directory for run.mcap, updates.csv, mean_curves.csv and fig2.svg; one that holds a
+        /// recording is refused. Default: runs/latest, which each run without --out replaces.
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Print nothing per update.
         #[arg(long)]
         quiet: bool,
@@ -75,8 +76,10 @@ enum Command {
         /// Override the weighting mode of every config.
         #[arg(long, value_enum)]
         weighting: Option<WeightingArg>,
-        #[arg(long, default_value = "runs/experiment")]
-        out: PathBuf,
+        /// Default: runs/experiment, which each experiment without --out replaces; with --out,
+        /// recordings there are refused.
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Also record every session to OUT/mcap/<run>-seed<seed>.mcap.
         #[arg(long)]
         record: bool,
@@ -191,9 +194,6 @@ fn run_resumed(
     no_record: bool,
 ) -> Result<()> {
     let mcap = out.join("run.mcap");
-    if !no_record {
-        point.check_output(&mcap, "--out")?;
-    }
     let start = point.start;
     say!(
         "pi2cma: run {} ({}), seed {}, resumed at update {} of {} from {}, in-process",
@@ -242,6 +242,26 @@ fn say_if_interrupted(updates: u64) {
     if interrupted() {
         say!("interrupted after {updates} updates (exit code 130); the recording is complete");
     }
+}
+
+/// Where `run` or `experiment` writes, and whether recordings there may be replaced: not those
+/// in a directory given by `--out`; those in the default directory, whose results the next run
+/// without `--out` replaces.
+fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
+    match out {
+        Some(dir) => (dir, false),
+        None => (PathBuf::from(default), true),
+    }
+}
+
+fn refuse_recording(file: &Path, option: &str) -> Result<()> {
+    if let Some(what) = record::recording_in_the_way(file) {
+        bail!(
+            "{option}: {what} is there already; a run does not overwrite a recording given by \
+             {option}: remove it or choose another directory"
+        );
+    }
+    Ok(())
 }
 
 /// The MCAP recorder of a `run` at `mcap`, recording the config as `text`.
@@ -321,9 +341,19 @@ fn run(cli: Cli) -> Result<()> {
             // Before anything in OUT is written: a config that cannot run in-process (an
             // external task) must not cost the results and recording OUT may hold.
             session::build_task(&cfg)?;
+            let (out, replaceable) = output_dir(out, "runs/latest");
+            let mcap = out.join("run.mcap");
+            if let Some(point) = &point {
+                point.check(&cfg)?;
+                if !no_record {
+                    point.check_output(&mcap, "--out")?;
+                }
+            }
+            if !replaceable && !no_record {
+                refuse_recording(&mcap, "--out")?;
+            }
             stop_on_signal()?;
             if let Some(point) = point {
-                point.check(&cfg)?;
                 return run_resumed(&cfg, text, point, &out, quiet, no_record);
             }
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -334,7 +364,6 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.run.seed,
                 cfg.run.updates.unwrap_or(0)
             );
-            let mcap = out.join("run.mcap");
             let recorder = (!no_record).then(|| recorder(&mcap, text)).transpose()?;
             let session = run_observed(&cfg, recorder, quiet, |observer| {
                 experiment::run_one(&cfg, cfg.run.seed, observer, &interrupted)
@@ -367,6 +396,7 @@ fn run(cli: Cli) -> Result<()> {
             if sessions == 0 {
                 bail!("--sessions must be at least 1");
             }
+            let (out, replaceable) = output_dir(out, "runs/experiment");
             let mut results = Vec::new();
             for path in &configs {
                 let mut cfg = load(path)?;
@@ -386,6 +416,9 @@ fn run(cli: Cli) -> Result<()> {
                         std::fs::create_dir_all(&dir)
                             .with_context(|| format!("creating {}", dir.display()))?;
                         let file = dir.join(format!("{}-seed{seed}.mcap", cfg.run.name));
+                        if !replaceable {
+                            refuse_recording(&file, "--out")?;
+                        }
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;
                         let r = experiment::run_one(&cfg, seed, &mut rec, &|| false);

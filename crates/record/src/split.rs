@@ -88,6 +88,30 @@ pub fn describe_parts(path: &Path) -> String {
     )
 }
 
+/// The recording a new one at `path` would replace, described (`x.mcap (634331 bytes) and its
+/// parts x.part-2.mcap, …`), or `None`: an empty file is not a recording, and the parts of an
+/// earlier split recording count even when its first file has been moved away.
+pub fn recording_in_the_way(path: &Path) -> Option<String> {
+    let first = std::fs::metadata(path)
+        .ok()
+        .filter(|m| m.len() > 0)
+        .map(|m| format!("{} ({} bytes)", path.display(), m.len()));
+    let parts: Vec<String> = recording_parts(path)
+        .iter()
+        .skip(1)
+        .map(|p| p.display().to_string())
+        .collect();
+    match (first, parts.is_empty()) {
+        (None, true) => None,
+        (Some(f), true) => Some(f),
+        (Some(f), false) => Some(format!("{f} and its parts {}", parts.join(", "))),
+        (None, false) => Some(format!(
+            "the parts {} of an earlier recording",
+            parts.join(", ")
+        )),
+    }
+}
+
 /// What every part's `/run` repeats.
 #[derive(Debug, Clone)]
 struct Run {

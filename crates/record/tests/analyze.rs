@@ -105,5 +105,17 @@ fn the_recorded_config_has_the_command_line_seed_and_updates() {
         before,
         "the recording was overwritten"
     );
+    // Nor does one that can: a recording at --out is refused, and left as it was.
+    let again = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .args(["record", "--updates", "5", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        !again.status.success() && stderr.contains("is there already"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(&out).unwrap(), before, "overwritten");
     std::fs::remove_dir_all(&dir).unwrap();
 }

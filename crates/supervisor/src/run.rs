@@ -375,16 +375,11 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         }
         // The recorder creates its file before the workers start, so a run that then fails
         // (a worker refusing the config) would leave an empty recording in place of this one.
-        if let Some(bytes) = opts
-            .record
-            .as_ref()
-            .and_then(|p| std::fs::metadata(p).ok())
-            .filter(|m| m.is_file() && m.len() > 0)
-            .map(|m| m.len())
-        {
+        // The parts of an earlier split recording too: the new one would remove them.
+        if let Some(what) = record::recording_in_the_way(&path) {
             bail!(
-                "--record {}: a file of {bytes} bytes is there already; a run does not overwrite \
-                 it: remove it or record elsewhere",
+                "--record {}: {what} is there already; a run does not overwrite a recording: \
+                 remove it or record elsewhere",
                 path.display()
             );
         }

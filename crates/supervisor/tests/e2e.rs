@@ -1009,6 +1009,22 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert!(run.text().contains("is there already"), "{}", run.text());
     assert_eq!(std::fs::read(&keep).unwrap(), b"a recording");
     assert_nothing_left(&run);
+    // Nor the parts of an earlier split recording whose first file was moved away: the new
+    // recording would have removed them.
+    let part = scratch.path("moved.part-2.mcap");
+    std::fs::write(&part, b"a part").unwrap();
+    let moved = scratch.path("moved.mcap");
+    let mut run = Run::start(&scratch, 510, &["--record", moved.to_str().unwrap()]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(
+        run.text()
+            .contains("moved.part-2.mcap of an earlier recording"),
+        "{}",
+        run.text()
+    );
+    assert_eq!(std::fs::read(&part).unwrap(), b"a part");
+    assert!(!moved.exists());
+    assert_nothing_left(&run);
 
     // Worker count above the limit.
     let mut run = Run::start(&scratch, 501, &["--workers", "17"]);
