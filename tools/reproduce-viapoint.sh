@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 cargo build --release -p pi2cma-cli
 configs=(config/C1.toml config/C2.toml config/C3.toml config/D.toml config/A1.toml config/A2.toml config/A3.toml config/A4.toml)
 for mode in episodic per-time-step per-time-step-basis-activation; do
-  ./target/release/pi2cma experiment "${configs[@]}" --sessions 10 --weighting "$mode" --out "runs/viapoint-$mode"
+  "${CARGO_TARGET_DIR:-target}/release/pi2cma" experiment "${configs[@]}" --sessions 10 --weighting "$mode" --out "runs/viapoint-$mode"
   cp "runs/viapoint-$mode/fig2.svg" "tools/figures/viapoint-$mode.svg"
   cp "runs/viapoint-$mode/summary.md" "tools/figures/viapoint-$mode.md"
 done

@@ -19,3 +19,6 @@ pub use run::{default_recording, process_alive, run, RunOptions};
 
 /// Exit code of a run stopped by SIGINT/SIGTERM.
 pub const EXIT_INTERRUPTED: u8 = 130;
+/// The run completed or stopped as asked, but its recorder died: the recording is not finished
+/// (`recover` completes it). Not 0, so that scripts notice; not 1, the run itself did not fail.
+pub const EXIT_RECORDING_UNFINISHED: u8 = 3;

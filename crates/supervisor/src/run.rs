@@ -26,7 +26,7 @@ use session::{PipelineSection, RunConfig};
 use wire::{Control, Lifecycle, Limits, Overdue, Progress, RunNote, Service};
 
 use crate::control::{self, Command as Cmd, Request};
-use crate::EXIT_INTERRUPTED;
+use crate::{EXIT_INTERRUPTED, EXIT_RECORDING_UNFINISHED};
 
 /// What `supervisor run` was asked to do.
 #[derive(Debug, Clone, Default)]
@@ -553,7 +553,11 @@ impl Supervisor {
             self.reap(&rx, Duration::from_secs(2));
             return Err(e);
         }
+        let recording_lost = self.recording.as_ref().is_some_and(|r| r.lost.is_some());
         Ok(match &self.outcome {
+            Some(Outcome::Complete) | Some(Outcome::Stopped) if recording_lost => {
+                EXIT_RECORDING_UNFINISHED
+            }
             Some(Outcome::Complete) | Some(Outcome::Stopped) => 0,
             Some(Outcome::Interrupted) => EXIT_INTERRUPTED,
             Some(Outcome::Failed(_)) | None => 1,

@@ -1430,7 +1430,8 @@ fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_th
     let flushed = record::read_recording(&path).unwrap().updates.len();
     let victim = sigkill_recorder(&status);
     let exit = run.wait(Duration::from_secs(60));
-    assert!(exit.success(), "{}", run.text());
+    // Complete, but the recording is not: scripts must notice.
+    assert_eq!(exit.code(), Some(3), "{}", run.text());
     assert_eq!(RunResult::read(&result).unwrap().updates, 200);
     let out = run.text();
     let shown = format!("runs/A1-{}.mcap", run_id(800));
@@ -1479,7 +1480,7 @@ fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
     let status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
     sigkill_recorder(&status);
     let exit = run.wait(Duration::from_secs(60));
-    assert!(exit.success(), "{}", run.text());
+    assert_eq!(exit.code(), Some(3), "{}", run.text());
     assert_eq!(RunResult::read(&result).unwrap().updates, updates);
     let out = run.text();
     assert!(

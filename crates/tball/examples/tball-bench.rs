@@ -39,7 +39,18 @@ struct Args {
     pipeline_updates: u64,
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
+/// Errors as the user's message (`Display`), not a `Debug` dump of the error value.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn Error>> {
     let Args {
         config,
         supervisor,

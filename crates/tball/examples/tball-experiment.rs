@@ -98,7 +98,18 @@ fn geometric_mean(v: impl Iterator<Item = f64>) -> f64 {
     mean(v.map(f64::ln)).exp()
 }
 
-fn main() -> Res<()> {
+/// Errors as the user's message (`Display`), not a `Debug` dump of the error value.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Res<()> {
     let args = <Args as clap::Parser>::parse();
     let mut cfg = RunConfig::load(&args.config)?;
     if let Some(w) = args.weighting {
