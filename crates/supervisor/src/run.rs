@@ -943,16 +943,48 @@ impl Supervisor {
 
     /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
     /// slots are stopped first).
+    /// Who holds worker slot `w`: a worker this supervisor runs there, or a live one that
+    /// joined the run from outside.
+    fn slot_holder(&self, w: u32) -> Option<String> {
+        if let Some(slot) = self.slots.get(&w) {
+            return Some(match slot.pid {
+                Some(pid) => format!("worker-{w} (pid {pid}, started by the supervisor)"),
+                None => format!("worker-{w} (started by the supervisor, being restarted)"),
+            });
+        }
+        self.joined
+            .iter()
+            .find(|(pid, slot)| **slot == w && process_alive(**pid))
+            .map(|(pid, _)| format!("worker-{w} (pid {pid}, joined from outside)"))
+    }
+
     fn apply_scale(&mut self) -> anyhow::Result<()> {
         let live: Vec<u32> = self.slots.keys().copied().collect();
         if live.len() < self.target_workers {
             let mut w = 0;
-            while self.slots.len() < self.target_workers {
-                if let std::collections::btree_map::Entry::Vacant(e) = self.slots.entry(w) {
-                    e.insert(Slot::default());
-                    self.spawn(Role::Worker(w), 0)?;
+            // Slots that joined workers hold are skipped: a second worker there would run the
+            // same rollouts.
+            while self.slots.len() < self.target_workers && (w as usize) < self.pipe.max_workers {
+                let joined = self
+                    .joined
+                    .iter()
+                    .any(|(pid, slot)| *slot == w && process_alive(*pid));
+                if !joined {
+                    if let std::collections::btree_map::Entry::Vacant(e) = self.slots.entry(w) {
+                        e.insert(Slot::default());
+                        self.spawn(Role::Worker(w), 0)?;
+                    }
                 }
                 w += 1;
+            }
+            if self.slots.len() < self.target_workers {
+                say(&format!(
+                    "{} of {} workers started: the other slots below pipeline.max_workers = {} \
+                     are held by workers that joined from outside",
+                    self.slots.len(),
+                    self.target_workers,
+                    self.pipe.max_workers
+                ));
             }
         } else {
             for w in live
@@ -1117,6 +1149,21 @@ impl Supervisor {
             if let Some(p) = self.procs.get_mut(&l.pid) {
                 p.ready = true;
             } else if l.role == wire::role::WORKER {
+                if let Some(holder) = self.slot_holder(l.worker) {
+                    // Both would take slot w's work: every rollout of it would run twice (on a
+                    // robot, twice for real). The newcomer is the mistake.
+                    let msg = format!(
+                        "worker-{w} (pid {pid}) joined slot {w}, which {holder} holds: both \
+                         would run its rollouts; stopping pid {pid} (SIGTERM). Start a worker \
+                         of your own in a free slot (see `supervisor status`)",
+                        w = l.worker,
+                        pid = l.pid
+                    );
+                    say(&format!("WARNING: {msg}"));
+                    self.note(RunNote::WARNING, &msg);
+                    signal_process(l.pid, libc::SIGTERM);
+                    continue;
+                }
                 // A worker the user started (a robot's driver, a debugger session): not ours
                 // to stop or restart, but part of the run.
                 say(&format!(
@@ -1893,6 +1940,15 @@ fn spawn_bell(
 }
 
 /// Sends `sig` to the process group of child `pid` (each child leads its own group).
+/// Signals one process that is not ours to group-kill (a worker that joined from outside).
+fn signal_process(pid: u32, sig: libc::c_int) {
+    // SAFETY: kill has no memory-safety preconditions; a stale pid only yields ESRCH.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
 fn signal_group(pid: u32, sig: libc::c_int) {
     // SAFETY: killpg has no memory-safety preconditions; a stale group id only yields ESRCH.
     #[allow(unsafe_code)]

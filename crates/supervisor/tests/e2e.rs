@@ -600,17 +600,86 @@ fn start_traced(scratch: &Scratch, id: u64, config: &Path, result: &Path) -> Run
 /// A rollout worker the supervisor does not manage (as one written in another language would
 /// be), joining `run` as worker 5 with `config`.
 fn join_as_worker_5(run: &Run, config: &Path) -> Child {
+    join_as_worker(run, config, 5)
+}
+
+fn join_as_worker(run: &Run, config: &Path, w: u32) -> Child {
     let run_dir = run.runs.join(&run.run_id);
     Command::new(env!("CARGO_BIN_EXE_rollout-worker"))
         .arg("--config")
         .arg(config)
         .arg("--run-dir")
         .arg(&run_dir)
-        .args(["--run-id", &run.run_id, "--worker", "5"])
+        .args(["--run-id", &run.run_id, "--worker", &w.to_string()])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap()
+}
+
+/// A child killed when the test ends, passed or not: a joined worker outlives its run.
+struct KillOnDrop(Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Two workers in one slot would both run its rollouts (on a robot, twice for real): a worker
+/// that joins a slot the supervisor's worker holds is stopped, and scaling up skips the slots
+/// that joined workers hold. Before, both happened silently, and every update ran slot 1's
+/// rollouts twice.
+#[test]
+fn joined_workers_never_share_a_slot() {
+    let scratch = Scratch::new("slots");
+    let text = config(&[
+        ("updates = 40", "updates = 100000"),
+        ("viapoint_weight = 1000.0", DELAYED),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "slots.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 850, &cfg, &result);
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let run_config = run.runs.join(&run.run_id).join("config.toml");
+
+    let mut intruder = KillOnDrop(join_as_worker(&run, &run_config, 0));
+    let end = Instant::now() + Duration::from_secs(30);
+    let stopped = loop {
+        if let Some(status) = intruder.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < end, "not stopped:\n{}", run.text());
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let _ = stopped;
+    let said = format!("pid {}) joined slot 0, which worker-0", intruder.0.id());
+    assert!(run.text().contains(&said), "{}", run.text());
+
+    let guest = KillOnDrop(join_as_worker(&run, &run_config, 1));
+    let joined = format!("worker-1 (pid {}) joined the run", guest.0.id());
+    while !run.text().contains(&joined) {
+        assert!(Instant::now() < end, "{}", run.text());
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let (ok, reply) = run.ctl(&["scale", "--workers", "3"]);
+    assert!(ok, "{reply}");
+    let status = run.wait_status("3 workers of ours", |s| s.contains("workers: 3 running"));
+    assert_eq!(status.matches("worker-1 pid").count(), 1, "{status}");
+    for w in [0, 2, 3] {
+        assert!(status.contains(&format!("worker-{w} pid")), "{status}");
+    }
+    let (ok, reply) = run.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    assert!(
+        run.wait(Duration::from_secs(30)).success(),
+        "{}",
+        run.text()
+    );
+    drop(guest);
+    assert_nothing_left(&run);
 }
 
 #[test]

@@ -88,6 +88,10 @@
 
 use iceoryx2::port::event_id::EventId;
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::event::{EventCreateError, EventOpenError, EventOpenOrCreateError};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
 /// Number of task settings a header can carry.
@@ -646,6 +650,44 @@ pub type SliceService<H> = publish_subscribe::PortFactory<Service, [f64], H>;
 pub type FixedService<T> = publish_subscribe::PortFactory<Service, T, ()>;
 pub type EventService = event::PortFactory<Service>;
 
+/// Whether opening or creating a service failed only because a system call was interrupted
+/// (EINTR) or the service was in flux: such an open is retried, as POSIX code retries EINTR.
+/// The sampler opening a new worker's `work/<w>` and `wake/worker/<w>` saw it during a
+/// scale-up next to a joined worker, and failed the run.
+fn interrupted(e: &PublishSubscribeOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+            PublishSubscribeOpenError::Interrupt
+        ) | PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(
+            PublishSubscribeCreateError::Interrupt
+        ) | PublishSubscribeOpenOrCreateError::SystemInFlux
+    )
+}
+
+fn event_interrupted(e: &EventOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        EventOpenOrCreateError::EventOpenError(EventOpenError::Interrupt)
+            | EventOpenOrCreateError::EventCreateError(EventCreateError::Interrupt)
+            | EventOpenOrCreateError::SystemInFlux
+    )
+}
+
+/// Runs `open` again while it fails as `retry` says, a few times.
+fn retry_interrupted<T, E>(
+    retry: impl Fn(&E) -> bool,
+    mut open: impl FnMut() -> Result<T, E>,
+) -> Result<T, E> {
+    let mut tries = 0;
+    loop {
+        match open() {
+            Err(e) if retry(&e) && tries < 20 => tries += 1,
+            r => return r,
+        }
+    }
+}
+
 fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
     node: &Node<Service>,
     run_id: u64,
@@ -656,18 +698,20 @@ fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
     nodes: usize,
 ) -> Result<SliceService<H>, WireError> {
     let name = service_name(run_id, tail)?;
-    node.service_builder(&name)
-        .publish_subscribe::<[f64]>()
-        .user_header::<H>()
-        .max_publishers(publishers)
-        .max_subscribers(subscribers)
-        .subscriber_max_buffer_size(buffer)
-        .subscriber_max_borrowed_samples(2)
-        .history_size(0)
-        .enable_safe_overflow(true)
-        .max_nodes(nodes)
-        .open_or_create()
-        .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
+    retry_interrupted(interrupted, || {
+        node.service_builder(&name)
+            .publish_subscribe::<[f64]>()
+            .user_header::<H>()
+            .max_publishers(publishers)
+            .max_subscribers(subscribers)
+            .subscriber_max_buffer_size(buffer)
+            .subscriber_max_borrowed_samples(2)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .max_nodes(nodes)
+            .open_or_create()
+    })
+    .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
 fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
@@ -680,17 +724,19 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
     nodes: usize,
 ) -> Result<FixedService<T>, WireError> {
     let name = service_name(run_id, tail)?;
-    node.service_builder(&name)
-        .publish_subscribe::<T>()
-        .max_publishers(publishers)
-        .max_subscribers(subscribers)
-        .subscriber_max_buffer_size(buffer)
-        .subscriber_max_borrowed_samples(2)
-        .history_size(0)
-        .enable_safe_overflow(true)
-        .max_nodes(nodes)
-        .open_or_create()
-        .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
+    retry_interrupted(interrupted, || {
+        node.service_builder(&name)
+            .publish_subscribe::<T>()
+            .max_publishers(publishers)
+            .max_subscribers(subscribers)
+            .subscriber_max_buffer_size(buffer)
+            .subscriber_max_borrowed_samples(2)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .max_nodes(nodes)
+            .open_or_create()
+    })
+    .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
 /// Updates' worth of samples a subscriber's buffer holds: the recorder's lag bound
@@ -870,14 +916,16 @@ pub fn doorbell(
     l: &Limits,
 ) -> Result<EventService, WireError> {
     let name = service_name(run_id, &format!("wake/{owner}"))?;
-    node.service_builder(&name)
-        .event()
-        .max_notifiers(l.worker_ports() + 4)
-        .max_listeners(2)
-        .max_nodes(l.nodes())
-        .event_id_max_value(HOLD.as_value())
-        .open_or_create()
-        .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
+    retry_interrupted(event_interrupted, || {
+        node.service_builder(&name)
+            .event()
+            .max_notifiers(l.worker_ports() + 4)
+            .max_listeners(2)
+            .max_nodes(l.nodes())
+            .event_id_max_value(HOLD.as_value())
+            .open_or_create()
+    })
+    .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
 #[cfg(test)]
