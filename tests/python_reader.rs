@@ -107,10 +107,17 @@ fn python_reader_joins_the_parts_of_a_split_recording() {
     let (ok, text) = python(&parts);
     assert!(ok, "{text}");
     assert!(text.contains("joined 3 files: updates 0..199"), "{text}");
-    assert!(text.contains("3 passed, 0 failed"), "{text}");
+    assert!(text.contains("3 passed, 0 failed, join passed"), "{text}");
     assert!(dir.join("joined.svg").is_file());
+    std::fs::remove_file(dir.join("joined.svg")).unwrap();
+    // Out of order: the summary says the join failed, and no figure is drawn.
     let (ok, text) = python(&[parts[1], parts[0], parts[2]]);
     assert!(!ok && text.contains("does not go on where"), "{text}");
+    assert!(
+        text.contains("join failed") && !text.contains("joined 3 files"),
+        "{text}"
+    );
+    assert!(!dir.join("joined.svg").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
 

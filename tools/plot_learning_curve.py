@@ -195,7 +195,9 @@ def main(argv=None):
             continue
         out = args.out
         if out and len(args.files) > 1:
-            out = f"{out}-{i}.svg"
+            # One figure per file: A2.png -> A2-0.png, A2-1.png (the format stays the asked one).
+            stem, dot, ext = out.rpartition(".")
+            out = f"{stem}-{i}.{ext}" if dot and "/" not in ext else f"{out}-{i}.svg"
         if out:
             plot(path, by_topic, out)
             print(f"wrote {out}")
@@ -203,15 +205,20 @@ def main(argv=None):
         joined, seams = join(args.files, read_files)
         failures += seams
         updates = [m for _, m in joined.get("/update", [])]
-        if updates:
-            print(f"joined {len(args.files)} files: updates {updates[0].update}..{updates[-1].update}")
-        if args.out:
-            plot(" + ".join(args.files), joined, args.out)
-            print(f"wrote {args.out}")
+        if seams:
+            # Files that do not go on from each other make no learning curve: nothing is drawn.
+            print(f"not joined: {len(seams)} of the {len(args.files) - 1} seams do not fit")
+        else:
+            if updates:
+                print(f"joined {len(args.files)} files: updates {updates[0].update}..{updates[-1].update}")
+            if args.out:
+                plot(" + ".join(args.files), joined, args.out)
+                print(f"wrote {args.out}")
     for f in failures:
         print(f"FAIL {f}", file=sys.stderr)
     if args.check:
-        print(f"{len(args.files) - failed_files} passed, {failed_files} failed")
+        joined = "" if not args.join else ", join " + ("failed" if seams else "passed")
+        print(f"{len(args.files) - failed_files} passed, {failed_files} failed{joined}")
     return 1 if failures else 0
 
 
