@@ -305,6 +305,19 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
         "{text}"
     );
     assert!(!text.contains("Experiment"), "{text}");
+    // A copy of the first file beside both is read once, not joined in its place (which left
+    // the original as a second session of an "experiment").
+    std::fs::copy(d.join("first/run.mcap"), d.join("copy.mcap")).expect("copy");
+    let text = analyze(
+        &["first/run.mcap", "copy.mcap", "second/run.mcap"],
+        "with-copy",
+    );
+    assert!(
+        text.contains("copy.mcap is a copy of first/run.mcap")
+            && text.contains("first/run.mcap + second/run.mcap: one run of 40 updates")
+            && !text.contains("Experiment"),
+        "{text}"
+    );
     analyze(&["whole/run.mcap"], "whole-analysis");
     let table = |dir: &str| {
         std::fs::read_to_string(d.join(dir).join("run/update_rollouts.csv")).expect("csv")

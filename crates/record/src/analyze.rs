@@ -106,6 +106,25 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             .filter(|p| !args.files.contains(p))
             .map(|p| p.display().to_string())
             .collect();
+        let given: Vec<usize> = (0..parts.len())
+            .filter(|&i| args.files.contains(&parts[i]))
+            .collect();
+        let gap = given.len() > 1 && given[given.len() - 1] - given[0] + 1 != given.len();
+        if gap {
+            // Parts with a gap between them are neither one run nor separate sessions: their
+            // curves would be averaged as an experiment's (0 common updates, NaN statistics).
+            return Err(RecordError::invalid(
+                f,
+                format!(
+                    "{} of the {} parts of this split recording are given, with a gap: not {}; \
+                     give the parts in between (or every part) to analyse the run, or one part \
+                     alone",
+                    given.len(),
+                    parts.len(),
+                    missing.join(", ")
+                ),
+            ));
+        }
         if !missing.is_empty() && parts.len() > 1 {
             let _ = writeln!(
                 out,
@@ -117,6 +136,9 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             );
         }
     }
+    // A copy of a file would otherwise be joined to the resumed run's next file in place of
+    // the original, and the original become a session of its own.
+    let recs = drop_copies(recs, &mut out);
     // A run stopped and resumed is one run in two (or more) files: one curve, one session.
     let runs = join_resumed(recs);
     let subdirs = output_dirs(&runs.iter().map(|(_, p)| p[0].as_path()).collect::<Vec<_>>());
@@ -1385,6 +1407,35 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
         0.0
     };
     (m, s)
+}
+
+/// Drops recordings that are copies of one given earlier (the same run name and seed, and the
+/// same eval costs at the same updates, to the bit), with a note.
+fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
+    let identity = |r: &Recording| {
+        let curve: Vec<(u64, u64)> = r
+            .curve()
+            .iter()
+            .map(|c| (c.update, c.eval_cost.to_bits()))
+            .collect();
+        (r.name(), r.run_info().map(|i| i.seed), curve)
+    };
+    let mut kept: Vec<(Recording, _)> = Vec::new();
+    for r in recs {
+        let id = identity(&r);
+        match kept.iter().find(|(_, k)| *k == id && !id.2.is_empty()) {
+            Some((first, _)) => {
+                let _ = writeln!(
+                    out,
+                    "note: {} is a copy of {} (same run, seed and eval costs): read once\n",
+                    r.path.display(),
+                    first.path.display()
+                );
+            }
+            None => kept.push((r, id)),
+        }
+    }
+    kept.into_iter().map(|(r, _)| r).collect()
 }
 
 /// The sessions of an experiment, grouped: by run name, and within a name by what makes runs

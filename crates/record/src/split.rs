@@ -411,6 +411,21 @@ mod tests {
             !text.contains("not given") && text.contains("one run of 200 updates"),
             "{text}"
         );
+        // With a gap, they are no run: refused, naming the missing part.
+        let gap = crate::analyze::run(&crate::analyze::AnalyzeArgs {
+            files: vec![parts[0].clone(), parts[2].clone()],
+            out: None,
+            no_csv: true,
+            no_plots: true,
+            verify: false,
+            tolerance: 0.05,
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            gap.contains("with a gap") && gap.contains(&parts[1].display().to_string()),
+            "{gap}"
+        );
         // Resuming from any part goes on from the last.
         let point = crate::resume::resume_point(&first).unwrap();
         assert_eq!(point.start.update, 200);
