@@ -184,7 +184,7 @@ def serve(make_task, argv=None):
     """Parses the supervisor's arguments, builds the task with `make_task(shape)` (a `Shape`:
     what the config declares: `parameters`, `steps`, `settings`, `basis_activations`, ...), or
     with `make_task()` if it takes no argument (a task class whose `__init__` takes none), and
-    runs rollouts until SIGTERM/SIGINT. Exits the process: 0 when stopped, 1 on an error, 78
+    runs rollouts until SIGTERM/SIGINT or the end of the run (its run directory gone). Exits the process: 0 when stopped, 1 on an error, 78
     when the task does not match the config."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", required=True)
@@ -311,7 +311,15 @@ def _serve(make_task, args):
     chunk, done_in_chunk = None, 0
     last_notify = time.monotonic()
     n = shape.steps
+    last_run_dir_check = time.monotonic()
     while not stop:
+        # A worker the supervisor did not start learns that the run has ended from its run
+        # directory, which the supervisor removes last (as rollout-worker does).
+        if time.monotonic() - last_run_dir_check >= 1.0:
+            last_run_dir_check = time.monotonic()
+            if not os.path.isdir(args.run_dir):
+                print(f"the run has ended (its run directory {args.run_dir} is gone): exiting", flush=True)
+                break
         try:
             doorbell.timed_wait(iox2.Duration.from_millis(50))
         except iox2.ListenerWaitError as e:
