@@ -95,7 +95,7 @@ fn a_run_survives_a_closed_stdout_and_stops_cleanly_on_sigint() {
 /// runs/latest, is the latest run's and is.
 #[test]
 fn a_recording_given_by_out_is_not_overwritten() {
-    let d = scratch("keep");
+    let d = scratch("no-overwrite");
     let first = pi2cma(&["run", "--out", "mine", "--updates", "3"], &d);
     assert!(first.status.success());
     let kept = std::fs::read(d.join("mine/run.mcap")).expect("recording");
@@ -172,6 +172,17 @@ fn bad_config_names_file_field_and_value() {
     let out = pi2cma(&["run", "missing.toml"], &d);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.toml"));
+
+    // `check` reports every bad file, not only the first, and still checks the good ones.
+    std::fs::write(d.join("good.toml"), session::DEFAULT_CONFIG).expect("write");
+    let out = pi2cma(&["check", "bad.toml", "typo.toml", "good.toml"], &d);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("bad.toml") && err.contains("typo.toml") && err.contains("2 of 3"),
+        "{err}"
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("good.toml: ok"));
 }
 
 /// A config that cannot run in-process (an external task) is refused before anything in the

@@ -442,10 +442,20 @@ fn run(cli: Cli) -> Result<()> {
         Command::Analyze(args) => say!("{}", record::analyze::run(&args)?.trim_end_matches('\n')),
         Command::Recover(args) => say!("{}", record::recover::run(&args)?.describe()),
         Command::Check { configs } => {
+            // Every file is checked, not only those before the first bad one.
+            let mut bad = 0;
             for path in &configs {
                 // An external task's worker program too: `supervisor run` would refuse it.
-                load(path)?.external_worker_program()?;
-                say!("{}: ok", path.display());
+                match load(path).and_then(|c| Ok(c.external_worker_program()?)) {
+                    Ok(_) => say!("{}: ok", path.display()),
+                    Err(e) => {
+                        eprintln!("error: {e:#}");
+                        bad += 1;
+                    }
+                }
+            }
+            if bad > 0 {
+                bail!("{bad} of {} configs refused", configs.len());
             }
         }
         Command::Bench { quick, only } => {

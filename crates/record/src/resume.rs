@@ -259,12 +259,25 @@ impl ResumePoint {
         }
         let (r, c) = (&self.hyperparameters, &config.hyperparameters());
         let differs: Vec<String> = [
-            differ("rollouts", &r.rollouts, &c.rollouts),
-            differ("cost mapping", &r.mapping, &c.mapping),
-            differ("exploration", &r.exploration, &c.exploration),
-            differ("weighting", &r.weighting, &c.weighting),
+            // Named by the config keys behind each, so the user knows what to look at.
+            differ("optimizer.rollouts", &r.rollouts, &c.rollouts),
             differ(
-                "evaluation_in_update",
+                "cost mapping (optimizer.method, eliteness, elites)",
+                &r.mapping,
+                &c.mapping,
+            ),
+            differ(
+                "exploration (optimizer.method, lambda_init, lambda_min, lambda_max, decay)",
+                &r.exploration,
+                &c.exploration,
+            ),
+            differ(
+                "optimizer.weighting, temporal_averaging",
+                &r.weighting,
+                &c.weighting,
+            ),
+            differ(
+                "optimizer.evaluation_in_update",
                 &r.evaluation_in_update,
                 &c.evaluation_in_update,
             ),
@@ -401,13 +414,16 @@ mod tests {
             "weighting = \"per-time-step\"",
         )]));
         assert!(
-            e.contains("its hyperparameters differ (recording vs config): weighting: Episodic vs"),
+            e.contains(
+                "its hyperparameters differ (recording vs config): optimizer.weighting, \
+                 temporal_averaging: Episodic vs"
+            ),
             "{e}"
         );
         let e = refused(config(&[("eliteness = 15.0", "eliteness = 10.0")]));
         assert!(
             e.contains(
-                "cost mapping: Exponential { eliteness: 15.0 } vs Exponential { eliteness: 10.0 }"
+                "cost mapping (optimizer.method, eliteness, elites): Exponential { eliteness: 15.0 } vs Exponential { eliteness: 10.0 }"
             ),
             "{e}"
         );
