@@ -297,7 +297,8 @@ def main():
         print(f"{path}\n  {label}")
         print("  max rel diff: " + "  ".join(f"{q}={res[q][0]:.2e}(u{res[q][1]})" for q in QUANTS))
         worst = max(res[q][0] for q in QUANTS)
-        if worst > a.tol:
+        # `not <=`: a NaN difference fails too. A recording without updates checks nothing.
+        if not worst <= a.tol or any(math.isnan(res[q][0]) for q in QUANTS) or not ups:
             bad = True
             print(f"  >>> DISAGREES beyond {a.tol:g}")
         for s in inv[:10]:

@@ -183,7 +183,8 @@ def _check_shape(task, shape):
 def serve(make_task, argv=None):
     """Parses the supervisor's arguments, builds the task with `make_task(shape)` (a `Shape`:
     what the config declares: `parameters`, `steps`, `settings`, `basis_activations`, ...), or
-    with `make_task()` if it takes no argument (a task class whose `__init__` takes none), and
+    with `make_task()` unless its first parameter must be given or is named `shape` (see
+    `_takes_an_argument`), and
     runs rollouts until SIGTERM/SIGINT or the end of the run (its run directory gone). Exits the process: 0 when stopped, 1 on an error, 78
     when the task does not match the config."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -217,7 +217,7 @@ fn run_resumed(
     run_observed(cfg, recorder, quiet, |observer| {
         exec.run(observer, &interrupted)
     })?;
-    say_if_interrupted(exec.optimizer().update_index() - origin_update);
+    say_if_interrupted(exec.optimizer().update_index() - origin_update, !no_record);
     let d = exec.optimizer().distribution();
     say!("final mean θ = {:?}", d.mean.as_slice());
     say!("final λ = {:.4}", exec.optimizer().lambda());
@@ -238,9 +238,14 @@ fn interrupted() -> bool {
     INTERRUPTED.load(Ordering::SeqCst)
 }
 
-fn say_if_interrupted(updates: u64) {
+fn say_if_interrupted(updates: u64, recorded: bool) {
     if interrupted() {
-        say!("interrupted after {updates} updates (exit code 130); the recording is complete");
+        let recording = if recorded {
+            "; the recording is complete"
+        } else {
+            ""
+        };
+        say!("interrupted after {updates} updates (exit code 130){recording}");
     }
 }
 
@@ -368,7 +373,7 @@ fn run(cli: Cli) -> Result<()> {
             let session = run_observed(&cfg, recorder, quiet, |observer| {
                 experiment::run_one(&cfg, cfg.run.seed, observer, &interrupted)
             })?;
-            say_if_interrupted(session.summaries.len() as u64);
+            say_if_interrupted(session.summaries.len() as u64, !no_record);
             let result = experiment::summarize(&cfg, vec![session])?;
             let table = write_outputs(&out, std::slice::from_ref(&result))?;
             say!("\n{table}");

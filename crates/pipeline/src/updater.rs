@@ -209,8 +209,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 Control::RECORDER_LOST => recorder.detach("the supervisor reports it gone"),
                 Control::SET_TASK => {
                     let change = TaskChange {
-                        // Update u is out (its distribution is published): u + 1 is the first
-                        // update that can see the change. Before the start, update 0 can.
+                        // Update u's rollouts may be under way (or its distribution held back by
+                        // the recorder): the change is applied after u's `tell`, so u + 1 is the
+                        // first update that sees it. Before the start, update 0 does.
                         from_update: optimizer.update_index() + u64::from(started.is_some()),
                         name: m.name().to_string(),
                         value: m.value,

@@ -106,8 +106,16 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             .filter(|p| !args.files.contains(p))
             .map(|p| p.display().to_string())
             .collect();
+        // Compared canonically: `./a.part-2.mcap` is `a.part-2.mcap`.
+        let canonical_given: Vec<PathBuf> = args
+            .files
+            .iter()
+            .filter_map(|f| std::fs::canonicalize(f).ok())
+            .collect();
         let given: Vec<usize> = (0..parts.len())
-            .filter(|&i| args.files.contains(&parts[i]))
+            .filter(|&i| {
+                std::fs::canonicalize(&parts[i]).is_ok_and(|c| canonical_given.contains(&c))
+            })
             .collect();
         let gap = given.len() > 1 && given[given.len() - 1] - given[0] + 1 != given.len();
         if gap {
@@ -1409,8 +1417,8 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
-/// Drops recordings that are copies of one given earlier (the same run name and seed, and the
-/// same eval costs at the same updates, to the bit), with a note.
+/// Drops recordings that are copies of one given earlier (the same bytes; compared only when
+/// the run name, seed and eval costs match), with a note.
 fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
     let identity = |r: &Recording| {
         let curve: Vec<(u64, u64)> = r
@@ -1423,7 +1431,16 @@ fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
     let mut kept: Vec<(Recording, _)> = Vec::new();
     for r in recs {
         let id = identity(&r);
-        match kept.iter().find(|(_, k)| *k == id && !id.2.is_empty()) {
+        // The same numbers are not enough: runs are bit-identical by design (pipeline and
+        // in-process, any worker count). A copy has the same bytes.
+        let same_bytes = |a: &Path, b: &Path| match (std::fs::read(a), std::fs::read(b)) {
+            (Ok(x), Ok(y)) => x == y,
+            _ => false,
+        };
+        match kept
+            .iter()
+            .find(|(k, kid)| *kid == id && !id.2.is_empty() && same_bytes(&k.path, &r.path))
+        {
             Some((first, _)) => {
                 let _ = writeln!(
                     out,

@@ -285,6 +285,9 @@ struct Supervisor {
     /// updater to say which update they take effect from.
     task_changes_sent: u64,
     pending_sets: Vec<PendingSet>,
+    /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
+    /// after it was reaped, is not a worker joining from outside.
+    spawned: std::collections::BTreeSet<u32>,
 }
 
 /// A `supervisor set` whose reply waits for the updater's [`Progress::TASK_CHANGE`].
@@ -293,8 +296,8 @@ struct PendingSet {
     seq: u64,
     what: String,
     reply: std::sync::mpsc::Sender<Result<String, String>>,
-    /// After this, the reply goes without the update index (an updater held back by a stopped
-    /// recorder, say, takes control messages only when it runs again).
+    /// After this, the reply goes without the update index (an updater busy in a long update,
+    /// or stopped, answers late or never).
     until: Instant,
 }
 
@@ -449,6 +452,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         ports: None,
         task_changes_sent: 0,
         pending_sets: Vec::new(),
+        spawned: Default::default(),
         cfg,
         start: point.map(|p| p.start),
     };
@@ -854,7 +858,10 @@ impl Supervisor {
                         .values()
                         .filter(|p| matches!(p.role, Role::Worker(_)))
                         .collect();
-                    if workers.len() >= self.target_workers && workers.iter().all(|p| p.ready) {
+                    // Slots joined workers hold were skipped: ours are the slots we filled.
+                    if workers.len() >= self.slots.len().min(self.target_workers)
+                        && workers.iter().all(|p| p.ready)
+                    {
                         self.send_control(Control::plain(self.run_id, Control::START), true)?;
                         self.phase = Phase::Running;
                         self.last_update_at = Some(Instant::now());
@@ -941,8 +948,6 @@ impl Supervisor {
         }
     }
 
-    /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
-    /// slots are stopped first).
     /// Who holds worker slot `w`: a worker this supervisor runs there, or a live one that
     /// joined the run from outside.
     fn slot_holder(&self, w: u32) -> Option<String> {
@@ -958,6 +963,8 @@ impl Supervisor {
             .map(|(pid, _)| format!("worker-{w} (pid {pid}, joined from outside)"))
     }
 
+    /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
+    /// slots are stopped first).
     fn apply_scale(&mut self) -> anyhow::Result<()> {
         let live: Vec<u32> = self.slots.keys().copied().collect();
         if live.len() < self.target_workers {
@@ -1076,6 +1083,7 @@ impl Supervisor {
                     let _ = tx.send(Event::Exited { pid, status });
                 }
             })?;
+        self.spawned.insert(pid);
         self.procs.insert(
             pid,
             Proc {
@@ -1148,7 +1156,7 @@ impl Supervisor {
             }
             if let Some(p) = self.procs.get_mut(&l.pid) {
                 p.ready = true;
-            } else if l.role == wire::role::WORKER {
+            } else if l.role == wire::role::WORKER && !self.spawned.contains(&l.pid) {
                 if let Some(holder) = self.slot_holder(l.worker) {
                     // Both would take slot w's work: every rollout of it would run twice (on a
                     // robot, twice for real). The newcomer is the mistake.
@@ -1384,8 +1392,15 @@ impl Supervisor {
     /// [`SET_REPLY_WAIT`] or at all.
     fn answer_sets(&mut self, taken: u64, from: Option<u64>, flush: bool) {
         let now = Instant::now();
+        let ends_before = self.cfg.run.updates;
         self.pending_sets.retain(|p| {
             let reply = match from {
+                Some(u) if p.seq == taken && ends_before.is_some_and(|n| u >= n) => format!(
+                    "{}: would take effect from update {u}, but the run ends after update {} \
+                     (0-based): it will not take effect",
+                    p.what,
+                    ends_before.unwrap_or(u).saturating_sub(1)
+                ),
                 Some(u) if p.seq == taken => {
                     format!("{}: takes effect from update {u} (0-based)", p.what)
                 }
@@ -1939,9 +1954,13 @@ fn spawn_bell(
     }
 }
 
-/// Sends `sig` to the process group of child `pid` (each child leads its own group).
 /// Signals one process that is not ours to group-kill (a worker that joined from outside).
+/// The pid comes from a shared-memory message: 0 or one beyond `pid_t` would signal a process
+/// group or everything the user owns, so only a plain other process's pid is signalled.
 fn signal_process(pid: u32, sig: libc::c_int) {
+    if pid == 0 || pid > i32::MAX as u32 || pid == std::process::id() {
+        return;
+    }
     // SAFETY: kill has no memory-safety preconditions; a stale pid only yields ESRCH.
     #[allow(unsafe_code)]
     unsafe {
@@ -1949,6 +1968,7 @@ fn signal_process(pid: u32, sig: libc::c_int) {
     }
 }
 
+/// Sends `sig` to the process group of child `pid` (each child leads its own group).
 fn signal_group(pid: u32, sig: libc::c_int) {
     // SAFETY: killpg has no memory-safety preconditions; a stale group id only yields ESRCH.
     #[allow(unsafe_code)]

@@ -682,7 +682,11 @@ fn retry_interrupted<T, E>(
     let mut tries = 0;
     loop {
         match open() {
-            Err(e) if retry(&e) && tries < 20 => tries += 1,
+            Err(e) if retry(&e) && tries < 20 => {
+                // Backing off: a service in flux needs its creator to finish, not a hot loop.
+                tries += 1;
+                std::thread::sleep(std::time::Duration::from_micros(100 << tries.min(7)));
+            }
             r => return r,
         }
     }
