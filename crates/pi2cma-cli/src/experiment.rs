@@ -49,8 +49,7 @@ impl Observer for Collector {
 }
 
 /// Runs one session in-process and collects its curve; `observer` sees every hook too (progress
-/// printing, MCAP recording).
-/// Runs one session; `stop` is asked after every update (true: end the session there).
+/// printing, MCAP recording), and `stop` is asked after every update (true: end it there).
 pub fn run_one(
     config: &RunConfig,
     seed: u64,

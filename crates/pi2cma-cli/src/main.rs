@@ -259,16 +259,6 @@ fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
     }
 }
 
-fn refuse_recording(file: &Path, option: &str) -> Result<()> {
-    if let Some(what) = record::recording_in_the_way(file) {
-        bail!(
-            "{option}: {what} is there already; a run does not overwrite a recording given by \
-             {option}: remove it or choose another directory"
-        );
-    }
-    Ok(())
-}
-
 /// The MCAP recorder of a `run` at `mcap`, recording the config as `text`.
 fn recorder(mcap: &Path, text: String) -> Result<record::McapRecorder> {
     Ok(record::McapRecorder::create(mcap)
@@ -355,7 +345,7 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             if !replaceable && !no_record {
-                refuse_recording(&mcap, "--out")?;
+                record::refuse_overwrite(&mcap, "--out")?;
             }
             stop_on_signal()?;
             if let Some(point) = point {
@@ -422,7 +412,7 @@ fn run(cli: Cli) -> Result<()> {
                             .with_context(|| format!("creating {}", dir.display()))?;
                         let file = dir.join(format!("{}-seed{seed}.mcap", cfg.run.name));
                         if !replaceable {
-                            refuse_recording(&file, "--out")?;
+                            record::refuse_overwrite(&file, "--out")?;
                         }
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;

@@ -101,22 +101,18 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
     }
     for f in &firsts {
         let parts = crate::recording_parts(f);
+        // Compared canonically, as the files were read: `./a.part-2.mcap` is `a.part-2.mcap`.
+        let is_given: Vec<bool> = parts
+            .iter()
+            .map(|p| std::fs::canonicalize(p).is_ok_and(|c| read.iter().any(|(r, _)| *r == c)))
+            .collect();
         let missing: Vec<String> = parts
             .iter()
-            .filter(|p| !args.files.contains(p))
-            .map(|p| p.display().to_string())
+            .zip(&is_given)
+            .filter(|(_, given)| !**given)
+            .map(|(p, _)| p.display().to_string())
             .collect();
-        // Compared canonically: `./a.part-2.mcap` is `a.part-2.mcap`.
-        let canonical_given: Vec<PathBuf> = args
-            .files
-            .iter()
-            .filter_map(|f| std::fs::canonicalize(f).ok())
-            .collect();
-        let given: Vec<usize> = (0..parts.len())
-            .filter(|&i| {
-                std::fs::canonicalize(&parts[i]).is_ok_and(|c| canonical_given.contains(&c))
-            })
-            .collect();
+        let given: Vec<usize> = (0..parts.len()).filter(|&i| is_given[i]).collect();
         let gap = given.len() > 1 && given[given.len() - 1] - given[0] + 1 != given.len();
         if gap {
             // Parts with a gap between them are neither one run nor separate sessions: their
@@ -1428,15 +1424,16 @@ fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
             .collect();
         (r.name(), r.run_info().map(|i| i.seed), curve)
     };
+    // The same numbers are not enough: runs are bit-identical by design (pipeline and
+    // in-process, any worker count). A copy has the same bytes; they are read only for files
+    // whose numbers match.
+    let same_bytes = |a: &Path, b: &Path| match (std::fs::read(a), std::fs::read(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    };
     let mut kept: Vec<(Recording, _)> = Vec::new();
     for r in recs {
         let id = identity(&r);
-        // The same numbers are not enough: runs are bit-identical by design (pipeline and
-        // in-process, any worker count). A copy has the same bytes.
-        let same_bytes = |a: &Path, b: &Path| match (std::fs::read(a), std::fs::read(b)) {
-            (Ok(x), Ok(y)) => x == y,
-            _ => false,
-        };
         match kept
             .iter()
             .find(|(k, kid)| *kid == id && !id.2.is_empty() && same_bytes(&k.path, &r.path))
@@ -1444,7 +1441,7 @@ fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
             Some((first, _)) => {
                 let _ = writeln!(
                     out,
-                    "note: {} is a copy of {} (same run, seed and eval costs): read once\n",
+                    "note: {} is a copy of {} (the same bytes): read once\n",
                     r.path.display(),
                     first.path.display()
                 );

@@ -88,28 +88,35 @@ pub fn describe_parts(path: &Path) -> String {
     )
 }
 
-/// The recording a new one at `path` would replace, described (`x.mcap (634331 bytes) and its
-/// parts x.part-2.mcap, …`), or `None`: an empty file is not a recording, and the parts of an
-/// earlier split recording count even when its first file has been moved away.
-pub fn recording_in_the_way(path: &Path) -> Option<String> {
+/// Refuses to record at `path` (given by `option`, e.g. `--out`) when a recording is there: a
+/// non-empty file, or the parts of an earlier split recording, which count even when its first
+/// file has been moved away (a new recording would remove them). One message for every writer.
+pub fn refuse_overwrite(path: &Path, option: &str) -> Result<(), RecordError> {
     let first = std::fs::metadata(path)
         .ok()
         .filter(|m| m.len() > 0)
-        .map(|m| format!("{} ({} bytes)", path.display(), m.len()));
+        .map(|m| m.len());
     let parts: Vec<String> = recording_parts(path)
         .iter()
         .skip(1)
         .map(|p| p.display().to_string())
         .collect();
-    match (first, parts.is_empty()) {
-        (None, true) => None,
-        (Some(f), true) => Some(f),
-        (Some(f), false) => Some(format!("{f} and its parts {}", parts.join(", "))),
-        (None, false) => Some(format!(
-            "the parts {} of an earlier recording",
+    let what = match (first, parts.is_empty()) {
+        (None, true) => return Ok(()),
+        (Some(bytes), true) => format!("a recording of {bytes} bytes"),
+        (Some(bytes), false) => format!(
+            "a recording of {bytes} bytes and its parts {}",
             parts.join(", ")
-        )),
-    }
+        ),
+        (None, false) => format!("the parts {} of an earlier recording", parts.join(", ")),
+    };
+    Err(RecordError::invalid(
+        path,
+        format!(
+            "{what} is there already ({option}); a run does not overwrite a recording: remove \
+             it or record elsewhere"
+        ),
+    ))
 }
 
 /// What every part's `/run` repeats.

@@ -379,13 +379,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         // The recorder creates its file before the workers start, so a run that then fails
         // (a worker refusing the config) would leave an empty recording in place of this one.
         // The parts of an earlier split recording too: the new one would remove them.
-        if let Some(what) = record::recording_in_the_way(&path) {
-            bail!(
-                "--record {}: {what} is there already; a run does not overwrite a recording: \
-                 remove it or record elsewhere",
-                path.display()
-            );
-        }
+        record::refuse_overwrite(&path, "--record")?;
         Some(Recording {
             path,
             defaulted: opts.record.is_none(),
@@ -957,10 +951,16 @@ impl Supervisor {
                 None => format!("worker-{w} (started by the supervisor, being restarted)"),
             });
         }
+        self.joined_in(w)
+            .map(|pid| format!("worker-{w} (pid {pid}, joined from outside)"))
+    }
+
+    /// The pid of a live worker that joined the run from outside in slot `w`.
+    fn joined_in(&self, w: u32) -> Option<u32> {
         self.joined
             .iter()
             .find(|(pid, slot)| **slot == w && process_alive(**pid))
-            .map(|(pid, _)| format!("worker-{w} (pid {pid}, joined from outside)"))
+            .map(|(pid, _)| *pid)
     }
 
     /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
@@ -972,11 +972,7 @@ impl Supervisor {
             // Slots that joined workers hold are skipped: a second worker there would run the
             // same rollouts.
             while self.slots.len() < self.target_workers && (w as usize) < self.pipe.max_workers {
-                let joined = self
-                    .joined
-                    .iter()
-                    .any(|(pid, slot)| *slot == w && process_alive(*pid));
-                if !joined {
+                if self.joined_in(w).is_none() {
                     if let std::collections::btree_map::Entry::Vacant(e) = self.slots.entry(w) {
                         e.insert(Slot::default());
                         self.spawn(Role::Worker(w), 0)?;

@@ -90,7 +90,8 @@ use iceoryx2::port::event_id::EventId;
 use iceoryx2::prelude::*;
 use iceoryx2::service::builder::event::{EventCreateError, EventOpenError, EventOpenOrCreateError};
 use iceoryx2::service::builder::publish_subscribe::{
-    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+    self as publish_subscribe_builder, PublishSubscribeCreateError, PublishSubscribeOpenError,
+    PublishSubscribeOpenOrCreateError,
 };
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
@@ -692,6 +693,25 @@ fn retry_interrupted<T, E>(
     }
 }
 
+/// The settings every publish-subscribe service of the run shares; only the message type and
+/// these counts differ between them.
+fn pubsub_settings<P: std::fmt::Debug + IceoryxSend + ?Sized, H: std::fmt::Debug + ZeroCopySend>(
+    builder: publish_subscribe_builder::Builder<P, H, Service>,
+    publishers: usize,
+    subscribers: usize,
+    buffer: usize,
+    nodes: usize,
+) -> publish_subscribe_builder::Builder<P, H, Service> {
+    builder
+        .max_publishers(publishers)
+        .max_subscribers(subscribers)
+        .subscriber_max_buffer_size(buffer)
+        .subscriber_max_borrowed_samples(2)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .max_nodes(nodes)
+}
+
 fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
     node: &Node<Service>,
     run_id: u64,
@@ -703,17 +723,11 @@ fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
 ) -> Result<SliceService<H>, WireError> {
     let name = service_name(run_id, tail)?;
     retry_interrupted(interrupted, || {
-        node.service_builder(&name)
+        let builder = node
+            .service_builder(&name)
             .publish_subscribe::<[f64]>()
-            .user_header::<H>()
-            .max_publishers(publishers)
-            .max_subscribers(subscribers)
-            .subscriber_max_buffer_size(buffer)
-            .subscriber_max_borrowed_samples(2)
-            .history_size(0)
-            .enable_safe_overflow(true)
-            .max_nodes(nodes)
-            .open_or_create()
+            .user_header::<H>();
+        pubsub_settings(builder, publishers, subscribers, buffer, nodes).open_or_create()
     })
     .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
@@ -729,16 +743,8 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
 ) -> Result<FixedService<T>, WireError> {
     let name = service_name(run_id, tail)?;
     retry_interrupted(interrupted, || {
-        node.service_builder(&name)
-            .publish_subscribe::<T>()
-            .max_publishers(publishers)
-            .max_subscribers(subscribers)
-            .subscriber_max_buffer_size(buffer)
-            .subscriber_max_borrowed_samples(2)
-            .history_size(0)
-            .enable_safe_overflow(true)
-            .max_nodes(nodes)
-            .open_or_create()
+        let builder = node.service_builder(&name).publish_subscribe::<T>();
+        pubsub_settings(builder, publishers, subscribers, buffer, nodes).open_or_create()
     })
     .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }

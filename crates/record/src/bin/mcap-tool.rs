@@ -201,13 +201,7 @@ fn record_run(
     // Before the file is created: a config that cannot run here (an external task) must not
     // cost the recording that `out` may hold.
     let mut exec = InProcess::new(&cfg, seed)?;
-    if let Some(what) = record::recording_in_the_way(out) {
-        bail!(
-            "--out {}: {what} is there already; a run does not overwrite a recording: remove it \
-             or record elsewhere",
-            out.display()
-        );
-    }
+    record::refuse_overwrite(out, "--out")?;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
