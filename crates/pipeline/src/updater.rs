@@ -97,8 +97,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // The flags of the distribution waiting to be published (the optimizer's current one); it
     // waits while the recorder's back-pressure holds it back.
     let mut to_publish: Option<u32> = None;
-    // (task changes taken, the update the last takes effect from), for `Progress`; a `Cell`
-    // because `report` reads it while the control loop counts.
+    // (the supervisor's number of the last task change taken, the update it takes effect
+    // from), echoed in `Progress`; a `Cell` because `report` reads it while the control loop
+    // sets it.
     let changes = std::cell::Cell::new((0u64, 0u64));
     // What is in force from the start: a resumed run's settings, and the scheduled changes of
     // its first update.
@@ -181,7 +182,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 flags,
                 settings_len: len,
                 settings: packed,
-                task_changes: changes.get().0,
+                last_change_seq: changes.get().0,
                 last_change_from: changes.get().1,
             }),
             "send progress",
@@ -220,7 +221,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                         "task change: {} = {} from update {} (runtime)",
                         change.name, change.value, change.from_update
                     );
-                    changes.set((changes.get().0 + 1, change.from_update));
+                    changes.set((m.seq, change.from_update));
                     if started.is_none() {
                         apply(&mut *task, &change, "runtime", &mut recorded)?;
                     } else {

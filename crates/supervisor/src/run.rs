@@ -281,9 +281,9 @@ struct Supervisor {
     joined: BTreeMap<u32, u32>,
     total_restarts: u32,
     ports: Option<Ports>,
-    /// `supervisor set` requests sent to the updater, counted, and those still waiting for the
-    /// updater to say which update they take effect from.
-    task_changes_sent: u64,
+    /// The number of the last `supervisor set` request (`Control::seq`), and those still
+    /// waiting for the updater to say which update they take effect from.
+    task_change_seq: u64,
     pending_sets: Vec<PendingSet>,
     /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
     /// after it was reaped, is not a worker joining from outside.
@@ -292,7 +292,7 @@ struct Supervisor {
 
 /// A `supervisor set` whose reply waits for the updater's [`Progress::TASK_CHANGE`].
 struct PendingSet {
-    /// Its number among the task changes sent (1-based), as the updater counts them.
+    /// Its `Control::seq`, which the updater echoes.
     seq: u64,
     what: String,
     reply: std::sync::mpsc::Sender<Result<String, String>>,
@@ -444,7 +444,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         joined: BTreeMap::new(),
         total_restarts: 0,
         ports: None,
-        task_changes_sent: 0,
+        task_change_seq: 0,
         pending_sets: Vec::new(),
         spawned: Default::default(),
         cfg,
@@ -1182,7 +1182,7 @@ impl Supervisor {
                 continue;
             }
             if p.flags & Progress::TASK_CHANGE != 0 {
-                self.answer_sets(p.task_changes, Some(p.last_change_from), false);
+                self.answer_sets(p.last_change_seq, Some(p.last_change_from), false);
                 continue;
             }
             if self.progress.is_none_or(|prev| p.updates > prev.updates) {
@@ -1375,16 +1375,19 @@ impl Supervisor {
         if !self.role_ready(Role::Updater) {
             return Err("the updater is not running yet: try again in a moment".into());
         }
-        let msg = Control::set_task(self.run_id, name, value)
+        // A number is never reused, even when the send fails after the message went out (the
+        // bell), so the updater's echo names exactly one request.
+        self.task_change_seq += 1;
+        let seq = self.task_change_seq;
+        let msg = Control::set_task(self.run_id, seq, name, value)
             .ok_or_else(|| format!("setting name `{name}` is too long"))?;
         self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
-        self.task_changes_sent += 1;
         say(&format!("task change {name} = {value} sent to the updater"));
-        Ok(self.task_changes_sent)
+        Ok(seq)
     }
 
-    /// Answers the `supervisor set` requests the updater has taken (`taken` of them so far, the
-    /// last from update `from`), and, with `flush`, all others: those it has not answered in
+    /// Answers the `supervisor set` requests the updater has taken (those numbered up to `taken`,
+    /// the last from update `from`), and, with `flush`, all others: those it has not answered in
     /// [`SET_REPLY_WAIT`] or at all.
     fn answer_sets(&mut self, taken: u64, from: Option<u64>, flush: bool) {
         let now = Instant::now();

@@ -1032,35 +1032,44 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     run.wait_status("3 updates", |s| updates_in(s) >= 3);
     let (ok, reply) = run.ctl(&["set", "goal", "2.0"]);
     assert!(!ok && reply.contains("no setting `goal`"), "{reply}");
-    let (ok, reply) = run.ctl(&["set", "viapoint", "0.2"]);
-    assert!(ok, "{reply}");
-    // The reply names the update the change takes effect from, as the updater decided it.
-    let said: u64 = reply
-        .split("takes effect from update ")
-        .nth(1)
-        .and_then(|r| r.split_whitespace().next())
-        .and_then(|n| n.parse().ok())
-        .unwrap_or_else(|| panic!("no update index in the reply: {reply}"));
-    run.wait_status("task change applied", |s| s.contains("viapoint = 0.2"));
+    // Two changes in a row: each reply names the update its own change takes effect from, as
+    // the updater decided it (the updater echoes each change's number).
+    let mut said = Vec::new();
+    for value in ["0.2", "0.25"] {
+        let (ok, reply) = run.ctl(&["set", "viapoint", value]);
+        assert!(ok, "{reply}");
+        let from: u64 = reply
+            .split("takes effect from update ")
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no update index in the reply: {reply}"));
+        said.push(from);
+    }
+    run.wait_status("task change applied", |s| s.contains("viapoint = 0.25"));
     let (ok, reply) = run.ctl(&["stop"]);
     assert!(ok, "{reply}");
     let exit = run.wait(Duration::from_secs(20));
     assert!(exit.success(), "{}", run.text());
     let r = RunResult::read(&result).unwrap();
     assert!(!r.complete);
-    let change = r
+    let runtime: Vec<_> = r
         .task_changes
         .iter()
-        .find(|c| c.source == "runtime")
-        .expect("runtime change recorded");
-    assert_eq!((change.name.as_str(), change.value), ("viapoint", 0.2));
-    assert!(change.from_update >= 3 && change.from_update <= r.updates);
-    assert_eq!(change.from_update, said, "{reply}");
-    // The same change scheduled in the config reproduces the run in-process, bit for bit.
-    let replay = format!(
-        "{text}\n[[schedule]]\nfrom_update = {}\nset = \"viapoint\"\nvalue = 0.2\n",
-        change.from_update
-    );
+        .filter(|c| c.source == "runtime")
+        .collect();
+    assert_eq!(runtime.len(), 2, "{:?}", r.task_changes);
+    let mut replay = text.clone();
+    for (change, (value, from)) in runtime.iter().zip([(0.2, said[0]), (0.25, said[1])]) {
+        assert_eq!((change.name.as_str(), change.value), ("viapoint", value));
+        assert!(change.from_update >= 3 && change.from_update <= r.updates);
+        assert_eq!(change.from_update, from, "{said:?}");
+        // The same changes scheduled in the config reproduce the run in-process, bit for bit.
+        replay.push_str(&format!(
+            "\n[[schedule]]\nfrom_update = {}\nset = \"viapoint\"\nvalue = {value}\n",
+            change.from_update
+        ));
+    }
     assert_bit_identical(&replay, &result);
     assert_nothing_left(&run);
 }

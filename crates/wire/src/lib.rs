@@ -225,7 +225,7 @@ impl Ready {
 /// and its answer to each runtime task change ([`Progress::TASK_CHANGE`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Progress.v2")]
+#[type_name("pi2cma.Progress.v3")]
 pub struct Progress {
     pub run_id: u64,
     /// Updates completed.
@@ -239,9 +239,11 @@ pub struct Progress {
     pub flags: u32,
     pub settings_len: u32,
     pub settings: [f64; MAX_SETTINGS],
-    /// [`Control::SET_TASK`] messages the updater has taken so far.
-    pub task_changes: u64,
-    /// The update the last of them takes effect from.
+    /// [`Control::seq`] of the last [`Control::SET_TASK`] the updater took (0: none yet). An
+    /// echo, not a count, so that the supervisor pairs each answer with its request even if a
+    /// message it sent was not counted on its side or an answer was overwritten.
+    pub last_change_seq: u64,
+    /// The update that change takes effect from.
     pub last_change_from: u64,
 }
 
@@ -374,7 +376,7 @@ pub struct Overdue {
 /// A command from the supervisor.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Control.v2")]
+#[type_name("pi2cma.Control.v3")]
 pub struct Control {
     pub run_id: u64,
     pub kind: u32,
@@ -391,6 +393,9 @@ pub struct Control {
     /// ended (e.g. `signal: 9 (SIGKILL)`), cut to [`MAX_NAME`] bytes.
     pub name: [u8; MAX_NAME],
     pub value: f64,
+    /// For [`Control::SET_TASK`]: the sender's number for the change (from 1), echoed in
+    /// [`Progress::last_change_seq`].
+    pub seq: u64,
 }
 
 /// Why a worker is gone ([`Control::reason`] of [`Control::WORKER_LOST`]): the recording's health
@@ -446,10 +451,11 @@ impl Control {
         }
     }
 
-    /// `None` if the name is longer than [`MAX_NAME`] bytes.
-    pub fn set_task(run_id: u64, name: &str, value: f64) -> Option<Self> {
+    /// Change number `seq`; `None` if the name is longer than [`MAX_NAME`] bytes.
+    pub fn set_task(run_id: u64, seq: u64, name: &str, value: f64) -> Option<Self> {
         (name.len() <= MAX_NAME).then(|| Self {
             value,
+            seq,
             ..Self::plain(run_id, Self::SET_TASK).with_name(name)
         })
     }
@@ -953,7 +959,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<CostHeader>(), 48);
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
-        assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 8);
+        assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
         assert_eq!(std::mem::size_of::<Progress>(), 64 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
         assert_eq!(std::mem::size_of::<Overdue>(), 48);
@@ -1011,9 +1017,9 @@ mod tests {
 
     #[test]
     fn control_names_round_trip_and_are_bounded() {
-        let c = Control::set_task(7, "viapoint", 0.1).unwrap();
-        assert_eq!(c.name(), "viapoint");
-        assert!(Control::set_task(7, &"x".repeat(MAX_NAME + 1), 0.0).is_none());
+        let c = Control::set_task(7, 3, "viapoint", 0.1).unwrap();
+        assert_eq!((c.name(), c.seq, c.value), ("viapoint", 3, 0.1));
+        assert!(Control::set_task(7, 4, &"x".repeat(MAX_NAME + 1), 0.0).is_none());
         let c = Control::worker_lost(7, 2, 1, 42, lost::CRASHED, "signal: 9 (SIGKILL)");
         assert_eq!(
             (c.kind, c.worker, c.incarnation),
