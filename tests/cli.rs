@@ -121,6 +121,54 @@ fn a_recording_given_by_out_is_not_overwritten() {
     }
 }
 
+/// `experiment --out D --record` checks every config and every recording it will write before
+/// its first session: a clash found at the second config used to end the experiment after the
+/// first config's sessions had run (hours, with the paper's session counts).
+#[test]
+fn an_experiment_refuses_before_its_first_session() {
+    let d = scratch("experiment-refuses");
+    let cfg = |name: &str| {
+        let text = session::DEFAULT_CONFIG
+            .replace("name = \"A1\"", &format!("name = \"{name}\""))
+            .replace("updates = 40", "updates = 2");
+        let path = d.join(format!("{name}.toml"));
+        std::fs::write(&path, text).expect("config");
+        path.to_string_lossy().into_owned()
+    };
+    let (one, two) = (cfg("one"), cfg("two"));
+    std::fs::create_dir_all(d.join("res/mcap")).expect("dir");
+    std::fs::write(d.join("res/mcap/two-seed1.mcap"), b"day 1").expect("clash");
+    let experiment = |configs: &[&str]| {
+        let mut args = vec!["experiment", "--sessions", "2", "--out", "res", "--record"];
+        args.extend_from_slice(configs);
+        pi2cma(&args, &d)
+    };
+    let refused = experiment(&[&one, &two]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && err.contains("two-seed1.mcap") && !err.contains("running"),
+        "{err}"
+    );
+    assert!(!d.join("res/mcap/one-seed1.mcap").exists(), "a session ran");
+    assert_eq!(
+        std::fs::read(d.join("res/mcap/two-seed1.mcap")).expect("kept"),
+        b"day 1"
+    );
+    // The same config twice would record each session twice to one file.
+    let refused = experiment(&[&one, &one]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && err.contains("would both record to"),
+        "{err}"
+    );
+    // A bad config given last is found first too.
+    let bad = d.join("bad.toml");
+    std::fs::write(&bad, "[run\n").expect("bad config");
+    let refused = experiment(&[&one, bad.to_str().expect("utf-8")]);
+    assert!(!refused.status.success());
+    assert!(!d.join("res/mcap/one-seed1.mcap").exists(), "a session ran");
+}
+
 #[test]
 fn every_paper_config_is_valid() {
     let configs: Vec<String> = ["C1", "C2", "C3", "D", "A1", "A2", "A3", "A4"]

@@ -392,7 +392,9 @@ fn run(cli: Cli) -> Result<()> {
                 bail!("--sessions must be at least 1");
             }
             let (out, replaceable) = output_dir(out, "runs/experiment");
-            let mut results = Vec::new();
+            // Everything that can refuse the experiment is checked before its first session, not
+            // hours later: every config, and every recording it will write.
+            let mut planned = Vec::new();
             for path in &configs {
                 let mut cfg = load(path)?;
                 apply_weighting(&mut cfg, weighting)?;
@@ -402,30 +404,54 @@ fn run(cli: Cli) -> Result<()> {
                         path.display()
                     );
                 }
+                planned.push((path, cfg));
+            }
+            let recording = |cfg: &RunConfig, seed: u64| {
+                out.join("mcap")
+                    .join(format!("{}-seed{seed}.mcap", cfg.run.name))
+            };
+            if record {
+                let mut files = std::collections::BTreeMap::new();
+                for (path, cfg) in &planned {
+                    for s in 0..sessions as u64 {
+                        let file = recording(cfg, cfg.run.seed + s);
+                        if let Some(other) = files.insert(file.clone(), path) {
+                            bail!(
+                                "{} and {} would both record to {} (the same run.name and seed): give them different run.name",
+                                other.display(),
+                                path.display(),
+                                file.display()
+                            );
+                        }
+                        if !replaceable {
+                            record::refuse_overwrite(&file, "--out")?;
+                        }
+                    }
+                }
+            }
+            let mut results = Vec::new();
+            for (path, cfg) in &planned {
                 eprintln!("running {} × {sessions} sessions", cfg.run.name);
                 let mut done = Vec::new();
                 for s in 0..sessions as u64 {
                     let seed = cfg.run.seed + s;
                     let result = if record {
+                        let file = recording(cfg, seed);
                         let dir = out.join("mcap");
                         std::fs::create_dir_all(&dir)
                             .with_context(|| format!("creating {}", dir.display()))?;
-                        let file = dir.join(format!("{}-seed{seed}.mcap", cfg.run.name));
-                        if !replaceable {
-                            record::refuse_overwrite(&file, "--out")?;
-                        }
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;
-                        let r = experiment::run_one(&cfg, seed, &mut rec, &|| false);
+                        let r = experiment::run_one(cfg, seed, &mut rec, &|| false);
                         rec.finish()
                             .with_context(|| format!("recording {}", file.display()))?;
                         r
                     } else {
-                        experiment::run_one(&cfg, seed, &mut session::NoObserver, &|| false)
+                        experiment::run_one(cfg, seed, &mut session::NoObserver, &|| false)
                     };
                     done.push(result.with_context(|| format!("running {}", path.display()))?);
                 }
-                results.push(experiment::summarize(&cfg, done)?);
+                results.push(experiment::summarize(cfg, done)?);
             }
             let table = write_outputs(&out, &results)?;
             say!("{table}");
