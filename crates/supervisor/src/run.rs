@@ -277,8 +277,9 @@ struct Supervisor {
     /// update that never comes is a stall too), and whether the silence since was reported.
     last_update_at: Option<Instant>,
     stall_reported: bool,
-    /// Workers that announced themselves without being started here, by pid.
-    joined: BTreeMap<u32, u32>,
+    /// Workers that announced themselves without being started here: pid → (slot, start time;
+    /// see [`process_started`]).
+    joined: BTreeMap<u32, (u32, u64)>,
     total_restarts: u32,
     ports: Option<Ports>,
     /// The number of the last `supervisor set` request (`Control::seq`), and those still
@@ -957,10 +958,19 @@ impl Supervisor {
 
     /// The pid of a live worker that joined the run from outside in slot `w`.
     fn joined_in(&self, w: u32) -> Option<u32> {
+        self.live_joined()
+            .find(|(_, slot)| *slot == w)
+            .map(|(pid, _)| pid)
+    }
+
+    /// (pid, slot) of the workers that joined from outside and still run. A pid alone is not
+    /// enough: in a run of days an unrelated process can get a gone worker's pid and would hold
+    /// its slot.
+    fn live_joined(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
         self.joined
             .iter()
-            .find(|(pid, slot)| **slot == w && process_alive(**pid))
-            .map(|(pid, _)| *pid)
+            .filter(|(pid, (_, started))| process_started(**pid) == Some(*started))
+            .map(|(pid, (slot, _))| (*pid, *slot))
     }
 
     /// Starts or stops workers until `target_workers` run (lowest free slots first; the highest
@@ -1170,11 +1180,18 @@ impl Supervisor {
                 }
                 // A worker the user started (a robot's driver, a debugger session): not ours
                 // to stop or restart, but part of the run.
+                let Some(started) = process_started(l.pid) else {
+                    continue; // gone already: the sampler hands its rollouts on
+                };
                 say(&format!(
                     "worker-{} (pid {}) joined the run (started outside the supervisor)",
                     l.worker, l.pid
                 ));
-                self.joined.insert(l.pid, l.worker);
+                // Entries of gone workers go first, so that the map does not grow over a long
+                // run with workers coming and going.
+                self.joined
+                    .retain(|pid, (_, started)| process_started(*pid) == Some(*started));
+                self.joined.insert(l.pid, (l.worker, started));
             }
         }
         for p in progress {
@@ -1432,12 +1449,7 @@ impl Supervisor {
             self.phase,
             self.started.elapsed().as_secs_f64()
         );
-        let joined: Vec<(u32, u32)> = self
-            .joined
-            .iter()
-            .filter(|(pid, _)| process_alive(**pid))
-            .map(|(pid, w)| (*pid, *w))
-            .collect();
+        let joined: Vec<(u32, u32)> = self.live_joined().collect();
         s += &format!(
             "workers: {} running (target {}, max {}){}, restarts {}\n",
             self.worker_count(),
@@ -1893,13 +1905,21 @@ fn run_abandoned(run_dir: &Path) -> bool {
 /// Whether process `pid` runs: it exists and is not a zombie (one that has exited and waits to
 /// be reaped still has `/proc/<pid>`).
 pub fn process_alive(pid: u32) -> bool {
-    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
-        // The state follows the parenthesised command name, which may contain spaces.
-        Ok(stat) => stat
-            .rsplit_once(')')
-            .is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')),
-        Err(_) => false,
+    process_started(pid).is_some()
+}
+
+/// When process `pid` started (clock ticks after boot, field 22 of `/proc/<pid>/stat`) if it
+/// runs: with the pid, an identity that pid reuse does not fool. `None` for a zombie.
+pub fn process_started(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The fields follow the parenthesised command name, which may contain spaces and `)`.
+    let (_, rest) = stat.rsplit_once(')')?;
+    let mut fields = rest.split_whitespace();
+    // Field 3, the state; field 22 is 18 further on.
+    if fields.next()? == "Z" {
+        return None;
     }
+    fields.nth(18)?.parse().ok()
 }
 
 /// A thread that waits on the supervisor's doorbell and turns each ring into [`Event::Bell`].
@@ -2011,5 +2031,38 @@ mod tests {
             default_recording("a/b c", 1),
             PathBuf::from("runs/a_b_c-0000000000000001.mcap")
         );
+    }
+
+    /// A process's start time identifies it across pid reuse; a zombie or a reaped process has
+    /// none; a command name with spaces and `)` does not shift the fields.
+    #[test]
+    fn process_started_reads_the_start_time_of_live_processes_only() {
+        let own = process_started(std::process::id()).expect("this process runs");
+        assert_eq!(process_started(std::process::id()), Some(own));
+        let dir = std::env::temp_dir().join(format!("started-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let odd = dir.join("a) b 7 Z");
+        std::fs::copy("/bin/sleep", &odd).expect("copy sleep");
+        let mut child = std::process::Command::new(&odd)
+            .arg("30")
+            .spawn()
+            .expect("spawn");
+        let pid = child.id();
+        let started = process_started(pid).expect("child runs");
+        assert!(started >= own, "{started} < {own}");
+        child.kill().expect("kill");
+        // Killed but not reaped: a zombie, not running.
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while process_started(pid).is_some() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert_eq!(process_started(pid), None);
+        assert!(
+            std::fs::metadata(format!("/proc/{pid}")).is_ok(),
+            "reaped early"
+        );
+        child.wait().expect("reap");
+        assert_eq!(process_started(pid), None);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
