@@ -1738,7 +1738,13 @@ impl Supervisor {
             let path = record::describe_parts(&rec.path);
             // A resumed run's analysis joins the recording it resumed, for the whole curve.
             let resumed = self.start.as_ref().map(|s| PathBuf::from(&s.origin));
-            let analyse = record::analyze_command(&rec.path, resumed.as_deref());
+            let (pi2cma, how_to_build) = pi2cma_program();
+            let analyse = format!(
+                "{} --out {}{how_to_build}",
+                record::analyze_command(&rec.path, resumed.as_deref())
+                    .replacen("pi2cma", &pi2cma, 1),
+                analysis_dir(&rec.path).display()
+            );
             let place = if rec.defaulted {
                 " (the default place: runs/<run name>-<run id>.mcap in the current directory; \
                  --record FILE to choose)"
@@ -1759,7 +1765,7 @@ impl Supervisor {
                         "recording: {path}{place}: {last} is NOT finished (the recorder died: {cause})"
                     ));
                     say(&format!(
-                        "  complete it with: pi2cma recover {last}   (or: mcap-tool recover {last})"
+                        "  complete it with: {pi2cma} recover {last}   (or: mcap-tool recover {last})"
                     ));
                     say(&format!("  then analyse it with: {analyse}"));
                 }
@@ -1902,6 +1908,42 @@ fn run_abandoned(run_dir: &Path) -> bool {
     }
 }
 
+/// How a printed command calls `pi2cma`: the binary beside this one (cargo builds both into one
+/// directory), relative to the working directory when under it, so that the command works as
+/// printed; else by name, with how to build it (the quick start builds only the supervisor).
+fn pi2cma_program() -> (String, &'static str) {
+    let beside = std::env::current_exe()
+        .ok()
+        .and_then(|exe| Some(exe.parent()?.join("pi2cma")))
+        .filter(|p| p.is_file());
+    match beside {
+        Some(path) => {
+            let shown = std::env::current_dir()
+                .ok()
+                .and_then(|cwd| path.strip_prefix(cwd).ok().map(Path::to_path_buf))
+                .unwrap_or(path);
+            (shown.display().to_string(), "")
+        }
+        None => (
+            "pi2cma".into(),
+            "   (pi2cma: `cargo build --release -p pi2cma-cli` in the pi2cma repository)",
+        ),
+    }
+}
+
+/// Where the printed analysis command writes its CSV files and figures: beside the recording,
+/// named after it (`runs/A1-<id>.mcap` → `runs/A1-<id>/`).
+fn analysis_dir(recording: &Path) -> PathBuf {
+    match recording.extension() {
+        Some(e) if e == "mcap" => recording.with_extension(""),
+        _ => {
+            let mut dir = recording.as_os_str().to_owned();
+            dir.push("-analysis");
+            PathBuf::from(dir)
+        }
+    }
+}
+
 /// Whether process `pid` runs: it exists and is not a zombie (one that has exited and waits to
 /// be reaped still has `/proc/<pid>`).
 pub fn process_alive(pid: u32) -> bool {
@@ -2030,6 +2072,18 @@ mod tests {
         assert_eq!(
             default_recording("a/b c", 1),
             PathBuf::from("runs/a_b_c-0000000000000001.mcap")
+        );
+    }
+
+    #[test]
+    fn the_analysis_goes_beside_the_recording() {
+        assert_eq!(
+            analysis_dir(Path::new("runs/A1-00ab.mcap")),
+            PathBuf::from("runs/A1-00ab")
+        );
+        assert_eq!(
+            analysis_dir(Path::new("day1.rec")),
+            PathBuf::from("day1.rec-analysis")
         );
     }
 

@@ -1180,7 +1180,14 @@ fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
         out.contains(&format!("recording: {shown} (the default place")),
         "{out}"
     );
-    assert!(out.contains(&format!("pi2cma analyze {shown}")), "{out}");
+    // The pi2cma beside the supervisor, as the command must be typed, writing beside the file.
+    let pi2cma = Path::new(env!("CARGO_BIN_EXE_supervisor")).with_file_name("pi2cma");
+    let analyse = format!(
+        "analyse it with: {} analyze {shown} --out runs/A1-{}",
+        pi2cma.display(),
+        run_id(600)
+    );
+    assert!(out.contains(&analyse), "{out}");
     let rec = record::read_recording(&scratch.recording("A1", 600)).unwrap();
     assert!(rec.indexed && rec.truncated.is_none());
     assert_eq!(rec.run_info().unwrap().executor, "pipeline");
@@ -2092,7 +2099,7 @@ fn a_killed_run_resumes_from_its_recording_to_the_uninterrupted_result() {
     assert_eq!(meta["resumed_from"], first.display().to_string());
     // The killed file and the resumed one analyse as one run of 200 updates.
     let analyse = format!(
-        "analyse it with: pi2cma analyze {} {}",
+        "pi2cma analyze {} {} --out ",
         first.display(),
         resumed_rec.display()
     );
