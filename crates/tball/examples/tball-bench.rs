@@ -103,6 +103,7 @@ fn run() -> Result<(), Box<dyn Error>> {
         sessions.push(start.elapsed().as_secs_f64() / updates as f64);
     }
     let update = median_and_min(sessions);
+    let ceiling = parallel_ceiling(task_cfg, &batch)?;
 
     println!(
         "T-ball ({} steps of {} s, P = {}, K = {})",
@@ -123,10 +124,54 @@ fn run() -> Result<(), Box<dyn Error>> {
             fastest * 1e6
         );
     }
+    println!(
+        "{:<44} {:>10.2}× {:>10.2}×   (rollouts on 2 threads against 1, no pipeline: what this \
+         machine's 2 vCPUs give work that needs no coordination)",
+        "the machine's ceiling for 2 workers", ceiling.0, ceiling.1
+    );
     if let Some(supervisor) = supervisor {
-        pipeline(&supervisor, &config, pipeline_updates)?;
+        pipeline(&supervisor, &config, pipeline_updates, ceiling)?;
     }
     Ok(())
+}
+
+/// Throughput of rollouts on 2 threads relative to 1 (median, and the best of the runs): the
+/// speed-up any executor could at most get from a second worker on this machine. A VM's two
+/// vCPUs may share a physical core or a neighbour's load, so it can be well below 2.
+fn parallel_ceiling(
+    task_cfg: &tball::TballConfig,
+    batch: &ParameterBatch,
+) -> Result<(f64, f64), Box<dyn Error>> {
+    let rollouts = 2_000;
+    let run = |threads: usize| -> Result<f64, Box<dyn Error>> {
+        let tasks: Vec<Tball> = (0..threads)
+            .map(|_| Tball::new(task_cfg))
+            .collect::<Result<_, _>>()?;
+        let start = Instant::now();
+        std::thread::scope(|scope| {
+            for mut task in tasks {
+                scope.spawn(move || {
+                    let mut per_step = vec![0.0; task.steps()];
+                    for r in 0..rollouts {
+                        black_box(
+                            task.rollout(black_box(batch.row(r % batch.rollouts)), &mut per_step),
+                        );
+                    }
+                });
+            }
+        });
+        Ok(start.elapsed().as_secs_f64())
+    };
+    let mut ratios = Vec::new();
+    // Alternating, so that a change in the machine's load affects both sides of each ratio.
+    for _ in 0..REPETITIONS {
+        let one = run(1)?;
+        let two = run(2)?;
+        ratios.push(2.0 * one / two);
+    }
+    let (median, _) = median_and_min(ratios.clone());
+    let best = ratios.into_iter().fold(0.0, f64::max);
+    Ok((median, best))
 }
 
 /// Pipeline runs per worker count.
@@ -218,7 +263,12 @@ fn pipeline_run(
 }
 
 /// Times the pipeline with 1 and 2 workers and compares its results with the in-process run.
-fn pipeline(supervisor: &Path, config: &Path, updates: u64) -> Result<(), Box<dyn Error>> {
+fn pipeline(
+    supervisor: &Path,
+    config: &Path,
+    updates: u64,
+    ceiling: (f64, f64),
+) -> Result<(), Box<dyn Error>> {
     let text = std::fs::read_to_string(config)?;
     let dir = std::env::temp_dir().join(format!("tball-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
@@ -273,6 +323,14 @@ fn pipeline(supervisor: &Path, config: &Path, updates: u64) -> Result<(), Box<dy
             f1 / f2,
             finals[0] == in_process,
         );
+        if delay_ms == 0.0 {
+            println!(
+                "{:<22} median speed-up {:.0} % of the machine's median ceiling ({:.2}×)",
+                "",
+                100.0 * (m1 / m2) / ceiling.0,
+                ceiling.0
+            );
+        }
     }
     std::fs::remove_dir_all(&dir)?;
     Ok(())
