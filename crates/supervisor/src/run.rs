@@ -356,6 +356,11 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         );
     }
     let launcher = Launcher::find(opts.bin_dir.as_deref(), &cfg)?;
+    if let Some(dest) = &opts.result {
+        check_writable(dest).with_context(|| {
+            format!("--result {}: cannot write the result there", dest.display())
+        })?;
+    }
     let limits = pipeline::limits(&cfg)?;
     let run_id = opts.run_id.unwrap_or_else(draw_run_id);
     let run_dir = control::runs_dir().join(wire::run_id_hex(run_id));
@@ -1676,10 +1681,14 @@ impl Supervisor {
     fn finish(&mut self, copy_result: Option<&Path>) -> anyhow::Result<()> {
         let result_path = pipeline::result_path(&self.run_dir);
         let result = RunResult::read(&result_path).ok();
-        if let (Some(dest), true) = (copy_result, result_path.exists()) {
-            std::fs::copy(&result_path, dest)
-                .with_context(|| format!("cannot copy the result to {}", dest.display()))?;
-        }
+        // A failed copy must not skip the clean-up and the summary: the run is over either
+        // way, and the summary (and the recording) still say what it gave.
+        let copied = match (copy_result, result_path.exists()) {
+            (Some(dest), true) => std::fs::copy(&result_path, dest)
+                .map(drop)
+                .with_context(|| format!("cannot copy the result to {}", dest.display())),
+            _ => Ok(()),
+        };
         remove_run(&self.run_dir, self.run_id);
         if let Some(r) = result {
             let of = self
@@ -1771,8 +1780,25 @@ impl Supervisor {
                 }
             }
         }
-        Ok(())
+        copied
     }
+}
+
+/// Fails unless a file can be written at `path`: checked before a run starts, since the
+/// result is written only when the run ends, maybe days later. Creates nothing that stays.
+fn check_writable(path: &Path) -> anyhow::Result<()> {
+    if path.is_dir() {
+        bail!("it is a directory");
+    }
+    let existed = path.exists();
+    std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path)?;
+    if !existed {
+        let _ = std::fs::remove_file(path);
+    }
+    Ok(())
 }
 
 /// The supervisor's pid, in its run directory: tells a killed run from a live one.

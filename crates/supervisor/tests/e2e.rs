@@ -1166,6 +1166,62 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert_nothing_left(&run);
 }
 
+/// `--result` is written when the run ends, maybe days later: a place it cannot be written is
+/// refused before anything starts, and one that goes away during the run still gets the
+/// summary and leaves nothing behind.
+#[test]
+fn a_result_file_that_cannot_be_written_is_refused_at_start_and_cleaned_up_after_at_the_end() {
+    let scratch = Scratch::new("result");
+    for (id, dest) in [
+        (520, scratch.path("missing/result.toml")),
+        (521, scratch.path("")),
+    ] {
+        let dest = dest.to_str().unwrap();
+        let mut run = Run::start(&scratch, id, &["--quiet", "--no-record", "--result", dest]);
+        assert_eq!(run.wait(Duration::from_secs(10)).code(), Some(1));
+        let out = run.text();
+        assert!(out.contains(&format!("--result {dest}")), "{out}");
+        assert!(!out.contains("starting"), "{out}");
+        assert_nothing_left(&run);
+    }
+    assert!(!scratch.path("missing").exists());
+
+    let cfg = write_config(
+        &scratch,
+        "continual.toml",
+        &config(&[
+            ("updates = 40\n", ""),
+            ("viapoint_weight = 1000.0", DELAYED),
+        ]),
+    );
+    let out_dir = scratch.path("out");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    let result = out_dir.join("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        522,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--no-record",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    std::fs::remove_dir_all(&out_dir).unwrap();
+    let (ok, reply) = run.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    assert_eq!(run.wait(Duration::from_secs(20)).code(), Some(1));
+    let out = run.text();
+    assert!(out.contains("cannot copy the result to"), "{out}");
+    assert!(
+        out.contains("summary: run") && out.contains("final mean"),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
     let scratch = Scratch::exclusive("record");
