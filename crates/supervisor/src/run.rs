@@ -1548,6 +1548,10 @@ impl Supervisor {
             (None, true) => status.to_string(),
             (None, false) => format!("{status}: {last}"),
         };
+        let cause = match sigbus_hint(status, shm_space(Path::new(SHM_DIR))) {
+            Some(hint) => format!("{cause}; {hint}"),
+            None => cause,
+        };
         match p.role {
             Role::Worker(w) => {
                 let reason = if !self.slots.contains_key(&w) {
@@ -2064,6 +2068,49 @@ fn signal_group(pid: u32, sig: libc::c_int) {
     }
 }
 
+/// Where iceoryx2's shared-memory segments live (POSIX shm_open on Linux).
+const SHM_DIR: &str = "/dev/shm";
+
+/// (free, total) bytes of the file system at `dir`.
+fn shm_space(dir: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::ffi::OsStrExt as _;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: statvfs writes only into the struct it is given; the path is NUL-terminated.
+    #[allow(unsafe_code)]
+    let st = unsafe {
+        let mut st: libc::statvfs = std::mem::zeroed();
+        (libc::statvfs(path.as_ptr(), &mut st) == 0).then_some(st)
+    }?;
+    let frsize = st.f_frsize as u64;
+    Some((st.f_bavail as u64 * frsize, st.f_blocks as u64 * frsize))
+}
+
+/// What a child killed by SIGBUS most likely ran into: iceoryx2 sizes its segments without
+/// reserving their pages, so a full /dev/shm shows only as SIGBUS at the first write to a page
+/// it has no room for, and `signal: 7 (SIGBUS)` alone does not say so.
+fn sigbus_hint(status: ExitStatus, shm: Option<(u64, u64)>) -> Option<String> {
+    use std::os::unix::process::ExitStatusExt as _;
+    if status.signal() != Some(libc::SIGBUS) {
+        return None;
+    }
+    let space = match shm {
+        Some((free, total)) => format!("{SHM_DIR} has {} free of {}", size(free), size(total)),
+        None => format!("{SHM_DIR} could not be inspected"),
+    };
+    Some(format!(
+        "SIGBUS here most likely means the shared memory is full: {space}; free space there \
+         (or enlarge it), or make the run's messages smaller (K, P, N, pipeline.max_workers)"
+    ))
+}
+
+fn size(bytes: u64) -> String {
+    if bytes < 1 << 20 {
+        format!("{} KiB", bytes >> 10)
+    } else {
+        format!("{:.1} MiB", bytes as f64 / f64::from(1 << 20))
+    }
+}
+
 /// The child gets SIGKILL when the supervisor dies, however it dies.
 fn die_with_parent(cmd: &mut Command) {
     let parent = std::process::id() as libc::pid_t;
@@ -2087,6 +2134,28 @@ fn die_with_parent(cmd: &mut Command) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_child_killed_by_sigbus_is_said_to_have_found_the_shared_memory_full() {
+        use std::os::unix::process::ExitStatusExt as _;
+        let bus = ExitStatus::from_raw(libc::SIGBUS);
+        let hint = sigbus_hint(bus, Some((12 << 10, 64 << 20))).unwrap();
+        assert!(
+            hint.contains("shared memory is full: /dev/shm has 12 KiB free of 64.0 MiB"),
+            "{hint}"
+        );
+        assert!(sigbus_hint(bus, None)
+            .unwrap()
+            .contains("/dev/shm could not be inspected"));
+        for other in [
+            ExitStatus::from_raw(libc::SIGSEGV),
+            ExitStatus::from_raw(1 << 8),
+        ] {
+            assert_eq!(sigbus_hint(other, Some((0, 1))), None);
+        }
+        let (free, total) = shm_space(Path::new("/")).unwrap();
+        assert!(free <= total && total > 0);
+    }
 
     #[test]
     fn the_default_recording_is_under_runs_named_after_the_run_and_its_id() {

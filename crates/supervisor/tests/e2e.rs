@@ -1222,6 +1222,51 @@ fn a_result_file_that_cannot_be_written_is_refused_at_start_and_cleaned_up_after
     assert_nothing_left(&run);
 }
 
+/// A full /dev/shm kills the process that writes to a page it has no room for with SIGBUS (the
+/// segments are sized without their pages): the supervisor says what that most likely means.
+#[test]
+fn a_worker_killed_by_sigbus_is_reported_with_the_state_of_the_shared_memory() {
+    let scratch = Scratch::new("sigbus");
+    let cfg = write_config(
+        &scratch,
+        "continual.toml",
+        &config(&[
+            ("updates = 40\n", ""),
+            ("viapoint_weight = 1000.0", DELAYED),
+        ]),
+    );
+    let mut run = Run::start(&scratch, 523, &[cfg.to_str().unwrap(), "--no-record"]);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let (_, pid) = pids_in(&status)
+        .into_iter()
+        .find(|(name, _)| name == "worker-1")
+        .unwrap();
+    // Rust's stack-overflow handler takes the first SIGBUS, restores the default action and
+    // returns (a real fault then recurs, a sent signal does not): so send it until it kills.
+    let end = Instant::now() + Duration::from_secs(20);
+    while !run.text().contains("SIGBUS here most likely") {
+        assert!(Instant::now() < end, "{}", run.text());
+        let _ = Command::new("kill")
+            .args(["-BUS", &pid.to_string()])
+            .status();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = run.text();
+    assert!(
+        out.contains(&format!("worker-1 (pid {pid}) died (signal: 7 (SIGBUS)"))
+            && out.contains("shared memory is full: /dev/shm has"),
+        "{out}"
+    );
+    let (ok, reply) = run.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    assert!(
+        run.wait(Duration::from_secs(20)).success(),
+        "{}",
+        run.text()
+    );
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_run_is_recorded_by_default_and_every_update_recomputes_bit_identically() {
     let scratch = Scratch::exclusive("record");
