@@ -161,8 +161,12 @@ impl Binaries {
         if let Some(dir) = bin_dir {
             for b in BINARIES {
                 let p = dir.join(b);
-                if !p.is_file() {
+                if !p.exists() {
                     bail!("missing binary `{b}`: {} does not exist", p.display());
+                }
+                // Found now rather than when it is started, after the processes before it.
+                if !executable_file(&p) {
+                    bail!("binary `{b}`: {} is not an executable file", p.display());
                 }
             }
             return Ok(Self::InDir {
@@ -174,7 +178,7 @@ impl Binaries {
         let dir = exe
             .parent()
             .context("the supervisor executable has no directory")?;
-        Ok(if BINARIES.iter().all(|b| dir.join(b).is_file()) {
+        Ok(if BINARIES.iter().all(|b| executable_file(&dir.join(b))) {
             Self::InDir {
                 dir: dir.to_path_buf(),
                 exe: exe.clone(),
@@ -183,6 +187,12 @@ impl Binaries {
             Self::SelfHosted(exe)
         })
     }
+}
+
+fn executable_file(p: &Path) -> bool {
+    use std::os::unix::fs::PermissionsExt as _;
+    p.metadata()
+        .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
 }
 
 struct Proc {

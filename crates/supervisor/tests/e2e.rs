@@ -1147,6 +1147,28 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
         run.text()
     );
     assert_nothing_left(&run);
+    // One that is there but cannot run: refused before the updater and sampler start, not
+    // when its turn to start comes.
+    for (id, make) in [(511, "file"), (512, "dir")] {
+        let worker = bins.join("rollout-worker");
+        let _ = std::fs::remove_file(&worker);
+        let _ = std::fs::remove_dir(&worker);
+        match make {
+            "file" => std::fs::write(&worker, "#!/bin/sh\n").unwrap(),
+            _ => std::fs::create_dir(&worker).unwrap(),
+        }
+        let mut run = Run::start(&scratch, id, &["--bin-dir", bins.to_str().unwrap()]);
+        assert_eq!(run.wait(Duration::from_secs(10)).code(), Some(1));
+        let out = run.text();
+        assert!(
+            out.contains(&format!(
+                "binary `rollout-worker`: {} is not an executable file",
+                worker.display()
+            )) && !out.contains("starting"),
+            "{out}"
+        );
+        assert_nothing_left(&run);
+    }
 
     // A task that returns NaN (fault injection).
     let nan = write_config(
