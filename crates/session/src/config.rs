@@ -349,6 +349,16 @@ fn num(v: f64) -> String {
     }
 }
 
+/// A task's settings as a TOML inline table, `{viapoint = 0.3}`.
+fn settings_text(task: &dyn tasks::Task) -> String {
+    let list: Vec<String> = task
+        .settings()
+        .iter()
+        .map(|(name, v)| format!("{name} = {}", num(*v)))
+        .collect();
+    format!("{{{}}}", list.join(", "))
+}
+
 /// Bytes in decimal units, as in "about 7.2 GB".
 fn bytes(b: f64) -> String {
     match b {
@@ -632,7 +642,17 @@ impl RunConfig {
         let mut task = self
             .build_task()
             .map_err(|e| self.task_error(shape.section, e))?;
-        self.validate_schedule(task.as_mut())
+        let runs_here = !matches!(self.task, TaskSection::External(_));
+        if runs_here {
+            tasks::check_initial_rollout(task.as_mut()).map_err(|e| {
+                self.invalid(
+                    &format!("task.{}", shape.section),
+                    settings_text(task.as_ref()),
+                    &e.to_string(),
+                )
+            })?;
+        }
+        self.validate_schedule(task.as_mut(), runs_here)
     }
 
     /// λ_min and λ_max each on their own first (so that a bad bound is reported as itself, not
@@ -988,8 +1008,16 @@ impl RunConfig {
     }
 
     /// Every `[[schedule]]` entry against the task's settings, named by its place in the file.
-    fn validate_schedule(&self, task: &mut dyn tasks::Task) -> Result<(), ConfigError> {
-        for (i, s) in self.schedule.iter().enumerate() {
+    /// With `probe`, each change is also checked by a rollout of the initial mean, applied in
+    /// the order a run applies them (by update, then as written).
+    fn validate_schedule(
+        &self,
+        task: &mut dyn tasks::Task,
+        probe: bool,
+    ) -> Result<(), ConfigError> {
+        let mut order: Vec<(usize, &ScheduleEntry)> = self.schedule.iter().enumerate().collect();
+        order.sort_by_key(|(_, s)| s.from_update);
+        for (i, s) in order {
             task.set(&s.set, s.value).map_err(|e| match e {
                 tasks::TaskError::UnknownSetting { .. } => self.invalid(
                     &format!("schedule[{i}].set"),
@@ -1005,6 +1033,19 @@ impl RunConfig {
                 ),
                 other => self.invalid(&format!("schedule[{i}]"), "(entry)", &other.to_string()),
             })?;
+            if probe {
+                tasks::check_initial_rollout(task).map_err(|e| {
+                    self.invalid(
+                        &format!("schedule[{i}].value"),
+                        num(s.value),
+                        &format!(
+                            "from update {} the settings would be {}: {e}",
+                            s.from_update,
+                            settings_text(task)
+                        ),
+                    )
+                })?;
+            }
         }
         Ok(())
     }
@@ -1239,6 +1280,19 @@ impl RunConfig {
     /// Builds the task without its rollout delay (see [`crate::build_task`] for the full one).
     /// For `[task.external]` this is the task's shape ([`tasks::External`]): enough for the
     /// updater, sampler, recorder and supervisor, which never run rollouts; not runnable.
+    /// Whether a runtime task change (`supervisor set`) can be made: the setting exists, takes
+    /// the value, and (for a task that runs here) the initial mean's rollout still has finite
+    /// costs: a change under which every cost overflows would end a continual run at the update
+    /// it takes effect from.
+    pub fn check_task_change(&self, name: &str, value: f64) -> Result<(), tasks::TaskError> {
+        let mut task = self.build_task()?;
+        task.set(name, value)?;
+        if matches!(self.task, TaskSection::External(_)) {
+            return Ok(());
+        }
+        tasks::check_initial_rollout(task.as_mut())
+    }
+
     pub fn build_task(&self) -> Result<Box<dyn tasks::Task>, tasks::TaskError> {
         match &self.task {
             TaskSection::ViaPoint(v) => Ok(Box::new(tasks::ViaPoint::new(&v.spec())?)),
@@ -1939,6 +1993,22 @@ mod tests {
             error(&text),
             "test.toml: schedule[0].value = 0.01: task `tball`, setting `ball_height`: the \
              ball's centre must be at least its radius above the ground"
+        );
+        // Finite settings under which every rollout's cost overflows passed, and failed the
+        // run at its first update, or at the schedule's after learning up to it.
+        let text = edit(TBALL, &[("tee_x = 0.76", "tee_x = 1e300")]);
+        assert_eq!(
+            error(&text),
+            "test.toml: task.tball = {ball_height = 0.52, tee_x = 1e300, tee_y = -0.53}: task \
+             `tball`: with these settings a rollout of the initial mean gives the terminal cost \
+             = inf: costs must be finite, so every update would fail"
+        );
+        assert_eq!(
+            error(&three("viapoint", "1e308")),
+            "test.toml: schedule[1].value = 1e308: from update 10 the settings would be \
+             {viapoint = 1e308}: task `via-point`: with these settings a rollout of the initial \
+             mean gives the cost of step 50 = inf: costs must be finite, so every update would \
+             fail"
         );
     }
 

@@ -1400,8 +1400,9 @@ impl Supervisor {
         if self.phase == Phase::Stopping {
             return Err("the run is stopping".into());
         }
-        let mut task = self.cfg.build_task().map_err(|e| e.to_string())?;
-        task.set(name, value).map_err(|e| e.to_string())?;
+        self.cfg
+            .check_task_change(name, value)
+            .map_err(|e| e.to_string())?;
         // The control service keeps no history: a change sent before the updater subscribed
         // would be lost.
         if !self.role_ready(Role::Updater) {

@@ -1032,6 +1032,13 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     run.wait_status("3 updates", |s| updates_in(s) >= 3);
     let (ok, reply) = run.ctl(&["set", "goal", "2.0"]);
     assert!(!ok && reply.contains("no setting `goal`"), "{reply}");
+    // Finite, but every rollout's cost would overflow: it ended the run at the update it took
+    // effect from.
+    let (ok, reply) = run.ctl(&["set", "viapoint", "1e308"]);
+    assert!(
+        !ok && reply.contains("gives the cost of step 50 = inf"),
+        "{reply}"
+    );
     // Two changes in a row: each reply names the update its own change takes effect from, as
     // the updater decided it (the updater echoes each change's number).
     let mut said = Vec::new();

@@ -80,6 +80,31 @@ impl<T: Task + ?Sized> Task for Box<T> {
     }
 }
 
+/// Runs the initial mean once and fails if a cost is not finite: settings under which even it
+/// costs NaN or ±inf (a tee 10³⁰⁰ m away, a via-point whose distance times its weight
+/// overflows) would fail every update, so they are refused where they are given (a config, a
+/// schedule entry, a runtime change) rather than by the update that first meets them. Not for
+/// a task whose rollouts run elsewhere ([`External`]).
+pub fn check_initial_rollout(task: &mut dyn Task) -> Result<(), TaskError> {
+    let mut per_step = vec![0.0; task.steps()];
+    let terminal = task.rollout(&task.initial_mean(), &mut per_step);
+    let bad = match per_step.iter().position(|c| !c.is_finite()) {
+        _ if !terminal.is_finite() => Some(("the terminal cost".to_string(), terminal)),
+        Some(i) => Some((format!("the cost of step {i}"), per_step[i])),
+        None => None,
+    };
+    match bad {
+        None => Ok(()),
+        Some((what, value)) => Err(TaskError::Invalid {
+            task: task.name(),
+            reason: format!(
+                "with these settings a rollout of the initial mean gives {what} = {value}: \
+                 costs must be finite, so every update would fail"
+            ),
+        }),
+    }
+}
+
 /// Sets a task's setting `name` from `update` on (0-based: `from_update = 20` leaves updates
 /// 0–19 unchanged, "after 20 updates").
 #[derive(Debug, Clone, PartialEq)]
@@ -353,6 +378,15 @@ fn square_scaled(v: &mut [f64], scale: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_via_point_whose_cost_overflows_fails_the_initial_rollout_check() {
+        let mut t = ViaPoint::new(&ViaPointSpec::default()).unwrap();
+        assert_eq!(check_initial_rollout(&mut t), Ok(()));
+        t.set("viapoint", 1e308).unwrap();
+        let e = check_initial_rollout(&mut t).unwrap_err().to_string();
+        assert!(e.contains("the cost of step 50 = inf"), "{e}");
+    }
 
     #[test]
     fn via_point_cost_matches_equation_3() {
