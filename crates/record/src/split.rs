@@ -92,6 +92,13 @@ pub fn describe_parts(path: &Path) -> String {
 /// non-empty file, or the parts of an earlier split recording, which count even when its first
 /// file has been moved away (a new recording would remove them). One message for every writer.
 pub fn refuse_overwrite(path: &Path, option: &str) -> Result<(), RecordError> {
+    // Its length is the directory's, not a recording's.
+    if path.is_dir() {
+        return Err(RecordError::invalid(
+            path,
+            format!("is a directory ({option}); a recording is a file: give a file name"),
+        ));
+    }
     let first = std::fs::metadata(path)
         .ok()
         .filter(|m| m.len() > 0)
@@ -322,6 +329,16 @@ impl RunFiles {
 mod tests {
     use super::*;
     use crate::{join_resumed, read_recording, recompute::verify, McapRecorder, Recording};
+
+    #[test]
+    fn a_directory_given_for_a_recording_is_named_as_one() {
+        let dir = std::env::temp_dir().join(format!("split-dir-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = refuse_overwrite(&dir, "--out").unwrap_err().to_string();
+        assert!(e.contains("is a directory (--out)"), "{e}");
+        assert!(!e.contains("a recording of"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn a_split_recording_being_written_is_left_whole() {
