@@ -393,9 +393,18 @@ impl RunConfig {
 
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
         let mut cfg: RunConfig = toml::from_str(text).map_err(|e| {
-            Self::task_sections_error(text, origin).unwrap_or_else(|| ConfigError::Parse {
-                file: origin.to_path_buf(),
-                message: e.to_string().trim_end().replace('\n', "\n  "),
+            Self::task_sections_error(text, origin).unwrap_or_else(|| {
+                let message = e.to_string().trim_end().replace('\n', "\n  ");
+                // The TOML crate names the line, not the table: `rollouts = "15"` could be in
+                // any section.
+                let key = e.span().and_then(|span| key_path_at(text, span.start));
+                ConfigError::Parse {
+                    file: origin.to_path_buf(),
+                    message: match key {
+                        Some(key) => format!("{key}: {message}"),
+                        None => message,
+                    },
+                }
             })
         })?;
         cfg.origin = origin.to_path_buf();
@@ -1319,6 +1328,50 @@ impl RunConfig {
     }
 }
 
+/// The dotted path of the key whose line holds byte `offset` of a TOML text, as the config
+/// errors name fields (`optimizer.rollouts`, `schedule[1].value`): the last table header above
+/// it and the key before the line's `=`. `None` where that is not a `key = value` line (a
+/// header, a value spread over lines).
+fn key_path_at(text: &str, offset: usize) -> Option<String> {
+    let offset = offset.min(text.len());
+    let line_start = text[..offset].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    let bare = |k: &str| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
+    };
+    if !bare(key) {
+        return None;
+    }
+    let mut table = String::new();
+    let mut arrays: std::collections::BTreeMap<String, usize> = Default::default();
+    for header in text[..line_start].lines().map(str::trim) {
+        if let Some(name) = header
+            .strip_prefix("[[")
+            .and_then(|h| h.split_once("]]"))
+            .map(|(name, _)| name.trim())
+        {
+            let n = arrays.entry(name.to_string()).or_insert(0);
+            table = format!("{name}[{n}]");
+            *n += 1;
+        } else if let Some(name) = header
+            .strip_prefix('[')
+            .and_then(|h| h.split_once(']'))
+            .map(|(name, _)| name.trim())
+        {
+            table = name.to_string();
+        }
+    }
+    Some(if table.is_empty() {
+        key.to_string()
+    } else {
+        format!("{table}.{key}")
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1361,6 +1414,42 @@ mod tests {
 
     fn parse(text: &str) -> Result<RunConfig, ConfigError> {
         RunConfig::parse(text, Path::new("test.toml"))
+    }
+
+    /// A value of the wrong type is reported with its table, not only its line: `rollouts`,
+    /// `dt` or `value` alone could be in several places.
+    #[test]
+    fn type_errors_name_the_key_with_its_table() {
+        let cases = [
+            (
+                "rollouts = 15",
+                "rollouts = \"15\"",
+                "test.toml: optimizer.rollouts: ",
+            ),
+            ("seed = 1", "seed = -1", "test.toml: run.seed: "),
+            (
+                "value = 0.1",
+                "value = \"low\"",
+                "test.toml: schedule[0].value: ",
+            ),
+        ];
+        for (from, to, expected) in cases {
+            assert!(DEFAULT_CONFIG.contains(from), "{from}");
+            let e = parse(&DEFAULT_CONFIG.replacen(from, to, 1))
+                .unwrap_err()
+                .to_string();
+            assert!(e.starts_with(expected), "{e}");
+            assert!(e.contains(to), "the line is still shown: {e}");
+        }
+        let text = "[run]\nname = \"a\"\n\n[[schedule]]\nfrom_update = 1\n[[schedule]]\n  from_update = \"x\" # two\n";
+        let at = text.find("\"x\"").unwrap();
+        assert_eq!(
+            key_path_at(text, at).as_deref(),
+            Some("schedule[1].from_update")
+        );
+        assert_eq!(key_path_at(text, 1), None, "a header is no key");
+        assert_eq!(key_path_at("a = [\n 1,\n \"x\"]\n", 13), None);
+        assert_eq!(key_path_at("top = 1", 6).as_deref(), Some("top"));
     }
 
     #[test]
