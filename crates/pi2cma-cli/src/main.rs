@@ -118,7 +118,7 @@ impl Observer for Progress {
         say!(
             "task change {} = {} from update {}/{} on (index {update})",
             change.name,
-            change.value,
+            tasks::value_text(change.value),
             update + 1,
             self.total.map_or("∞".to_string(), |t| t.to_string())
         );

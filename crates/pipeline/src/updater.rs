@@ -219,7 +219,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     };
                     println!(
                         "task change: {} = {} from update {} (runtime)",
-                        change.name, change.value, change.from_update
+                        change.name,
+                        tasks::value_text(change.value),
+                        change.from_update
                     );
                     changes.set((m.seq, change.from_update));
                     if started.is_none() {
@@ -377,7 +379,9 @@ fn apply(
     if source == "schedule" {
         println!(
             "task change: {} = {} from update {} (schedule)",
-            change.name, change.value, change.from_update
+            change.name,
+            tasks::value_text(change.value),
+            change.from_update
         );
     }
     recorded.push(RecordedChange {

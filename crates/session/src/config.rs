@@ -342,11 +342,7 @@ pub fn resolve_program(program: &Path) -> Option<PathBuf> {
 /// A number as a config would write it: plainly, or with an exponent when it is very large or
 /// very small (1e-12 rather than 0.000000000001).
 fn num(v: f64) -> String {
-    if v != 0.0 && v.is_finite() && !(1e-4..1e16).contains(&v.abs()) {
-        format!("{v:e}")
-    } else {
-        v.to_string()
-    }
+    tasks::value_text(v)
 }
 
 /// A task's settings as a TOML inline table, `{viapoint = 0.3}`.

@@ -1340,7 +1340,7 @@ impl Supervisor {
                 match self.set_task(&name, value) {
                     Ok(seq) => self.pending_sets.push(PendingSet {
                         seq,
-                        what: format!("{name} = {value}"),
+                        what: format!("{name} = {}", tasks::value_text(value)),
                         reply,
                         until: Instant::now() + SET_REPLY_WAIT,
                     }),
@@ -1415,7 +1415,10 @@ impl Supervisor {
         let msg = Control::set_task(self.run_id, seq, name, value)
             .ok_or_else(|| format!("setting name `{name}` is too long"))?;
         self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
-        say(&format!("task change {name} = {value} sent to the updater"));
+        say(&format!(
+            "task change {name} = {} sent to the updater",
+            tasks::value_text(value)
+        ));
         Ok(seq)
     }
 
@@ -1741,12 +1744,17 @@ impl Supervisor {
                 say(&if c.source == "resume" {
                     format!(
                         "  task setting {} = {} in force where the run resumed (update {})",
-                        c.name, c.value, c.from_update
+                        c.name,
+                        tasks::value_text(c.value),
+                        c.from_update
                     )
                 } else {
                     format!(
                         "  task change {} = {} from update {} ({})",
-                        c.name, c.value, c.from_update, c.source
+                        c.name,
+                        tasks::value_text(c.value),
+                        c.from_update,
+                        c.source
                     )
                 });
             }

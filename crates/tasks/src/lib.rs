@@ -14,6 +14,16 @@ pub use external::External;
 use dmp::{AffineDmp, Dmp, Gains};
 use thiserror::Error;
 
+/// A setting's value as messages show it: as written for everyday numbers, in exponent form
+/// outside 1e-4..1e16, where `f64`'s `Display` writes up to 300 digits (`1e300`).
+pub fn value_text(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e16).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        v.to_string()
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum TaskError {
     #[error("task `{task}` has no setting `{name}` (it has: {known})")]
@@ -22,7 +32,7 @@ pub enum TaskError {
         name: String,
         known: String,
     },
-    #[error("task `{task}`: {name} = {value}: {reason}")]
+    #[error("task `{task}`: {name} = {}: {reason}", value_text(*.value))]
     InvalidSetting {
         task: &'static str,
         name: String,
@@ -377,6 +387,24 @@ fn square_scaled(v: &mut [f64], scale: f64) {
 
 #[cfg(test)]
 mod tests {
+    use super::value_text;
+
+    #[test]
+    fn huge_and_tiny_values_are_shown_in_exponent_form() {
+        assert_eq!(value_text(0.1), "0.1");
+        assert_eq!(value_text(0.0), "0");
+        assert_eq!(value_text(-1e300), "-1e300");
+        assert_eq!(value_text(2.5e-7), "2.5e-7");
+        assert_eq!(value_text(f64::INFINITY), "inf");
+        let e = super::TaskError::InvalidSetting {
+            task: "via-point",
+            name: "viapoint".into(),
+            value: 1e300,
+            reason: "too far",
+        };
+        assert_eq!(e.to_string(), "task `via-point`: viapoint = 1e300: too far");
+    }
+
     use super::*;
 
     #[test]
