@@ -347,6 +347,9 @@ fn run(cli: Cli) -> Result<()> {
             if !replaceable && !no_record {
                 record::refuse_overwrite(&mcap, "--out")?;
             }
+            for note in cfg.notes() {
+                eprintln!("note: {note}");
+            }
             stop_on_signal()?;
             if let Some(point) = point {
                 return run_resumed(&cfg, text, point, &out, quiet, no_record);
@@ -467,8 +470,16 @@ fn run(cli: Cli) -> Result<()> {
             let mut bad = 0;
             for path in &configs {
                 // An external task's worker program too: `supervisor run` would refuse it.
-                match load(path).and_then(|c| Ok(c.external_worker_program()?)) {
-                    Ok(_) => say!("{}: ok", path.display()),
+                match load(path).and_then(|c| {
+                    c.external_worker_program()?;
+                    Ok(c)
+                }) {
+                    Ok(cfg) => {
+                        say!("{}: ok", path.display());
+                        for note in cfg.notes() {
+                            say!("note: {note}");
+                        }
+                    }
                     Err(e) => {
                         eprintln!("error: {e:#}");
                         bad += 1;

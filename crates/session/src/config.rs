@@ -408,6 +408,30 @@ impl RunConfig {
         Ok(cfg)
     }
 
+    /// What is valid but likely not meant, for the binaries to show as notes: a scheduled
+    /// change at or past the end of a bounded run (it takes effect only in a run resumed with
+    /// more updates, so it is not an error).
+    pub fn notes(&self) -> Vec<String> {
+        let Some(updates) = self.run.updates else {
+            return Vec::new();
+        };
+        self.schedule
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.from_update >= updates)
+            .map(|(i, c)| {
+                format!(
+                    "{}: schedule[{i}].from_update = {} is not before the run's end (run.updates = \
+                     {updates}): {} = {} takes effect only if the run is resumed with more updates",
+                    self.origin.display(),
+                    c.from_update,
+                    c.set,
+                    num(c.value)
+                )
+            })
+            .collect()
+    }
+
     /// A `task` table without exactly one section, which serde would report as "wanted
     /// exactly 1 element"; `None` when that is not what is wrong with `text`.
     fn task_sections_error(text: &str, origin: &Path) -> Option<ConfigError> {
@@ -1410,6 +1434,23 @@ mod tests {
 
     fn parse(text: &str) -> Result<RunConfig, ConfigError> {
         RunConfig::parse(text, Path::new("test.toml"))
+    }
+
+    /// A scheduled change past a bounded run's end is valid (a resumed run may reach it) but
+    /// named; one inside the run, or in a continual run, is not.
+    #[test]
+    fn a_change_scheduled_past_the_end_is_noted() {
+        let late = DEFAULT_CONFIG.replace("from_update = 20", "from_update = 40");
+        let notes = parse(&late).unwrap().notes();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(
+            notes[0].starts_with("test.toml: schedule[0].from_update = 40 is not before the run's end (run.updates = 40): viapoint = 0.1"),
+            "{}",
+            notes[0]
+        );
+        assert!(parse(DEFAULT_CONFIG).unwrap().notes().is_empty());
+        let continual = late.replace("updates = 40\n", "");
+        assert!(parse(&continual).unwrap().notes().is_empty());
     }
 
     /// A value of the wrong type is reported with its table, not only its line: `rollouts`,

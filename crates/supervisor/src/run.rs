@@ -355,6 +355,9 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     if let Some(point) = &point {
         point.check(&cfg)?;
     }
+    for note in cfg.notes() {
+        say(&format!("note: {note}"));
+    }
     let pipe = cfg.pipeline();
     let target_workers = opts.workers.unwrap_or(pipe.workers);
     if !(1..=pipe.max_workers).contains(&target_workers) {
