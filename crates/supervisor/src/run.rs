@@ -1778,7 +1778,7 @@ impl Supervisor {
                 "{} --out {}{how_to_build}",
                 record::analyze_command(&rec.path, resumed.as_deref())
                     .replacen("pi2cma", &pi2cma, 1),
-                analysis_dir(&rec.path).display()
+                analysis_out(&rec.path).display()
             );
             let place = if rec.defaulted {
                 " (the default place: runs/<run name>-<run id>.mcap in the current directory; \
@@ -1983,16 +1983,13 @@ fn pi2cma_program() -> (String, &'static str) {
     }
 }
 
-/// Where the printed analysis command writes its CSV files and figures: beside the recording,
-/// named after it (`runs/A1-<id>.mcap` → `runs/A1-<id>/`).
-fn analysis_dir(recording: &Path) -> PathBuf {
-    match recording.extension() {
-        Some(e) if e == "mcap" => recording.with_extension(""),
-        _ => {
-            let mut dir = recording.as_os_str().to_owned();
-            dir.push("-analysis");
-            PathBuf::from(dir)
-        }
+/// The `--out` of the printed analysis command: the recording's directory, since `analyze`
+/// writes a run's CSV files and figures into `OUT/<file stem>/` (`runs/A1-<id>.mcap` →
+/// `runs/A1-<id>/`, beside the recording).
+fn analysis_out(recording: &Path) -> &Path {
+    match recording.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
     }
 }
 
@@ -2195,13 +2192,11 @@ mod tests {
     #[test]
     fn the_analysis_goes_beside_the_recording() {
         assert_eq!(
-            analysis_dir(Path::new("runs/A1-00ab.mcap")),
-            PathBuf::from("runs/A1-00ab")
+            analysis_out(Path::new("runs/A1-00ab.mcap")),
+            Path::new("runs")
         );
-        assert_eq!(
-            analysis_dir(Path::new("day1.rec")),
-            PathBuf::from("day1.rec-analysis")
-        );
+        assert_eq!(analysis_out(Path::new("day1.mcap")), Path::new("."));
+        assert_eq!(analysis_out(Path::new("/d/x.mcap")), Path::new("/d"));
     }
 
     /// A process's start time identifies it across pid reuse; a zombie or a reaped process has
