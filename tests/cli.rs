@@ -319,7 +319,10 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
     let stdout = String::from_utf8_lossy(&resumed.stdout).to_string();
     assert!(stdout.contains("resumed at update 20 of 40"), "{stdout}");
     assert!(
-        stdout.contains("analyse it with: pi2cma analyze first/run.mcap second/run.mcap"),
+        stdout.contains(&format!(
+            "analyse it with: {} analyze first/run.mcap second/run.mcap",
+            env!("CARGO_BIN_EXE_pi2cma")
+        )),
         "{stdout}"
     );
     assert_eq!(final_lines(&resumed), whole);

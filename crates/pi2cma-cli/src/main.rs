@@ -298,10 +298,14 @@ fn run_observed<T>(
 /// Where the recording is and how to analyse it; a resumed run's analysis joins the file it
 /// resumed (`resumed_from`), for the whole learning curve.
 fn print_recording(mcap: &Path, out: &Path, resumed_from: Option<&str>) {
+    // This binary, as the command must be typed (`cargo run` does not put it on PATH).
+    let pi2cma = std::env::current_exe()
+        .map(|exe| record::program_name(&exe))
+        .unwrap_or_else(|_| "pi2cma".into());
     say!(
         "recording: {}\nanalyse it with: {} --out {}",
         record::describe_parts(mcap),
-        record::analyze_command(mcap, resumed_from.map(Path::new)),
+        record::analyze_command(&pi2cma, mcap, resumed_from.map(Path::new)),
         out.join("analysis").display()
     );
 }

@@ -63,14 +63,26 @@ pub fn last_part(path: &Path) -> PathBuf {
 
 /// The `analyze` command line for a run's recording `first` (all its parts) that resumed the
 /// recording `resumed_from` (all of its parts, whichever one it names): one learning curve
-/// from the run's very start.
-pub fn analyze_command(first: &Path, resumed_from: Option<&Path>) -> String {
+/// from the run's very start. `pi2cma` is how to call the `pi2cma` binary ([`program_name`]).
+pub fn analyze_command(pi2cma: &str, first: &Path, resumed_from: Option<&Path>) -> String {
     let mut files = resumed_from
         .map(|r| recording_parts(&first_part(r)))
         .unwrap_or_default();
     files.extend(recording_parts(first));
     let files: Vec<String> = files.iter().map(|p| p.display().to_string()).collect();
-    format!("pi2cma analyze {}", files.join(" "))
+    format!("{pi2cma} analyze {}", files.join(" "))
+}
+
+/// How a printed command calls the program at `path` so that it works as printed: relative to
+/// the working directory when under it, else the full path (`cargo run` leaves the binaries in
+/// target/release, which is not on PATH).
+pub fn program_name(path: &Path) -> String {
+    std::env::current_dir()
+        .ok()
+        .and_then(|cwd| path.strip_prefix(cwd).ok())
+        .unwrap_or(path)
+        .display()
+        .to_string()
 }
 
 /// How the binaries name a finished recording: `FILE`, or `FILE (split into n parts: FILE, …)`.
@@ -513,11 +525,15 @@ mod tests {
             .map(|n| dir.join(n).display().to_string())
             .collect();
         assert_eq!(
-            analyze_command(&dir.join("b.mcap"), Some(&dir.join("a.part-2.mcap"))),
+            analyze_command(
+                "pi2cma",
+                &dir.join("b.mcap"),
+                Some(&dir.join("a.part-2.mcap"))
+            ),
             format!("pi2cma analyze {}", files.join(" "))
         );
         assert_eq!(
-            analyze_command(&dir.join("a.mcap"), None),
+            analyze_command("pi2cma", &dir.join("a.mcap"), None),
             format!("pi2cma analyze {} {}", files[0], files[1])
         );
         std::fs::remove_dir_all(&dir).unwrap();

@@ -1688,10 +1688,11 @@ impl Supervisor {
                     } else {
                         "; the run continues without recording"
                     };
+                    let (pi2cma, how_to_build) = pi2cma_program();
                     say(&format!(
                         "WARNING: recorder (pid {pid}) died ({cause}){go_on}. {path} holds every \
-                         update flushed so far but is not finished: `pi2cma recover {path}` (or \
-                         `mcap-tool recover {path}`) completes it"
+                         update flushed so far but is not finished: `{pi2cma} recover {path}` (or \
+                         `mcap-tool recover {path}`) completes it{how_to_build}"
                     ));
                 }
             }
@@ -1776,8 +1777,7 @@ impl Supervisor {
             let (pi2cma, how_to_build) = pi2cma_program();
             let analyse = format!(
                 "{} --out {}{how_to_build}",
-                record::analyze_command(&rec.path, resumed.as_deref())
-                    .replacen("pi2cma", &pi2cma, 1),
+                record::analyze_command(&pi2cma, &rec.path, resumed.as_deref()),
                 analysis_out(&rec.path).display()
             );
             let place = if rec.defaulted {
@@ -1969,13 +1969,7 @@ fn pi2cma_program() -> (String, &'static str) {
         .and_then(|exe| Some(exe.parent()?.join("pi2cma")))
         .filter(|p| p.is_file());
     match beside {
-        Some(path) => {
-            let shown = std::env::current_dir()
-                .ok()
-                .and_then(|cwd| path.strip_prefix(cwd).ok().map(Path::to_path_buf))
-                .unwrap_or(path);
-            (shown.display().to_string(), "")
-        }
+        Some(path) => (record::program_name(&path), ""),
         None => (
             "pi2cma".into(),
             "   (pi2cma: `cargo build --release -p pi2cma-cli` in the pi2cma repository)",
