@@ -101,6 +101,13 @@ impl Assembler {
         }
     }
 
+    /// Settings (in the order of `setting_names`) that the update before the first one ran
+    /// with, in the recording this one continues: a change at the first update is then handed
+    /// out as one.
+    pub fn continue_from(&mut self, settings: Vec<f64>) {
+        self.last_settings = Some(settings);
+    }
+
     /// The first distribution seen (the recording starts there).
     pub fn first_update(&self) -> Option<u64> {
         self.distributions.keys().next().copied()
@@ -218,6 +225,25 @@ impl Assembler {
         self.pending.remove(&u);
         self.next = Some(u + 1);
         Some((u, what.join(" and ")))
+    }
+
+    /// The task changes that the distribution of the next update carries (published, but its
+    /// update not complete), against the settings of the last update handed out: changes that
+    /// take effect at an update the recording does not reach, as when the run stops right
+    /// after `supervisor set`. Empty before the first update is handed out.
+    pub fn changes_ahead(&self) -> Option<(u64, Vec<(String, f64)>)> {
+        let u = self.next?;
+        let prev = self.last_settings.as_ref()?;
+        let next = self.distributions.get(&u)?;
+        let changed = self
+            .setting_names
+            .iter()
+            .zip(&next.settings)
+            .zip(prev)
+            .filter(|((_, v), p)| v.to_bits() != p.to_bits())
+            .map(|((n, v), _)| (n.clone(), *v))
+            .collect();
+        Some((u, changed))
     }
 
     fn assemble(
@@ -388,6 +414,44 @@ mod tests {
             a.cost(0, 0, c.per_step(0), c.terminal(0), t).unwrap(),
             CostOutcome::Stale
         );
+    }
+
+    /// What the next update's distribution changes, before that update completes (a run
+    /// stopped right after `supervisor set`), and a first update compared with the settings of
+    /// the recording a resumed run continues.
+    #[test]
+    fn changes_ahead_and_changes_at_a_resumed_first_update_are_found() {
+        let hp = session::RunConfig::default_config().hyperparameters();
+        let names = vec!["viapoint".to_string()];
+        let (mean, cov) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
+        let mut a = Assembler::new(hp.clone(), 2, 101, None, names.clone());
+        assert_eq!(a.changes_ahead(), None);
+        a.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
+        let costs = vec![1.0; 101];
+        let timing = || RolloutTiming {
+            worker: "w".into(),
+            start_ns: 0,
+            end_ns: 0,
+        };
+        for k in 0..hp.rollouts {
+            a.cost(7, k, &costs, 0.0, timing()).unwrap();
+        }
+        a.distribution(8, 1, &mean, &cov, &[0.9]).unwrap();
+        assert!(a.next_complete().unwrap().unwrap().changed.is_empty());
+        assert_eq!(
+            a.changes_ahead(),
+            Some((8, vec![("viapoint".to_string(), 0.9)]))
+        );
+
+        let mut resumed = Assembler::new(hp.clone(), 2, 101, None, names);
+        resumed.continue_from(vec![0.1]);
+        resumed.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
+        for k in 0..hp.rollouts {
+            resumed.cost(7, k, &costs, 0.0, timing()).unwrap();
+        }
+        resumed.distribution(8, 1, &mean, &cov, &[0.3]).unwrap();
+        let first = resumed.next_complete().unwrap().unwrap();
+        assert_eq!(first.changed, [("viapoint".to_string(), 0.3)]);
     }
 
     #[test]

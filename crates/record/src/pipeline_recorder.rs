@@ -270,13 +270,33 @@ impl WriterState {
         let names: Vec<String> = task.settings().iter().map(|(n, _)| n.to_string()).collect();
         let basis = task.basis_activations();
         let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
-        let assembler = Assembler::new(
+        let mut assembler = Assembler::new(
             cfg.hyperparameters(),
             dim,
             steps,
             basis.clone(),
             names.clone(),
         );
+        // A resumed run's first update is compared with the settings the recording it resumes
+        // ended with, so that a change taking effect there (a scheduled one the stopped run did
+        // not reach) is recorded, as the in-process runner records it. Unreadable: the
+        // supervisor has read it before starting the run; without it only that marker is lost.
+        if let Some(origin) = &resumed_from {
+            if let Ok(point) = crate::resume::resume_point(std::path::Path::new(origin)) {
+                let by_name: Vec<f64> = names
+                    .iter()
+                    .map(|n| {
+                        point
+                            .start
+                            .settings
+                            .iter()
+                            .find(|(s, _)| s == n)
+                            .map_or(f64::NAN, |(_, v)| *v)
+                    })
+                    .collect();
+                assembler.continue_from(by_name);
+            }
+        }
         Ok(Self {
             writer,
             assembler,
@@ -308,6 +328,15 @@ impl WriterState {
     fn finish(mut self, signal: bool) -> anyhow::Result<u64> {
         let pid = self.pid;
         let (written, mismatches) = (self.written, self.mismatches);
+        // A change that takes effect at the update after the last written one (the run was
+        // stopped right after `supervisor set`, or before a scheduled change) reached the
+        // published distribution but no update: without it here, `--resume` would go on with
+        // the old settings and the joined analysis would lack its marker.
+        if let Some((u, changed)) = self.assembler.changes_ahead() {
+            for (name, value) in &changed {
+                self.writer.write_task_change(u, name, *value)?;
+            }
+        }
         self.writer.write_event(
             self.current_update,
             Event::Exit,

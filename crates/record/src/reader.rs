@@ -252,6 +252,9 @@ pub struct Ends {
     pub last_update: Option<proto::Update>,
     /// How many `/update` messages the file holds.
     pub updates: u64,
+    /// The `/task_change` messages after the last `/update`: changes that take effect at the
+    /// update after it (a run stopped right after a task change).
+    pub changes_after: Vec<proto::TaskChange>,
     /// Why reading stopped early (a file whose writer was killed), if it did.
     pub truncated: Option<String>,
 }
@@ -280,6 +283,21 @@ pub fn read_ends(path: &Path) -> Result<Ends, RecordError> {
                 ends.updates += 1;
                 last_update.clear();
                 last_update.extend_from_slice(data);
+                ends.changes_after.clear();
+            }
+            Item::Message {
+                topic: topics::TASK_CHANGE,
+                data,
+                ..
+            } => {
+                let index = ends.changes_after.len() as u64;
+                ends.changes_after.push(decode(
+                    path,
+                    topics::TASK_CHANGE,
+                    index,
+                    "TaskChange",
+                    data,
+                )?);
             }
             _ => {}
         }
@@ -335,7 +353,15 @@ impl Recording {
         self.run.extend(next.run);
         self.updates.extend(next.updates);
         self.rollouts.extend(next.rollouts);
-        self.task_changes.extend(next.task_changes);
+        // A change at the update where `next` begins can be in both: recorded at the end of
+        // this one (the run stopped right after it) and at the start of `next` (in-process).
+        for c in next.task_changes {
+            if !self.task_changes.iter().any(|t| {
+                (t.update, &t.name, t.value.to_bits()) == (c.update, &c.name, c.value.to_bits())
+            }) {
+                self.task_changes.push(c);
+            }
+        }
         self.logs.extend(next.logs);
         for (topic, n) in next.topic_counts {
             *self.topic_counts.entry(topic).or_insert(0) += n;

@@ -98,15 +98,27 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
         .as_ref()
         .map(|r| r.config_toml.clone())
         .filter(|t| !t.is_empty());
+    let mut settings: Vec<(String, f64)> = last
+        .task_settings
+        .iter()
+        .map(|s| (s.name.clone(), s.value))
+        .collect();
+    // Changes recorded for the update after the last (the run stopped right after them) are
+    // what that update runs with: the distribution it samples from already carried them.
+    for c in rec
+        .changes_after
+        .iter()
+        .filter(|c| c.update == last.update + 1)
+    {
+        if let Some(s) = settings.iter_mut().find(|(n, _)| *n == c.name) {
+            s.1 = c.value;
+        }
+    }
     Ok(ResumePoint {
         start: Start {
             update: last.update + 1,
             distribution,
-            settings: last
-                .task_settings
-                .iter()
-                .map(|s| (s.name.clone(), s.value))
-                .collect(),
+            settings,
             origin: path.display().to_string(),
         },
         seed: last.seed,
@@ -378,6 +390,57 @@ mod tests {
         let mut episodic = point.clone();
         episodic.hyperparameters = config(&[]).hyperparameters();
         episodic.check(&config(&[])).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A pipeline run stopped right after `supervisor set`, before any update ran with the
+    /// change, has it recorded after its last update (the recorder writes what the published
+    /// distribution of the next update carries): the resume goes on with it.
+    #[test]
+    fn a_change_recorded_for_the_update_after_the_last_is_where_the_run_resumes() {
+        use session::{Observer, UpdateRecord};
+        struct ChangeAtEnd(McapRecorder);
+        impl Observer for ChangeAtEnd {
+            fn wants_rollout_times(&self) -> bool {
+                self.0.wants_rollout_times()
+            }
+            fn on_start(
+                &mut self,
+                c: &RunConfig,
+                o: &pi2cma::Optimizer,
+                s: &[(&'static str, f64)],
+            ) {
+                self.0.on_start(c, o, s)
+            }
+            fn on_task_change(&mut self, u: u64, c: &tasks::TaskChange) {
+                self.0.on_task_change(u, c)
+            }
+            fn on_update(&mut self, r: &UpdateRecord<'_>) {
+                self.0.on_update(r)
+            }
+            fn on_finish(&mut self, o: &pi2cma::Optimizer) {
+                let u = o.update_index();
+                let change = tasks::TaskChange {
+                    from_update: u,
+                    name: "viapoint".into(),
+                    value: 0.9,
+                };
+                self.0.on_task_change(u, &change);
+                self.0.on_finish(o)
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("resume-ahead-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let cfg = config(&[("updates = 40", "updates = 25")]);
+        let mut rec = ChangeAtEnd(McapRecorder::create(&path).unwrap());
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.0.finish().unwrap();
+
+        let point = resume_point(&path).unwrap();
+        assert_eq!(point.start.update, 25);
+        // Not the 0.1 of the schedule's change at 20, which update 24 ran with.
+        assert_eq!(point.start.settings, [("viapoint".to_string(), 0.9)]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

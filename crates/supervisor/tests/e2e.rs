@@ -2274,6 +2274,57 @@ fn a_killed_run_resumes_from_its_recording_to_the_uninterrupted_result() {
     assert_nothing_left(&resumed);
 }
 
+/// A run that ends right before a task change: its resumed recording marks the change where
+/// it took effect, and the two files analyse as one run with it once, as the uninterrupted
+/// run's recording has it (before, the pipeline recorded it in neither file).
+#[test]
+fn a_task_change_at_the_update_a_run_resumes_from_is_recorded_once() {
+    let scratch = Scratch::new("resume-change");
+    let cfg = write_config(&scratch, "a1.toml", &config(&[]));
+    let (first, second) = (scratch.path("first.mcap"), scratch.path("second.mcap"));
+    let (first_s, second_s) = (first.to_str().unwrap(), second.to_str().unwrap());
+    // A1's change is at update 20.
+    let mut a = Run::start(
+        &scratch,
+        1000,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--updates",
+            "20",
+            "--record",
+            first_s,
+        ],
+    );
+    assert!(a.wait(Duration::from_secs(60)).success(), "{}", a.text());
+    let args = [
+        "--resume",
+        first_s,
+        "--updates",
+        "40",
+        "--quiet",
+        "--record",
+        second_s,
+    ];
+    let mut b = Run::start(&scratch, 1001, &args);
+    assert!(b.wait(Duration::from_secs(60)).success(), "{}", b.text());
+
+    let recs = vec![
+        record::read_recording(&second).unwrap(),
+        record::read_recording(&first).unwrap(),
+    ];
+    let runs = record::join_resumed(recs);
+    assert_eq!(runs.len(), 1);
+    let changes: Vec<(u64, &str, f64)> = runs[0]
+        .0
+        .task_changes
+        .iter()
+        .map(|c| (c.update, c.name.as_str(), c.value))
+        .collect();
+    assert_eq!(changes, [(20, "viapoint", 0.1)]);
+    assert_nothing_left(&b);
+}
+
 /// A resume that would not continue the recorded run is refused before anything starts.
 #[test]
 fn a_resume_that_is_not_the_recorded_run_is_refused() {
