@@ -333,6 +333,16 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         }
     })?;
 
+    // A change taken while an update ran waits for that update's end; a run stopped before
+    // then never applies it, though the reply to `supervisor set` named the update it was due
+    // at. It is in neither the result file nor the recording, so say so rather than drop it.
+    for c in &runtime {
+        println!(
+            "task change {} = {} due from update {} not applied: the run stopped before that \
+             update (after --resume, give it again with `supervisor set`)",
+            c.name, c.value, c.from_update
+        );
+    }
     if trace {
         eprintln!("{} updates slower than 20 ms: {slow:?}", slow.len());
     }

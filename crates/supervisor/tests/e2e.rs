@@ -2325,6 +2325,66 @@ fn a_task_change_at_the_update_a_run_resumes_from_is_recorded_once() {
     assert_nothing_left(&b);
 }
 
+/// A `set` taken while an update runs is due from the next; a run stopped before that update
+/// never applies it, and says so instead of dropping it silently (it is in neither the result
+/// file nor the recording, so a resume would not have it).
+#[test]
+fn a_task_change_the_stopped_run_never_reached_is_reported_not_applied() {
+    let scratch = Scratch::new("set-then-stop");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nfault_hang_at_update = 0\nshutdown_timeout_ms = 1000",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "hang.toml", &text);
+    let result = scratch.path("result.toml");
+    let args = [
+        cfg.to_str().unwrap(),
+        "--quiet",
+        "--no-record",
+        "--result",
+        result.to_str().unwrap(),
+    ];
+    let mut run = Run::start(&scratch, 1010, &args);
+    // Update 0 never completes: its workers stop answering. The change follows START on the
+    // control service, so the updater takes it as due from update 1.
+    let end = Instant::now() + Duration::from_secs(30);
+    while !run.text().contains("run started") {
+        assert!(Instant::now() < end, "never started:\n{}", run.text());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (ok, reply) = run.ctl(&["set", "viapoint", "0.9"]);
+    assert!(
+        ok && reply.contains("takes effect from update 1"),
+        "{reply}"
+    );
+    let (ok, reply) = run.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    assert!(
+        run.wait(Duration::from_secs(30)).success(),
+        "{}",
+        run.text()
+    );
+    assert!(
+        run.text().contains(
+            "task change viapoint = 0.9 due from update 1 not applied: the run stopped before \
+             that update"
+        ),
+        "{}",
+        run.text()
+    );
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 0);
+    assert!(
+        r.task_changes.iter().all(|c| c.source != "runtime"),
+        "{:?}",
+        r.task_changes
+    );
+    assert_nothing_left(&run);
+}
+
 /// A resume that would not continue the recorded run is refused before anything starts.
 #[test]
 fn a_resume_that_is_not_the_recorded_run_is_refused() {
