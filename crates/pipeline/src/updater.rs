@@ -340,7 +340,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         println!(
             "task change {} = {} due from update {} not applied: the run stopped before that \
              update (after --resume, give it again with `supervisor set`)",
-            c.name, c.value, c.from_update
+            c.name,
+            tasks::value_text(c.value),
+            c.from_update
         );
     }
     if trace {
