@@ -290,6 +290,8 @@ struct Supervisor {
     /// Workers that announced themselves without being started here: pid → (slot, start time;
     /// see [`process_started`]).
     joined: BTreeMap<u32, (u32, u64)>,
+    /// When [`Self::check_joined`] last looked.
+    joined_checked: Instant,
     total_restarts: u32,
     ports: Option<Ports>,
     /// The number of the last `supervisor set` request (`Control::seq`), and those still
@@ -461,6 +463,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         last_update_at: None,
         stall_reported: false,
         joined: BTreeMap::new(),
+        joined_checked: Instant::now(),
         total_restarts: 0,
         ports: None,
         task_change_seq: 0,
@@ -603,6 +606,7 @@ impl Supervisor {
             self.answer_sets(0, None, self.phase == Phase::Stopping);
             self.check_deadlines();
             self.check_stall();
+            self.check_joined();
             self.advance()?;
             if self.phase == Phase::Stopping && self.procs.is_empty() {
                 return Ok(());
@@ -981,6 +985,35 @@ impl Supervisor {
             .map(|(pid, _)| pid)
     }
 
+    /// Says when a worker that joined from outside is gone, on the console and in the
+    /// recording: its start is there (its announcement), and nobody else reports its end (the
+    /// sampler hands its rollouts on by itself). Also keeps the map from growing over a long
+    /// run with workers coming and going. At most once a second: it reads `/proc`.
+    fn check_joined(&mut self) {
+        if self.joined.is_empty()
+            || self.phase == Phase::Stopping
+            || self.joined_checked.elapsed() < Duration::from_secs(1)
+        {
+            return;
+        }
+        self.joined_checked = Instant::now();
+        let gone: Vec<(u32, u32)> = self
+            .joined
+            .iter()
+            .filter(|(pid, (_, started))| process_started(**pid) != Some(*started))
+            .map(|(pid, (w, _))| (*pid, *w))
+            .collect();
+        for (pid, w) in gone {
+            self.joined.remove(&pid);
+            let msg = format!(
+                "worker-{w} (pid {pid}), which joined from outside, is gone; the sampler hands \
+                 its rollouts to the other workers"
+            );
+            say(&msg);
+            self.note(RunNote::WARNING, &msg);
+        }
+    }
+
     /// (pid, slot) of the workers that joined from outside and still run. A pid alone is not
     /// enough: in a run of days an unrelated process can get a gone worker's pid and would hold
     /// its slot.
@@ -1205,10 +1238,6 @@ impl Supervisor {
                     "worker-{} (pid {}) joined the run (started outside the supervisor)",
                     l.worker, l.pid
                 ));
-                // Entries of gone workers go first, so that the map does not grow over a long
-                // run with workers coming and going.
-                self.joined
-                    .retain(|pid, (_, started)| process_started(*pid) == Some(*started));
                 self.joined.insert(l.pid, (l.worker, started));
             }
         }

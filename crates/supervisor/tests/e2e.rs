@@ -694,7 +694,7 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     // when it is SIGKILLed nobody reports it, the sampler finds its dead node.
     let scratch = Scratch::new("foreign");
     let text = config(&[
-        ("updates = 40", "updates = 100"),
+        ("updates = 40", "updates = 250"),
         ("viapoint_weight = 1000.0", DELAYED),
         ("workers = 3", "workers = 1"),
     ]);
@@ -725,10 +725,16 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     );
     foreign.kill().unwrap();
     foreign.wait().unwrap();
+    // Its end is said, as its start was.
+    let gone = format!("worker-5 (pid {pid}), which joined from outside, is gone");
+    while !run.text().contains(&gone) {
+        assert!(Instant::now() < end, "{}", run.text());
+        std::thread::sleep(Duration::from_millis(10));
+    }
     let exit = run.wait(Duration::from_secs(60));
     assert!(exit.success(), "{}", run.text());
     assert!(run.text().contains("lost w5.0"), "{}", run.text());
-    assert_eq!(RunResult::read(&result).unwrap().updates, 100);
+    assert_eq!(RunResult::read(&result).unwrap().updates, 250);
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
 }
