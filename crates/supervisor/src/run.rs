@@ -298,6 +298,9 @@ struct Supervisor {
     /// waiting for the updater to say which update they take effect from.
     task_change_seq: u64,
     pending_sets: Vec<PendingSet>,
+    /// The last answered changes: (setting, update it takes effect from, `name = value`), so
+    /// that a reply can say when it replaces an earlier change due from the same update.
+    answered_sets: VecDeque<(String, u64, String)>,
     /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
     /// after it was reaped, is not a worker joining from outside.
     spawned: std::collections::BTreeSet<u32>,
@@ -307,6 +310,8 @@ struct Supervisor {
 struct PendingSet {
     /// Its `Control::seq`, which the updater echoes.
     seq: u64,
+    /// The setting, and `name = value`.
+    name: String,
     what: String,
     reply: std::sync::mpsc::Sender<Result<String, String>>,
     /// After this, the reply goes without the update index (an updater busy in a long update,
@@ -467,6 +472,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         total_restarts: 0,
         ports: None,
         task_change_seq: 0,
+        answered_sets: VecDeque::new(),
         pending_sets: Vec::new(),
         spawned: Default::default(),
         cfg,
@@ -1372,6 +1378,7 @@ impl Supervisor {
                 match self.set_task(&name, value) {
                     Ok(seq) => self.pending_sets.push(PendingSet {
                         seq,
+                        name: name.clone(),
                         what: format!("{name} = {}", tasks::value_text(value)),
                         reply,
                         until: Instant::now() + SET_REPLY_WAIT,
@@ -1460,6 +1467,7 @@ impl Supervisor {
     fn answer_sets(&mut self, taken: u64, from: Option<u64>, flush: bool) {
         let now = Instant::now();
         let ends_before = self.cfg.run.updates;
+        let answered = &mut self.answered_sets;
         self.pending_sets.retain(|p| {
             let reply = match from {
                 Some(u) if p.seq == taken && ends_before.is_some_and(|n| u >= n) => format!(
@@ -1469,7 +1477,21 @@ impl Supervisor {
                     ends_before.unwrap_or(u).saturating_sub(1)
                 ),
                 Some(u) if p.seq == taken => {
-                    format!("{}: takes effect from update {u} (0-based)", p.what)
+                    // Changes of one setting due from one update are applied in order: only the
+                    // last is in force for that update, though each is recorded.
+                    let replaced = answered
+                        .iter()
+                        .rev()
+                        .find(|(name, from, _)| *name == p.name && *from == u)
+                        .map(|(_, _, what)| {
+                            format!(", replacing {what}, which was due from the same update")
+                        })
+                        .unwrap_or_default();
+                    answered.push_back((p.name.clone(), u, p.what.clone()));
+                    if answered.len() > 16 {
+                        answered.pop_front();
+                    }
+                    format!("{}: takes effect from update {u} (0-based){replaced}", p.what)
                 }
                 // Taken, but its answer was overtaken by a later change's.
                 _ if p.seq <= taken => format!(

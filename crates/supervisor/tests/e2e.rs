@@ -1048,9 +1048,11 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     // Two changes in a row: each reply names the update its own change takes effect from, as
     // the updater decided it (the updater echoes each change's number).
     let mut said = Vec::new();
+    let mut replies = Vec::new();
     for value in ["0.2", "0.25"] {
         let (ok, reply) = run.ctl(&["set", "viapoint", value]);
         assert!(ok, "{reply}");
+        replies.push(reply.clone());
         let from: u64 = reply
             .split("takes effect from update ")
             .nth(1)
@@ -1059,6 +1061,14 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
             .unwrap_or_else(|| panic!("no update index in the reply: {reply}"));
         said.push(from);
     }
+    // The second replaces the first for that update if both are due from it, and says so.
+    let replacing = "replacing viapoint = 0.2, which was due from the same update";
+    assert_eq!(
+        replies[1].contains(replacing),
+        said[0] == said[1],
+        "{replies:?}"
+    );
+    assert!(!replies[0].contains("replacing"), "{replies:?}");
     run.wait_status("task change applied", |s| s.contains("viapoint = 0.25"));
     let (ok, reply) = run.ctl(&["stop"]);
     assert!(ok, "{reply}");
