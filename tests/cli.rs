@@ -51,6 +51,16 @@ fn default_run_prints_progress_and_saves_results() {
         .is_some_and(|l| l.starts_with("A1,episodic,0,1,0,")));
 }
 
+/// Sends SIGINT, as Ctrl-C does, and waits for the exit.
+fn interrupt(child: std::process::Child) -> Output {
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(sent.success());
+    child.wait_with_output().expect("exit")
+}
+
 /// A closed stdout (`pi2cma run | head`) does not end the run, and SIGINT stops it after the
 /// current update with a finished recording, the results so far and exit code 130. Before, the
 /// first progress line after `head` exited panicked ("failed printing to stdout"), and SIGINT
@@ -76,12 +86,7 @@ fn a_run_survives_a_closed_stdout_and_stops_cleanly_on_sigint() {
         child.try_wait().expect("wait").is_none(),
         "the run ended with its stdout"
     );
-    let sent = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .expect("kill");
-    assert!(sent.success());
-    let out = child.wait_with_output().expect("exit");
+    let out = interrupt(child);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{stderr}");
     let mcap = std::fs::read(d.join("res/run.mcap")).expect("recording");
@@ -89,6 +94,51 @@ fn a_run_survives_a_closed_stdout_and_stops_cleanly_on_sigint() {
     assert!(mcap.ends_with(b"\x89MCAP0\r\n"), "recording not finished");
     let csv = std::fs::read_to_string(d.join("res/updates.csv")).expect("updates.csv");
     assert!(csv.lines().count() > 2, "{csv}");
+}
+
+/// SIGINT stops an experiment after the current update of its current session, with that
+/// session's recording finished and exit code 130. Before, it killed the process and left an
+/// unindexed recording.
+#[test]
+fn an_experiment_stops_cleanly_on_sigint() {
+    let d = scratch("experiment-sigint");
+    let text = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 100000000");
+    std::fs::write(d.join("long.toml"), text).expect("config");
+    let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args([
+            "experiment",
+            "--sessions",
+            "2",
+            "--record",
+            "--out",
+            "res",
+            "long.toml",
+        ])
+        .current_dir(&d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("pi2cma starts");
+    let mcap = d.join("res/mcap/A1-seed1.mcap");
+    let end = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    while mcap.metadata().map_or(true, |m| m.len() < 100_000) {
+        assert!(std::time::Instant::now() < end, "no recording");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let out = interrupt(child);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(130), "{stdout}");
+    assert!(
+        stdout.contains("interrupted in session A1 seed 1 after")
+            && stdout.contains("its recording finished"),
+        "{stdout}"
+    );
+    let bytes = std::fs::read(&mcap).expect("recording");
+    assert!(bytes.ends_with(b"\x89MCAP0\r\n"), "recording not finished");
+    assert!(
+        !d.join("res/mcap/A1-seed2.mcap").exists(),
+        "went on after SIGINT"
+    );
 }
 
 /// A recording in a directory given by `--out` is never replaced; the default directory,

@@ -436,7 +436,11 @@ fn run(cli: Cli) -> Result<()> {
                     }
                 }
             }
+            // Ctrl-C (or SIGTERM) stops the session under way after its current update, with
+            // a finished recording; the outputs hold the sessions completed before it.
+            stop_on_signal()?;
             let mut results = Vec::new();
+            let mut stopped_in = None;
             for (path, cfg) in &planned {
                 eprintln!("running {} × {sessions} sessions", cfg.run.name);
                 let mut done = Vec::new();
@@ -449,16 +453,37 @@ fn run(cli: Cli) -> Result<()> {
                             .with_context(|| format!("creating {}", dir.display()))?;
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;
-                        let r = experiment::run_one(cfg, seed, &mut rec, &|| false);
+                        let r = experiment::run_one(cfg, seed, &mut rec, &interrupted);
                         rec.finish()
                             .with_context(|| format!("recording {}", file.display()))?;
                         r
                     } else {
-                        experiment::run_one(cfg, seed, &mut session::NoObserver, &|| false)
+                        experiment::run_one(cfg, seed, &mut session::NoObserver, &interrupted)
                     };
-                    done.push(result.with_context(|| format!("running {}", path.display()))?);
+                    let result = result.with_context(|| format!("running {}", path.display()))?;
+                    if interrupted() {
+                        // Cut short: not a session of the experiment's curves.
+                        stopped_in = Some((cfg.run.name.clone(), seed, result.summaries.len()));
+                        break;
+                    }
+                    done.push(result);
                 }
-                results.push(experiment::summarize(cfg, done)?);
+                if !done.is_empty() {
+                    results.push(experiment::summarize(cfg, done)?);
+                }
+                if stopped_in.is_some() {
+                    break;
+                }
+            }
+            if let Some((name, seed, updates)) = &stopped_in {
+                let complete: usize = results.iter().map(|r| r.sessions.len()).sum();
+                say!(
+                    "interrupted in session {name} seed {seed} after {updates} updates (exit code 130){}; the results below are the {complete} sessions completed before it",
+                    if record { ", its recording finished" } else { "" }
+                );
+                if results.is_empty() {
+                    return Ok(());
+                }
             }
             let table = write_outputs(&out, &results)?;
             say!("{table}");
