@@ -438,6 +438,11 @@ fn run(cli: Cli) -> Result<()> {
             }
             // Ctrl-C (or SIGTERM) stops the session under way after its current update, with
             // a finished recording; the outputs hold the sessions completed before it.
+            if record {
+                let dir = out.join("mcap");
+                std::fs::create_dir_all(&dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+            }
             stop_on_signal()?;
             let mut results = Vec::new();
             let mut stopped_in = None;
@@ -448,9 +453,6 @@ fn run(cli: Cli) -> Result<()> {
                     let seed = cfg.run.seed + s;
                     let result = if record {
                         let file = recording(cfg, seed);
-                        let dir = out.join("mcap");
-                        std::fs::create_dir_all(&dir)
-                            .with_context(|| format!("creating {}", dir.display()))?;
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;
                         let r = experiment::run_one(cfg, seed, &mut rec, &interrupted);

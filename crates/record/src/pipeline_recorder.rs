@@ -45,6 +45,11 @@ pub struct RecorderArgs {
     /// The recording this run resumes (recorded as metadata `resumed_from`).
     #[arg(long, value_name = "FILE")]
     pub resumed_from: Option<String>,
+    /// The resumed run's state ([`session::Start::write`]), as the updater gets it: its first
+    /// update is compared with these settings. Without it, a `--resumed-from` recording is read
+    /// for them.
+    #[arg(long, value_name = "FILE")]
+    pub start: Option<PathBuf>,
 }
 
 /// A message taken from one of the subscribers.
@@ -118,7 +123,17 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
 
     let mut writer = RunFiles::create(&out)?;
     writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb));
-    let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone())?;
+    // The settings a resumed run starts from: the supervisor's start file, read at once, not
+    // the origin recording, which is streamed whole (a day's run: gigabytes) before the
+    // recorder may announce itself.
+    let start_settings = match (&cli.start, &cli.resumed_from) {
+        (Some(file), _) => Some(session::Start::read(file)?.settings),
+        (None, Some(origin)) => crate::resume::resume_point(std::path::Path::new(origin))
+            .ok()
+            .map(|p| p.start.settings),
+        (None, None) => None,
+    };
+    let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone(), start_settings)?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
     eprintln!("recording to {}", out.display());
 
@@ -264,6 +279,7 @@ impl WriterState {
         text: String,
         writer: RunFiles,
         resumed_from: Option<String>,
+        start_settings: Option<Vec<(String, f64)>>,
     ) -> anyhow::Result<Self> {
         let cfg = ctx.config.clone();
         let task = cfg.build_task()?;
@@ -279,23 +295,19 @@ impl WriterState {
         );
         // A resumed run's first update is compared with the settings the recording it resumes
         // ended with, so that a change taking effect there (a scheduled one the stopped run did
-        // not reach) is recorded, as the in-process runner records it. Unreadable: the
-        // supervisor has read it before starting the run; without it only that marker is lost.
-        if let Some(origin) = &resumed_from {
-            if let Ok(point) = crate::resume::resume_point(std::path::Path::new(origin)) {
-                let by_name: Vec<f64> = names
-                    .iter()
-                    .map(|n| {
-                        point
-                            .start
-                            .settings
-                            .iter()
-                            .find(|(s, _)| s == n)
-                            .map_or(f64::NAN, |(_, v)| *v)
-                    })
-                    .collect();
-                assembler.continue_from(by_name);
-            }
+        // not reach) is recorded, as the in-process runner records it. Without them only that
+        // marker is lost.
+        if let Some(settings) = &start_settings {
+            let by_name: Vec<f64> = names
+                .iter()
+                .map(|n| {
+                    settings
+                        .iter()
+                        .find(|(s, _)| s == n)
+                        .map_or(f64::NAN, |(_, v)| *v)
+                })
+                .collect();
+            assembler.continue_from(by_name);
         }
         Ok(Self {
             writer,

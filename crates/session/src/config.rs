@@ -324,26 +324,26 @@ enum Blame {
 /// `program` as an absolute path to an executable file: a path as it is (made absolute, so that
 /// it does not depend on the children's working directory), a bare name looked up in PATH.
 pub fn resolve_program(program: &Path) -> Option<PathBuf> {
-    use std::os::unix::fs::PermissionsExt as _;
-    let executable = |p: &Path| {
-        p.metadata()
-            .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
-    };
     if program.components().count() > 1 {
-        return executable(program)
+        return executable_file(program)
             .then(|| std::path::absolute(program).ok())
             .flatten();
     }
     std::env::split_paths(&std::env::var_os("PATH")?)
         .map(|dir| dir.join(program))
-        .find(|p| executable(p))
+        .find(|p| executable_file(p))
 }
 
-/// A number as a config would write it: plainly, or with an exponent when it is very large or
-/// very small (1e-12 rather than 0.000000000001).
-fn num(v: f64) -> String {
-    tasks::value_text(v)
+/// Whether `p` is a file that may be executed (some execute bit set).
+pub fn executable_file(p: &Path) -> bool {
+    use std::os::unix::fs::PermissionsExt as _;
+    p.metadata()
+        .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
 }
+
+// A number as a config would write it: plainly, or with an exponent when it is very large or
+// very small (1e-12 rather than 0.000000000001).
+use tasks::value_text as num;
 
 /// A task's settings as a TOML inline table, `{viapoint = 0.3}`.
 fn settings_text(task: &dyn tasks::Task) -> String {

@@ -9,10 +9,10 @@ mod config;
 mod start;
 
 pub use config::{
-    ConfigError, ExternalConfig, MemoryNeed, MemoryPart, Method, OptimizerSection, PipelineSection,
-    RecordingSection, RunConfig, RunSection, ScheduleEntry, TaskSection, TemporalName,
-    ViaPointConfig, WeightingName, DEFAULT_CONFIG, LAMBDA_RANGE, MAX_DMP_WORK, MAX_ELITENESS,
-    MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
+    executable_file, ConfigError, ExternalConfig, MemoryNeed, MemoryPart, Method, OptimizerSection,
+    PipelineSection, RecordingSection, RunConfig, RunSection, ScheduleEntry, TaskSection,
+    TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG, LAMBDA_RANGE, MAX_DMP_WORK,
+    MAX_ELITENESS, MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
 };
 
 pub use start::{Start, StartFileError};

@@ -21,8 +21,9 @@ pub struct Start {
     pub update: u64,
     /// The distribution update `update` samples from.
     pub distribution: Distribution,
-    /// The task settings update `update − 1` ran with (scheduled and runtime changes included),
-    /// by name.
+    /// The task settings update `update` starts with, by name: those update `update − 1` ran
+    /// with (scheduled and runtime changes included), and changes already recorded for update
+    /// `update` (a run stopped right after them).
     pub settings: Vec<(String, f64)>,
     /// Where the state came from (a recording's path), for messages and recordings.
     pub origin: String,

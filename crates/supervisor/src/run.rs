@@ -22,7 +22,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use pipeline::iox;
 use pipeline::result::RunResult;
-use session::{PipelineSection, RunConfig};
+use session::{executable_file, PipelineSection, RunConfig};
 use wire::{Control, Lifecycle, Limits, Overdue, Progress, RunNote, Service};
 
 use crate::control::{self, Command as Cmd, Request};
@@ -187,12 +187,6 @@ impl Binaries {
             Self::SelfHosted(exe)
         })
     }
-}
-
-fn executable_file(p: &Path) -> bool {
-    use std::os::unix::fs::PermissionsExt as _;
-    p.metadata()
-        .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
 }
 
 struct Proc {
@@ -1006,7 +1000,7 @@ impl Supervisor {
         let gone: Vec<(u32, u32)> = self
             .joined
             .iter()
-            .filter(|(pid, (_, started))| process_started(**pid) != Some(*started))
+            .filter(|(pid, (_, started))| !still_runs(**pid, *started))
             .map(|(pid, (w, _))| (*pid, *w))
             .collect();
         for (pid, w) in gone {
@@ -1026,7 +1020,7 @@ impl Supervisor {
     fn live_joined(&self) -> impl Iterator<Item = (u32, u32)> + '_ {
         self.joined
             .iter()
-            .filter(|(pid, (_, started))| process_started(**pid) == Some(*started))
+            .filter(|(pid, (_, started))| still_runs(**pid, *started))
             .map(|(pid, (slot, _))| (*pid, *slot))
     }
 
@@ -1092,7 +1086,10 @@ impl Supervisor {
         if let (Role::Recorder, Some(rec)) = (role, &self.recording) {
             cmd.arg("--out").arg(std::path::absolute(&rec.path)?);
             if let Some(start) = &self.start {
-                cmd.arg("--resumed-from").arg(&start.origin);
+                cmd.arg("--resumed-from")
+                    .arg(&start.origin)
+                    .arg("--start")
+                    .arg(self.start_file());
             }
         }
         if let (Role::Updater, Some(_)) = (role, &self.start) {
@@ -2018,7 +2015,7 @@ fn pi2cma_program() -> (String, &'static str) {
     let beside = std::env::current_exe()
         .ok()
         .and_then(|exe| Some(exe.parent()?.join("pi2cma")))
-        .filter(|p| p.is_file());
+        .filter(|p| executable_file(p));
     match beside {
         Some(path) => (record::program_name(&path), ""),
         None => (
@@ -2042,6 +2039,12 @@ fn analysis_out(recording: &Path) -> &Path {
 /// be reaped still has `/proc/<pid>`).
 pub fn process_alive(pid: u32) -> bool {
     process_started(pid).is_some()
+}
+
+/// Whether the process that had pid `pid` and start time `started` still runs, not another that
+/// got its pid.
+fn still_runs(pid: u32, started: u64) -> bool {
+    process_started(pid) == Some(started)
 }
 
 /// When process `pid` started (clock ticks after boot, field 22 of `/proc/<pid>/stat`) if it
