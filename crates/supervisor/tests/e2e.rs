@@ -132,6 +132,18 @@ impl Run {
         self.output.lock().unwrap().join("\n")
     }
 
+    /// Waits until the output holds `needle`; fails at `end`.
+    fn wait_output(&self, needle: &str, end: Instant) {
+        while !self.text().contains(needle) {
+            assert!(
+                Instant::now() < end,
+                "no `{needle}` in the output:\n{}",
+                self.text()
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
     fn wait(&mut self, bound: Duration) -> ExitStatus {
         let end = Instant::now() + bound;
         loop {
@@ -410,13 +422,26 @@ fn supervisor_alone_hosts_all_roles_as_after_cargo_run() {
     let alone = scratch.path("supervisor");
     std::fs::copy(SUPERVISOR, &alone).unwrap();
     let result = scratch.path("result.toml");
-    let out = Command::new(&alone)
-        .args(["run", "--quiet", "--result", result.to_str().unwrap()])
-        .args(["--run-id", &run_id(50)])
-        .current_dir(&scratch.0)
-        .env("PI2CMA_RUN_DIR", scratch.runs())
-        .output()
-        .unwrap();
+    // A child that another test thread forks while the copy is open for writing holds that
+    // file descriptor until it execs: exec fails with ETXTBSY meanwhile (seen once in a full
+    // `cargo test --workspace`), so that is retried.
+    let end = Instant::now() + Duration::from_secs(10);
+    let out = loop {
+        let tried = Command::new(&alone)
+            .args(["run", "--quiet", "--result", result.to_str().unwrap()])
+            .args(["--run-id", &run_id(50)])
+            .current_dir(&scratch.0)
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .output();
+        match tried {
+            Err(e)
+                if e.kind() == std::io::ErrorKind::ExecutableFileBusy && Instant::now() < end =>
+            {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            other => break other.unwrap(),
+        }
+    };
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -660,10 +685,7 @@ fn joined_workers_never_share_a_slot() {
 
     let guest = KillOnDrop(join_as_worker(&run, &run_config, 1));
     let joined = format!("worker-1 (pid {}) joined the run", guest.0.id());
-    while !run.text().contains(&joined) {
-        assert!(Instant::now() < end, "{}", run.text());
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    run.wait_output(&joined, end);
     let (ok, reply) = run.ctl(&["scale", "--workers", "3"]);
     assert!(ok, "{reply}");
     let status = run.wait_status("3 workers of ours", |s| s.contains("workers: 3 running"));
@@ -706,17 +728,11 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     let mut foreign = join_as_worker_5(&run, &run_config);
     // The sampler's trace shows when the foreign worker got a chunk; kill it while it works.
     let end = Instant::now() + Duration::from_secs(30);
-    while !run.text().contains("-> w5:") {
-        assert!(Instant::now() < end, "w5 never got work:\n{}", run.text());
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    run.wait_output("-> w5:", end);
     // The supervisor says it joined, and status lists it.
     let pid = foreign.id();
     let joined = format!("worker-5 (pid {pid}) joined the run (started outside");
-    while !run.text().contains(&joined) {
-        assert!(Instant::now() < end, "{}", run.text());
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    run.wait_output(&joined, end);
     let (_, status) = run.ctl(&["status"]);
     assert!(
         status.contains(&format!("worker-5 pid {pid} (joined;"))
@@ -727,10 +743,7 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     foreign.wait().unwrap();
     // Its end is said, as its start was.
     let gone = format!("worker-5 (pid {pid}), which joined from outside, is gone");
-    while !run.text().contains(&gone) {
-        assert!(Instant::now() < end, "{}", run.text());
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    run.wait_output(&gone, end);
     let exit = run.wait(Duration::from_secs(60));
     assert!(exit.success(), "{}", run.text());
     assert!(run.text().contains("lost w5.0"), "{}", run.text());
@@ -1606,10 +1619,7 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
     };
     signal_all("-STOP");
     let end = Instant::now() + Duration::from_secs(30);
-    while !run.text().contains("warning: no update for") {
-        assert!(Instant::now() < end, "no stall warning:\n{}", run.text());
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    run.wait_output("warning: no update for", end);
     let (_, status) = run.ctl(&["status"]);
     let age: f64 = status
         .split(", the last ")
@@ -1619,10 +1629,7 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
         .unwrap_or_else(|| panic!("{status}"));
     assert!(age >= 10.0, "{status}");
     signal_all("-CONT");
-    while !run.text().contains("updates go on: update") {
-        assert!(Instant::now() < end, "{}", run.text());
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    run.wait_output("updates go on: update", end);
     let (ok, _) = run.ctl(&["stop"]);
     assert!(ok);
     let exit = run.wait(Duration::from_secs(20));
@@ -1651,10 +1658,7 @@ fn a_first_update_that_never_comes_is_reported() {
     let result = scratch.path("result.toml");
     let mut run = Run::start_quiet(&scratch, 709, &cfg, &result);
     let end = Instant::now() + Duration::from_secs(30);
-    while !run.text().contains("no update for") {
-        assert!(Instant::now() < end, "no stall warning:\n{}", run.text());
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    run.wait_output("no update for", end);
     assert!(
         run.text().contains("s since the start: a worker"),
         "{}",
@@ -2367,10 +2371,7 @@ fn a_task_change_the_stopped_run_never_reached_is_reported_not_applied() {
     // Update 0 never completes: its workers stop answering. The change follows START on the
     // control service, so the updater takes it as due from update 1.
     let end = Instant::now() + Duration::from_secs(30);
-    while !run.text().contains("run started") {
-        assert!(Instant::now() < end, "never started:\n{}", run.text());
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    run.wait_output("run started", end);
     let (ok, reply) = run.ctl(&["set", "viapoint", "0.9"]);
     assert!(
         ok && reply.contains("takes effect from update 1"),
