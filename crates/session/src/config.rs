@@ -1312,14 +1312,51 @@ impl RunConfig {
     /// Whether a runtime task change (`supervisor set`) can be made: the setting exists, takes
     /// the value, and (for a task that runs here) the initial mean's rollout still has finite
     /// costs: a change under which every cost overflows would end a continual run at the update
-    /// it takes effect from.
-    pub fn check_task_change(&self, name: &str, value: f64) -> Result<(), tasks::TaskError> {
+    /// it takes effect from. `in_force` are the settings the change joins (those the run has
+    /// reached, which earlier changes may have made other than the config's): a change is
+    /// judged with them, not with the config's.
+    pub fn check_task_change(
+        &self,
+        in_force: &[(String, f64)],
+        name: &str,
+        value: f64,
+    ) -> Result<(), tasks::TaskError> {
         let mut task = self.build_task()?;
+        let from_config = task.settings();
+        for (n, v) in in_force {
+            task.set(n, *v)?;
+        }
         task.set(name, value)?;
         if matches!(self.task, TaskSection::External(_)) {
             return Ok(());
         }
-        tasks::check_initial_rollout(task.as_mut())
+        tasks::check_initial_rollout(task.as_mut()).map_err(|e| {
+            // Name the settings that made the difference, if any besides the change did.
+            let others: Vec<String> = task
+                .settings()
+                .into_iter()
+                .filter(|&(n, v)| {
+                    n != name
+                        && from_config
+                            .iter()
+                            .any(|&(c, cv)| c == n && cv.to_bits() != v.to_bits())
+                })
+                .map(|(n, v)| format!("{n} = {}", tasks::value_text(v)))
+                .collect();
+            match e {
+                tasks::TaskError::Invalid { task, reason } if !others.is_empty() => {
+                    tasks::TaskError::Invalid {
+                        task,
+                        reason: format!(
+                            "{reason} (together with the settings in force that differ from \
+                             the config: {})",
+                            others.join(", ")
+                        ),
+                    }
+                }
+                e => e,
+            }
+        })
     }
 
     pub fn build_task(&self) -> Result<Box<dyn tasks::Task>, tasks::TaskError> {
@@ -2198,5 +2235,34 @@ mod tests {
                 crate::run_session(&cfg, cfg.run.seed, &mut crate::NoObserver).unwrap();
             assert!(summaries[4].eval_cost < summaries[0].eval_cost, "{eval}");
         }
+    }
+
+    #[test]
+    fn a_task_change_is_judged_with_the_settings_in_force() {
+        let cfg = parse(TBALL).unwrap();
+        let far = 1e154;
+        // Alone, a tee 10¹⁵⁴ m along x still gives finite costs…
+        cfg.check_task_change(&[], "tee_x", far).unwrap();
+        // …but not once an earlier change has moved it as far along y: the distance overflows.
+        let in_force = [("tee_y".to_string(), far)];
+        let e = cfg
+            .check_task_change(&in_force, "tee_x", far)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("terminal cost = inf")
+                && e.ends_with("(together with the settings in force that differ from the config: tee_y = 1e154)"),
+            "{e}"
+        );
+        // Settings in force that the change replaces are not named.
+        let e = cfg
+            .check_task_change(&[("tee_x".to_string(), 0.1)], "tee_x", 1e300)
+            .unwrap_err()
+            .to_string();
+        assert!(!e.contains("in force"), "{e}");
+        // An unknown setting in force is an error, not ignored.
+        assert!(cfg
+            .check_task_change(&[("tee_z".to_string(), 0.0)], "tee_x", 0.1)
+            .is_err());
     }
 }

@@ -295,6 +295,10 @@ struct Supervisor {
     /// The last answered changes: (setting, update it takes effect from, `name = value`), so
     /// that a reply can say when it replaces an earlier change due from the same update.
     answered_sets: VecDeque<(String, u64, String)>,
+    /// Changes sent that the last [`Progress`] does not show yet: (seq, setting, value, the
+    /// update it takes effect from once the updater has said). A new change is checked with the
+    /// settings they and that report give ([`Self::settings_in_force`]).
+    unreflected_sets: Vec<(u64, String, f64, Option<u64>)>,
     /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
     /// after it was reaped, is not a worker joining from outside.
     spawned: std::collections::BTreeSet<u32>,
@@ -468,6 +472,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         task_change_seq: 0,
         answered_sets: VecDeque::new(),
         pending_sets: Vec::new(),
+        unreflected_sets: Vec::new(),
         spawned: Default::default(),
         cfg,
         start: point.map(|p| p.start),
@@ -1249,9 +1254,18 @@ impl Supervisor {
                 continue;
             }
             if p.flags & Progress::TASK_CHANGE != 0 {
+                // The updater takes changes in order, so those before it are due no later.
+                for (seq, _, _, from) in &mut self.unreflected_sets {
+                    if *seq <= p.last_change_seq && from.is_none() {
+                        *from = Some(p.last_change_from);
+                    }
+                }
                 self.answer_sets(p.last_change_seq, Some(p.last_change_from), false);
                 continue;
             }
+            // A report's settings are those of its next update, `updates`.
+            self.unreflected_sets
+                .retain(|(_, _, _, from)| from.is_none_or(|f| f > p.updates));
             if self.progress.is_none_or(|prev| p.updates > prev.updates) {
                 if self.stall_reported {
                     say(&format!(
@@ -1430,6 +1444,37 @@ impl Supervisor {
         }
     }
 
+    /// The task settings a change sent now joins: the updater's last report (before the first,
+    /// the settings the run started with), then the changes sent since that it does not show.
+    /// Scheduled changes still ahead are not included: one is checked when the config is.
+    fn settings_in_force(&self) -> Vec<(String, f64)> {
+        let mut settings: Vec<(String, f64)> = match (&self.progress, &self.start) {
+            (Some(p), _) => self.reported_settings(p),
+            (None, Some(start)) => start.settings.clone(),
+            (None, None) => Vec::new(),
+        };
+        settings.extend(
+            self.unreflected_sets
+                .iter()
+                .map(|(_, n, v, _)| (n.clone(), *v)),
+        );
+        settings
+    }
+
+    /// A progress report's settings, by name (the wire carries their values in the task's order).
+    fn reported_settings(&self, p: &Progress) -> Vec<(String, f64)> {
+        let names = self
+            .cfg
+            .build_task()
+            .map(|t| t.settings())
+            .unwrap_or_default();
+        names
+            .into_iter()
+            .zip(&p.settings[..p.settings_len as usize])
+            .map(|((n, _), v)| (n.to_string(), *v))
+            .collect()
+    }
+
     /// Sends a task change to the updater; returns its number, which the updater's
     /// [`Progress::TASK_CHANGE`] answer carries.
     fn set_task(&mut self, name: &str, value: f64) -> Result<u64, String> {
@@ -1437,7 +1482,7 @@ impl Supervisor {
             return Err("the run is stopping".into());
         }
         self.cfg
-            .check_task_change(name, value)
+            .check_task_change(&self.settings_in_force(), name, value)
             .map_err(|e| e.to_string())?;
         // The control service keeps no history: a change sent before the updater subscribed
         // would be lost.
@@ -1451,6 +1496,8 @@ impl Supervisor {
         let msg = Control::set_task(self.run_id, seq, name, value)
             .ok_or_else(|| format!("setting name `{name}` is too long"))?;
         self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
+        self.unreflected_sets
+            .push((seq, name.to_string(), value, None));
         say(&format!(
             "task change {name} = {} sent to the updater",
             tasks::value_text(value)
@@ -1563,15 +1610,10 @@ impl Supervisor {
         }
         match &self.progress {
             Some(p) => {
-                let names: Vec<&'static str> = self
-                    .cfg
-                    .build_task()
-                    .map(|t| t.settings().into_iter().map(|(n, _)| n).collect())
-                    .unwrap_or_default();
-                let settings: Vec<String> = names
+                let settings: Vec<String> = self
+                    .reported_settings(p)
                     .iter()
-                    .zip(&p.settings[..p.settings_len as usize])
-                    .map(|(n, v)| format!("{n} = {v}"))
+                    .map(|(n, v)| format!("{n} = {}", tasks::value_text(*v)))
                     .collect();
                 s += &format!(
                     "updates: {} of {}, {:.1} updates/s, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n",

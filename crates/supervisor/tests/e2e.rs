@@ -1111,6 +1111,47 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
 }
 
 #[test]
+fn a_runtime_change_is_judged_with_the_settings_earlier_changes_left() {
+    let scratch = Scratch::new("in-force");
+    let tball = include_str!("../../../config/tball.toml");
+    assert!(tball.contains("updates = 40\n") && tball.contains("[task.tball]\n"));
+    let text = tball.replacen("updates = 40\n", "", 1).replacen(
+        "[task.tball]\n",
+        "[task.tball]\nrollout_delay_ms = 2.0\n",
+        1,
+    );
+    let cfg = write_config(&scratch, "tball.toml", &text);
+    let mut run = Run::start(
+        &scratch,
+        420,
+        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+    );
+    run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    // A tee 10¹⁵⁴ m away along y, then as far along x: each alone keeps the costs finite, both
+    // overflow the distance. The second is judged with the first in force, not with the config.
+    let (ok, reply) = run.ctl(&["set", "tee_y", "1e154"]);
+    assert!(ok, "{reply}");
+    let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
+    assert!(
+        !ok && reply.contains("terminal cost = inf")
+            && reply.contains("settings in force that differ from the config: tee_y = 1e154"),
+        "{reply}"
+    );
+    // Once the updater reports the first change, it is still the one in force.
+    run.wait_status("tee_y in force", |s| s.contains("tee_y = 1e154"));
+    let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
+    assert!(!ok && reply.contains("tee_y = 1e154"), "{reply}");
+    let (ok, reply) = run.ctl(&["stop"]);
+    assert!(ok, "{reply}");
+    assert!(
+        run.wait(Duration::from_secs(20)).success(),
+        "{}",
+        run.text()
+    );
+    assert_nothing_left(&run);
+}
+
+#[test]
 fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     let scratch = Scratch::new("bad");
     // Malformed config.
