@@ -1653,7 +1653,9 @@ impl Supervisor {
         let cause = match (&p.hung, last.is_empty()) {
             (Some(_), _) => format!("{status}, killed after it hung"),
             (None, true) => status.to_string(),
-            (None, false) => format!("{status}: {last}"),
+            // The last line may be an error or only news ("recording continues in …"): label it,
+            // so it does not read as the cause.
+            (None, false) => format!("{status}; its last output: {last}"),
         };
         let cause = match sigbus_hint(status, shm_space(Path::new(SHM_DIR))) {
             Some(hint) => format!("{cause}; {hint}"),
