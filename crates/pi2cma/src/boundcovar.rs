@@ -94,6 +94,9 @@ pub fn eigen2(a: f64, b: f64, c: f64) -> ([f64; 2], [[f64; 2]; 2]) {
     // extra care costs more than the rest of the 2×2 update.
     let r = (half_diff * half_diff + b * b).sqrt();
     let l1 = half_trace + r;
+    // When l2 ≪ l1 this subtraction cancels, but its absolute error, a few ulps of l1, is what
+    // rounding a, b and c to f64 already does to l2 (Weyl: |Δl| ≤ ‖ΔΣ‖ ≈ ε·l1), so det/l1
+    // would be no more accurate in the matrix's own terms; and below λ_min the clip replaces it.
     let l2 = half_trace - r;
     if b == 0.0 {
         // Already diagonal: keep the axes so that clipping leaves a diagonal matrix diagonal.
