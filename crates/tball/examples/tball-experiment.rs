@@ -333,7 +333,11 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
         .x_label_area_size(30)
         .y_label_area_size(50)
         .build_cartesian_2d(0.0..(n as f64 + 1.0), 0.0..y_max)?;
-    c.configure_mesh().x_desc("update").y_desc("cost").draw()?;
+    c.configure_mesh()
+        .x_desc("update")
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_desc("cost")
+        .draw()?;
     let band_poly: Vec<(f64, f64)> = band
         .iter()
         .map(|b| (b.0, b.2.max(0.0)))
@@ -372,7 +376,12 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
         .x_label_area_size(30)
         .y_label_area_size(50)
         .build_cartesian_2d(0.0..(n as f64 + 1.0), (lo * 0.5..hi * 2.0).log_scale())?;
-    c.configure_mesh().x_desc("update").y_desc("λ").draw()?;
+    c.configure_mesh()
+        .x_desc("update")
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_desc("λ")
+        .y_label_formatter(&|y| format!("{y}"))
+        .draw()?;
     c.draw_series(LineSeries::new(lambda, RED.stroke_width(2)))?;
     root.present()?;
     Ok(())
@@ -391,7 +400,7 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
         let trace: Trace = t.trace(&row.samples[0]);
         let path = trace.ball_path(0.01, cfg.gravity, t.resting_ball());
         let mut c = ChartBuilder::on(area)
-            .caption(format!("session 0, after {u} updates"), ("sans-serif", 14))
+            .caption(format!("session 0, after update {u}"), ("sans-serif", 14))
             .margin(8)
             .x_label_area_size(35)
             .y_label_area_size(40)
@@ -440,10 +449,7 @@ fn plot_bat(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
         let mut t = task.clone();
         t.set("ball_height", row.ball_height)?;
         let mut c = ChartBuilder::on(area)
-            .caption(
-                format!("session 0, update {u}: bat end-point, K rollouts"),
-                ("sans-serif", 13),
-            )
+            .caption(format!("session 0, update {u}"), ("sans-serif", 13))
             .margin(8)
             .x_label_area_size(35)
             .y_label_area_size(40)
