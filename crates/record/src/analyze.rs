@@ -346,7 +346,7 @@ pub fn info(rec: &Recording) -> String {
         *events.entry(l.event.as_str()).or_insert(0) += 1;
     }
     if !events.is_empty() {
-        let list: Vec<String> = events.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let list: Vec<String> = events.iter().map(|(k, v)| format!("{k} ×{v}")).collect();
         let _ = writeln!(s, "  health events: {}", list.join(", "));
     }
     if rec.run.is_empty() {
@@ -764,6 +764,16 @@ fn padded(lo: f64, hi: f64) -> (f64, f64) {
     (lo - 0.05 * span, hi + 0.05 * span)
 }
 
+/// An axis label without plotters' float noise: "5", not "5.0" for update 5; "1000", not
+/// "1000.0" on the λ axis; exponent form where plain digits would run long.
+fn tick_label(v: &f64) -> String {
+    let v = *v;
+    if v != 0.0 && !(1e-3..1e6).contains(&v.abs()) {
+        return format!("{v:e}");
+    }
+    format!("{}", (v * 1e6).round() / 1e6)
+}
+
 fn log_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
     for v in vals.filter(|v| *v > 0.0 && v.is_finite()) {
@@ -819,6 +829,7 @@ fn draw_curves(
     chart
         .configure_mesh()
         .x_desc("update")
+        .x_label_formatter(&tick_label)
         .y_desc(cost_label)
         .draw()
         .map_err(|x| e(&x))?;
@@ -882,7 +893,9 @@ fn draw_curves(
     chart
         .configure_mesh()
         .x_desc("update")
+        .x_label_formatter(&tick_label)
         .y_desc("λ (log)")
+        .y_label_formatter(&tick_label)
         .draw()
         .map_err(|x| e(&x))?;
     for (i, c) in curves.iter().enumerate() {
@@ -1288,6 +1301,7 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
     chart
         .configure_mesh()
         .x_desc("update")
+        .x_label_formatter(&tick_label)
         .y_desc(format!("rollout time [{unit}]"))
         .draw()
         .map_err(|x| e(&x))?;
@@ -1726,6 +1740,15 @@ pub fn experiment(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn axis_labels_are_free_of_float_noise() {
+        let labels: Vec<String> = [5.0, 1000.0, 0.30000000000000004, 2.5, 1e-5, 0.0]
+            .iter()
+            .map(tick_label)
+            .collect();
+        assert_eq!(labels, ["5", "1000", "0.3", "2.5", "1e-5", "0"]);
+    }
 
     fn rec_with(costs: &[f64], change: Option<u64>) -> Recording {
         let mut r = Recording::default();
