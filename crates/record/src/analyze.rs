@@ -338,7 +338,9 @@ pub fn info(rec: &Recording) -> String {
         let _ = writeln!(
             s,
             "  task change before update {}: {} = {}",
-            c.update, c.name, c.value
+            c.update,
+            c.name,
+            tasks::value_text(c.value)
         );
     }
     let mut events: BTreeMap<&str, u64> = BTreeMap::new();
