@@ -1114,12 +1114,18 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
 fn a_runtime_change_is_judged_with_the_settings_earlier_changes_left() {
     let scratch = Scratch::new("in-force");
     let tball = include_str!("../../../config/tball.toml");
-    assert!(tball.contains("updates = 40\n") && tball.contains("[task.tball]\n"));
-    let text = tball.replacen("updates = 40\n", "", 1).replacen(
-        "[task.tball]\n",
-        "[task.tball]\nrollout_delay_ms = 2.0\n",
-        1,
-    );
+    // Without the scheduled lower ball, so that the settings in force differ from the
+    // config's only by the changes made here, however far the run has got.
+    let schedule = "[[schedule]]\nfrom_update = 20\nset = \"ball_height\"\nvalue = 0.47\n";
+    assert!(tball.contains("updates = 40\n") && tball.contains(schedule));
+    let text = tball
+        .replacen("updates = 40\n", "", 1)
+        .replacen(schedule, "", 1)
+        .replacen(
+            "[task.tball]\n",
+            "[task.tball]\nrollout_delay_ms = 2.0\n",
+            1,
+        );
     let cfg = write_config(&scratch, "tball.toml", &text);
     let mut run = Run::start(
         &scratch,
