@@ -681,20 +681,24 @@ fn event_interrupted(e: &EventOpenOrCreateError) -> bool {
     )
 }
 
-/// Runs `open` again while it fails as `retry` says, a few times.
-fn retry_interrupted<T, E>(
+/// Opens or creates the run's service `pi2cma/<run>/<tail>` with `open`, again while it fails as
+/// `retry` says, a few times; an error names the service.
+fn open_or_create<T, E: std::fmt::Debug>(
+    run_id: u64,
+    tail: &str,
     retry: impl Fn(&E) -> bool,
-    mut open: impl FnMut() -> Result<T, E>,
-) -> Result<T, E> {
+    mut open: impl FnMut(&ServiceName) -> Result<T, E>,
+) -> Result<T, WireError> {
+    let name = service_name(run_id, tail)?;
     let mut tries = 0;
     loop {
-        match open() {
+        match open(&name) {
             Err(e) if retry(&e) && tries < 20 => {
                 // Backing off: a service in flux needs its creator to finish, not a hot loop.
                 tries += 1;
                 std::thread::sleep(std::time::Duration::from_micros(100 << tries.min(7)));
             }
-            r => return r,
+            r => return r.map_err(|e| WireError::new(name.as_str(), format!("{e:?}"))),
         }
     }
 }
@@ -727,15 +731,13 @@ fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
     buffer: usize,
     nodes: usize,
 ) -> Result<SliceService<H>, WireError> {
-    let name = service_name(run_id, tail)?;
-    retry_interrupted(interrupted, || {
+    open_or_create(run_id, tail, interrupted, |name| {
         let builder = node
-            .service_builder(&name)
+            .service_builder(name)
             .publish_subscribe::<[f64]>()
             .user_header::<H>();
         pubsub_settings(builder, publishers, subscribers, buffer, nodes).open_or_create()
     })
-    .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
 fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
@@ -747,12 +749,10 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
     buffer: usize,
     nodes: usize,
 ) -> Result<FixedService<T>, WireError> {
-    let name = service_name(run_id, tail)?;
-    retry_interrupted(interrupted, || {
-        let builder = node.service_builder(&name).publish_subscribe::<T>();
+    open_or_create(run_id, tail, interrupted, |name| {
+        let builder = node.service_builder(name).publish_subscribe::<T>();
         pubsub_settings(builder, publishers, subscribers, buffer, nodes).open_or_create()
     })
-    .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
 /// Updates' worth of samples a subscriber's buffer holds: the recorder's lag bound
@@ -931,9 +931,9 @@ pub fn doorbell(
     owner: &str,
     l: &Limits,
 ) -> Result<EventService, WireError> {
-    let name = service_name(run_id, &format!("wake/{owner}"))?;
-    retry_interrupted(event_interrupted, || {
-        node.service_builder(&name)
+    let tail = format!("wake/{owner}");
+    open_or_create(run_id, &tail, event_interrupted, |name| {
+        node.service_builder(name)
             .event()
             .max_notifiers(l.worker_ports() + 4)
             .max_listeners(2)
@@ -941,7 +941,6 @@ pub fn doorbell(
             .event_id_max_value(HOLD.as_value())
             .open_or_create()
     })
-    .map_err(|e| WireError::new(name.as_str(), format!("{e:?}")))
 }
 
 #[cfg(test)]
