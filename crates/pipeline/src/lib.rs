@@ -23,7 +23,10 @@ use anyhow::{anyhow, Context as _};
 use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2_bb_posix::signal::SignalHandler;
 use session::RunConfig;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -133,6 +136,30 @@ pub fn limits(config: &RunConfig) -> anyhow::Result<Limits> {
         dim: task.parameters(),
         steps: task.steps(),
     })
+}
+
+/// A subscriber or a publisher with iceoryx2's default settings on one of the run's services
+/// (as `wire` opens them), named in an error: `wire::control(…)?.subscriber("control")?`.
+pub trait Ports<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> {
+    fn subscriber(&self, name: &str) -> anyhow::Result<Subscriber<Service, P, H>>;
+    fn publisher(&self, name: &str) -> anyhow::Result<Publisher<Service, P, H>>;
+}
+
+impl<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> Ports<P, H>
+    for PortFactory<Service, P, H>
+{
+    fn subscriber(&self, name: &str) -> anyhow::Result<Subscriber<Service, P, H>> {
+        iox(
+            self.subscriber_builder().create(),
+            &format!("{name} subscriber"),
+        )
+    }
+    fn publisher(&self, name: &str) -> anyhow::Result<Publisher<Service, P, H>> {
+        iox(
+            self.publisher_builder().create(),
+            &format!("{name} publisher"),
+        )
+    }
 }
 
 /// Turns an iceoryx2 error (which are `Debug`) into an error that says what failed.
@@ -290,8 +317,7 @@ pub fn announce_ready(
     worker: u32,
     incarnation: u32,
 ) -> anyhow::Result<Announced> {
-    let service = wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?;
-    let publisher = iox(service.publisher_builder().create(), "lifecycle publisher")?;
+    let publisher = wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("lifecycle")?;
     iox(
         publisher.send_copy(wire::Lifecycle {
             run_id: ctx.run_id,

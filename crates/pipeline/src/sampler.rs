@@ -17,7 +17,7 @@ use nalgebra::{DMatrix, DVector};
 use pi2cma::{Distribution, ParameterBatch};
 use wire::{Control, DistributionHeader, Ready, Service, WorkHeader, MAX_SETTINGS};
 
-use crate::{announce_ready, iox, wait_loop, Context, Flow, ProcessArgs};
+use crate::{announce_ready, iox, wait_loop, Context, Flow, Ports as _, ProcessArgs};
 
 /// How often the sampler looks for dead worker nodes.
 const DEAD_SCAN: Duration = Duration::from_secs(1);
@@ -52,30 +52,11 @@ struct Current {
 pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let ctx = Context::new(args, "sampler")?;
     let (dim, k_total, steps) = (ctx.limits.dim, ctx.limits.rollouts, ctx.limits.steps);
-    let dist = iox(
-        wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "distribution subscriber",
-    )?;
-    let ready = iox(
-        wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "ready subscriber",
-    )?;
-    let control = iox(
-        wire::control(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "control subscriber",
-    )?;
-    let overdue = iox(
-        wire::overdue(&ctx.node, ctx.run_id, &ctx.limits)?
-            .publisher_builder()
-            .create(),
-        "overdue publisher",
-    )?;
+    let dist =
+        wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("distribution")?;
+    let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("ready")?;
+    let control = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
+    let overdue = wire::overdue(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("overdue")?;
     let supervisor_bell = ctx.notifier("supervisor")?;
     let rollout_timeout = ctx
         .config

@@ -14,7 +14,7 @@ use tasks::TaskChange;
 use wire::{Control, DistributionHeader, Progress, RecorderAck, Service};
 
 use crate::result::{bits, RecordedChange, RunResult};
-use crate::{announce_ready, iox, wait_loop, Context, Exit, Flow, ProcessArgs};
+use crate::{announce_ready, iox, wait_loop, Context, Exit, Flow, Ports as _, ProcessArgs};
 
 const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
 
@@ -57,24 +57,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             .create(),
         "distribution publisher",
     )?;
-    let costs = iox(
-        wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "costs subscriber",
-    )?;
-    let control = iox(
-        wire::control(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "control subscriber",
-    )?;
-    let progress_pub = iox(
-        wire::progress(&ctx.node, ctx.run_id, &ctx.limits)?
-            .publisher_builder()
-            .create(),
-        "progress publisher",
-    )?;
+    let costs = wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("costs")?;
+    let control = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
+    let progress_pub = wire::progress(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("progress")?;
     let doorbell = ctx.listener("updater")?;
     let sampler_bell = ctx.notifier("sampler")?;
     let supervisor_bell = ctx.notifier("supervisor")?;
@@ -428,7 +413,7 @@ struct RecorderLink {
 impl RecorderLink {
     fn new(ctx: &Context) -> anyhow::Result<Self> {
         let service = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?;
-        let acks = iox(service.subscriber_builder().create(), "recorded subscriber")?;
+        let acks = service.subscriber("recorded")?;
         Ok(Self {
             service,
             acks,

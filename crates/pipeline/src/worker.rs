@@ -12,7 +12,9 @@ use session::RunConfig;
 use tasks::Task;
 use wire::{CostHeader, Ready, WorkHeader};
 
-use crate::{announce_ready, iox, wait_loop_spinning, Context, Flow, ProcessArgs, Spin};
+use crate::{
+    announce_ready, iox, wait_loop_spinning, Context, Flow, Ports as _, ProcessArgs, Spin,
+};
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct WorkerArgs {
@@ -79,12 +81,7 @@ fn slot<T: Task>(
         .filter(|_| incarnation == 0);
     let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
 
-    let inbox = iox(
-        wire::work(&ctx.node, ctx.run_id, w, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "work subscriber",
-    )?;
+    let inbox = wire::work(&ctx.node, ctx.run_id, w, &ctx.limits)?.subscriber("work")?;
     let doorbell = ctx.listener(&format!("worker/{w}"))?;
     let costs = iox(
         wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
@@ -94,12 +91,7 @@ fn slot<T: Task>(
             .create(),
         "costs publisher",
     )?;
-    let ready = iox(
-        wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?
-            .publisher_builder()
-            .create(),
-        "ready publisher",
-    )?;
+    let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("ready")?;
     let updater_bell = ctx.notifier("updater")?;
     let sampler_bell = ctx.notifier("sampler")?;
     let publish_ready = |completed_chunk: u64| -> anyhow::Result<()> {

@@ -28,7 +28,7 @@ use std::path::PathBuf;
 use crate::assemble::{Assembler, CostOutcome};
 use crate::{now_ns, Event, RolloutTiming, RunFiles, RunStart, UpdateData};
 use anyhow::Context as _;
-use pipeline::{announce_ready, iox, Context};
+use pipeline::{announce_ready, iox, Context, Ports as _};
 use wire::{Control, CostHeader, DistributionHeader, Lifecycle, RunNote};
 
 /// The `lifecycle` role this process announces.
@@ -82,44 +82,16 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| ctx.run_dir.join("run.mcap"));
 
-    let dist_sub = iox(
-        wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "distribution subscriber",
-    )?;
-    let costs_sub = iox(
-        wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "costs subscriber",
-    )?;
-    let control_sub = iox(
-        wire::control(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "control subscriber",
-    )?;
-    let lifecycle_sub = iox(
-        wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "lifecycle subscriber",
-    )?;
-    let notes_sub = iox(
-        wire::notes(&ctx.node, ctx.run_id, &ctx.limits)?
-            .subscriber_builder()
-            .create(),
-        "notes subscriber",
-    )?;
+    let dist_sub =
+        wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("distribution")?;
+    let costs_sub = wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("costs")?;
+    let control_sub = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
+    let lifecycle_sub =
+        wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("lifecycle")?;
+    let notes_sub = wire::notes(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("notes")?;
     let doorbell = ctx.listener("recorder")?;
     let updater_bell = ctx.notifier("updater")?;
-    let acks = iox(
-        wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?
-            .publisher_builder()
-            .create(),
-        "recorded publisher",
-    )?;
+    let acks = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("recorded")?;
 
     let mut writer = RunFiles::create(&out)?;
     writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb));
