@@ -508,6 +508,30 @@ impl Csv {
     }
 }
 
+/// The columns `update.csv` and `summary.csv` begin with: an update's costs and λ.
+const SUMMARY_COLUMNS: [&str; 7] = [
+    "timestamp_ns",
+    "update",
+    "eval_cost",
+    "exploration_cost_mean",
+    "exploration_cost_std",
+    "lambda",
+    "lambda_next",
+];
+
+/// The [`SUMMARY_COLUMNS`] of an update's summary.
+fn summary_cells(s: &proto::UpdateSummary) -> Vec<String> {
+    vec![
+        ts(&s.timestamp),
+        s.update.to_string(),
+        f(s.eval_cost),
+        f(s.exploration_cost_mean),
+        f(s.exploration_cost_std),
+        f(s.lambda),
+        f(s.lambda_next),
+    ]
+}
+
 fn names(prefix: &str, n: usize) -> Vec<String> {
     (0..n).map(|i| format!("{prefix}{i}")).collect()
 }
@@ -557,19 +581,8 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     }
     files.push(run.write()?);
 
-    let mut header: Vec<String> = [
-        "timestamp_ns",
-        "update",
-        "eval_cost",
-        "exploration_cost_mean",
-        "exploration_cost_std",
-        "lambda",
-        "lambda_next",
-        "batch_start_ns",
-        "batch_end_ns",
-    ]
-    .map(String::from)
-    .to_vec();
+    let mut header: Vec<String> = SUMMARY_COLUMNS.map(String::from).to_vec();
+    header.extend(["batch_start_ns", "batch_end_ns"].map(String::from));
     header.extend(names("before_mean_", p));
     header.extend(names("after_mean_", p));
     header.extend(names("before_cov_", p * p));
@@ -583,17 +596,8 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     let mut rol = Csv::new(dir, "update_rollouts.csv", &header)?;
     // Update by update, streamed from the files for a recording read slim.
     rec.for_each_update(|u| {
-        let mut row = vec![
-            ts(&u.timestamp),
-            u.update.to_string(),
-            f(u.eval_cost),
-            f(u.exploration_cost_mean),
-            f(u.exploration_cost_std),
-            f(u.lambda),
-            f(u.lambda_next),
-            u.batch_start_ns.to_string(),
-            u.batch_end_ns.to_string(),
-        ];
+        let mut row = summary_cells(&crate::reader::curve_row(u));
+        row.extend([u.batch_start_ns.to_string(), u.batch_end_ns.to_string()]);
         let (b, a) = (
             u.before.clone().unwrap_or_default(),
             u.after.clone().unwrap_or_default(),
@@ -628,29 +632,11 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     files.push(upd.write()?);
     files.push(rol.write()?);
 
-    let mut header: Vec<String> = [
-        "timestamp_ns",
-        "update",
-        "eval_cost",
-        "exploration_cost_mean",
-        "exploration_cost_std",
-        "lambda",
-        "lambda_next",
-    ]
-    .map(String::from)
-    .to_vec();
+    let mut header: Vec<String> = SUMMARY_COLUMNS.map(String::from).to_vec();
     header.extend(names("mean_next_", p));
     let mut sum = Csv::new(dir, "summary.csv", &header)?;
     for s in &rec.summaries {
-        let mut row = vec![
-            ts(&s.timestamp),
-            s.update.to_string(),
-            f(s.eval_cost),
-            f(s.exploration_cost_mean),
-            f(s.exploration_cost_std),
-            f(s.lambda),
-            f(s.lambda_next),
-        ];
+        let mut row = summary_cells(s);
         row.extend(s.mean.iter().map(|x| f(*x)));
         sum.row(row);
     }
@@ -755,6 +741,20 @@ fn perr<E: std::fmt::Debug>(file: &Path, figure: &str) -> impl FnOnce(E) -> Reco
         figure,
         what: format!("{e:?}"),
     }
+}
+
+/// The framed legend of a chart's labelled series, at `position`.
+fn draw_legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| format!("{x:?}"))
 }
 
 /// Range with a margin; never empty.
@@ -877,13 +877,7 @@ fn draw_curves(
             ))
             .map_err(|x| e(&x))?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|x| e(&x))?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
 
     let (llo, lhi) = log_range(curves.iter().flat_map(|c| c.lambda.iter().copied()));
     let mut chart = ChartBuilder::on(&bottom)
@@ -1092,13 +1086,7 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
             .label(format!("update {u}"))
             .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 12, y + 4)], color.filled()));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|x| e(&x))?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
@@ -1234,12 +1222,7 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
                 .map(|(_, d)| Circle::new((d.mean[0], d.mean[1]), 2, BLACK.filled())),
         )
         .map_err(|x| e(&x))?;
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|x| e(&x))?;
+    draw_legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
@@ -1322,12 +1305,7 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
             ))
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|x| e(&x))?;
+    draw_legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }

@@ -72,19 +72,7 @@ impl Recording {
         if !self.summaries.is_empty() {
             return self.summaries.clone();
         }
-        self.updates
-            .iter()
-            .map(|u| proto::UpdateSummary {
-                timestamp: u.timestamp,
-                update: u.update,
-                eval_cost: u.eval_cost,
-                exploration_cost_mean: u.exploration_cost_mean,
-                exploration_cost_std: u.exploration_cost_std,
-                lambda: u.lambda,
-                lambda_next: u.lambda_next,
-                mean: u.after.as_ref().map(|d| d.mean.clone()).unwrap_or_default(),
-            })
-            .collect()
+        self.updates.iter().map(curve_row).collect()
     }
 
     /// Calls `f` with every update, bulk included, in order: from memory, or for a recording
@@ -111,6 +99,20 @@ impl Recording {
             })?;
         }
         Ok(())
+    }
+}
+
+/// The learning-curve row of an update: what its `/summary` message holds.
+pub(crate) fn curve_row(u: &proto::Update) -> proto::UpdateSummary {
+    proto::UpdateSummary {
+        timestamp: u.timestamp,
+        update: u.update,
+        eval_cost: u.eval_cost,
+        exploration_cost_mean: u.exploration_cost_mean,
+        exploration_cost_std: u.exploration_cost_std,
+        lambda: u.lambda,
+        lambda_next: u.lambda_next,
+        mean: u.after.as_ref().map(|d| d.mean.clone()).unwrap_or_default(),
     }
 }
 
