@@ -25,6 +25,31 @@ const PER_STEP: Weighting = Weighting::PerTimeStep {
     temporal: TemporalAveraging::RemainingSteps,
 };
 
+/// PI²-CMA as Algorithm 1: exponential mapping with eliteness `h`, adaptive exploration within
+/// `bounds`, per-time-step weighting.
+fn pi2cma(k: usize, h: f64, bounds: EigenvalueBounds) -> Hyperparameters {
+    hp(
+        k,
+        CostMapping::Exponential { eliteness: h },
+        Exploration::Adaptive { bounds },
+        PER_STEP,
+    )
+}
+
+/// The update rule of `hp` for P = `p`, N = `n`, without basis activations.
+fn update_rule(hp: Hyperparameters, p: usize, n: usize) -> UpdateRule {
+    UpdateRule::new(hp, p, n, None).unwrap()
+}
+
+/// The hand-computed example's step costs (K = 3, N = 2; no terminal costs).
+fn hand_costs() -> CostBatch {
+    let mut costs = CostBatch::new(3, 2);
+    costs.insert(0, &[1.0, 1.0], 0.0).unwrap();
+    costs.insert(1, &[0.0, 1.0], 0.0).unwrap();
+    costs.insert(2, &[2.0, 0.0], 0.0).unwrap();
+    costs
+}
+
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-14 * (1.0 + b.abs())
 }
@@ -38,24 +63,10 @@ fn close(a: f64, b: f64) -> bool {
 fn small_update_matches_hand_computation() {
     let bounds = EigenvalueBounds::new(0.5, 2.0).unwrap();
     let h = 2.0 * std::f64::consts::LN_2;
-    let mut rule = UpdateRule::new(
-        hp(
-            3,
-            CostMapping::Exponential { eliteness: h },
-            Exploration::Adaptive { bounds },
-            PER_STEP,
-        ),
-        2,
-        2,
-        None,
-    )
-    .unwrap();
+    let mut rule = update_rule(pi2cma(3, h, bounds), 2, 2);
     let old = Distribution::isotropic(DVector::zeros(2), 1.0).unwrap();
     let samples = [0.0, 0.0, 1.0, 0.0, 0.0, 2.0];
-    let mut costs = CostBatch::new(3, 2);
-    costs.insert(0, &[1.0, 1.0], 0.0).unwrap();
-    costs.insert(1, &[0.0, 1.0], 0.0).unwrap();
-    costs.insert(2, &[2.0, 0.0], 0.0).unwrap();
+    let costs = hand_costs();
     let (new, w) = rule.update(&old, &samples, &costs).unwrap();
     assert!(
         close(new.mean[0], 0.5) && close(new.mean[1], 2.0 / 3.0),
@@ -74,7 +85,7 @@ fn small_update_matches_hand_computation() {
     }
 
     // Episodic: totals (2, 1, 2) → p = (1/6, 2/3, 1/6), θ = (2/3, 1/3), Σ = diag(2/3, 2/3).
-    let mut rule = UpdateRule::new(
+    let mut rule = update_rule(
         hp(
             3,
             CostMapping::Exponential { eliteness: h },
@@ -83,16 +94,14 @@ fn small_update_matches_hand_computation() {
         ),
         2,
         2,
-        None,
-    )
-    .unwrap();
+    );
     let (new, _) = rule.update(&old, &samples, &costs).unwrap();
     assert!(close(new.mean[0], 2.0 / 3.0) && close(new.mean[1], 1.0 / 3.0));
     assert!(close(new.covariance[(0, 0)], 2.0 / 3.0));
     assert!(close(new.covariance[(1, 1)], 2.0 / 3.0));
 
     // CEM with one elite (rollout 1): θ = θ_1, Σ = ε_1 ε_1ᵀ = diag(1, 0), bounded to [0.5, 2].
-    let mut rule = UpdateRule::new(
+    let mut rule = update_rule(
         hp(
             3,
             CostMapping::Elites { count: 1 },
@@ -101,9 +110,7 @@ fn small_update_matches_hand_computation() {
         ),
         2,
         2,
-        None,
-    )
-    .unwrap();
+    );
     let (new, _) = rule.update(&old, &samples, &costs).unwrap();
     assert_eq!(new.mean.as_slice(), &[1.0, 0.0]);
     assert_eq!(new.covariance.as_slice(), &[1.0, 0.0, 0.0, 0.5]);
@@ -121,7 +128,7 @@ fn constant_and_decay_exploration() {
         (Exploration::Constant, 8.0),
         (Exploration::Decay { factor: 0.8 }, 6.4),
     ] {
-        let mut rule = UpdateRule::new(
+        let mut rule = update_rule(
             hp(
                 3,
                 CostMapping::Exponential { eliteness: 10.0 },
@@ -130,9 +137,7 @@ fn constant_and_decay_exploration() {
             ),
             2,
             1,
-            None,
-        )
-        .unwrap();
+        );
         let (new, _) = rule.update(&old, &samples, &costs).unwrap();
         assert_eq!(new.covariance[(0, 0)], expect);
         assert_eq!(new.covariance[(0, 1)], 0.0);
@@ -180,6 +185,20 @@ fn literal_algorithm_1(
     (theta + num_theta / den, num_sigma / den)
 }
 
+/// The samples of a random problem one after another, as the update takes them.
+fn flat(samples: &[DVector<f64>]) -> Vec<f64> {
+    samples.iter().flat_map(|s| s.iter().cloned()).collect()
+}
+
+/// The cost batch of a random problem's step costs `q` and terminal costs `phi`.
+fn cost_batch(q: &[Vec<f64>], phi: &[f64]) -> CostBatch {
+    let mut costs = CostBatch::new(q.len(), q[0].len());
+    for (k, (q, phi)) in q.iter().zip(phi).enumerate() {
+        costs.insert(k, q, *phi).unwrap();
+    }
+    costs
+}
+
 /// A random update problem: θ, K samples (rollout 0 = θ), step costs q (K × N) and terminal φ.
 #[allow(clippy::type_complexity)]
 fn random_problem(
@@ -221,23 +240,9 @@ fn every_covariance_kernel_matches_literal_algorithm_1() {
             };
             let h = 10.0;
             let (mean, cov) = literal_algorithm_1(&theta, &samples, &q, &phi, h, bounds);
-            let mut rule = UpdateRule::new(
-                hp(
-                    k,
-                    CostMapping::Exponential { eliteness: h },
-                    Exploration::Adaptive { bounds },
-                    PER_STEP,
-                ),
-                p,
-                n,
-                None,
-            )
-            .unwrap();
-            let flat: Vec<f64> = samples.iter().flat_map(|s| s.iter().cloned()).collect();
-            let mut costs = CostBatch::new(k, n);
-            for kk in 0..k {
-                costs.insert(kk, &q[kk], phi[kk]).unwrap();
-            }
+            let mut rule = update_rule(pi2cma(k, h, bounds), p, n);
+            let flat = flat(&samples);
+            let costs = cost_batch(&q, &phi);
             let old = Distribution::isotropic(theta.clone(), 1.0).unwrap();
             let (new, _) = rule.update(&old, &flat, &costs).unwrap();
             assert!((&new.mean - &mean).amax() < 1e-12, "P={p}: mean");
@@ -374,7 +379,7 @@ fn basis_activation_averaging() {
     }
     let old = Distribution::isotropic(DVector::zeros(p), 1.0).unwrap();
     let uniform = vec![0.5; n * p];
-    let mut a = UpdateRule::new(mk(TemporalAveraging::RemainingSteps), p, n, None).unwrap();
+    let mut a = update_rule(mk(TemporalAveraging::RemainingSteps), p, n);
     let mut b =
         UpdateRule::new(mk(TemporalAveraging::BasisActivation), p, n, Some(&uniform)).unwrap();
     let (da, _) = a.update(&old, &samples, &costs).unwrap();
@@ -415,26 +420,12 @@ fn threaded_low_rank_update_is_bit_identical_and_matches_algorithm_1() {
     let (k, n, p) = (6, 130, 15);
     let (theta, samples, q, phi) = random_problem(&mut rng, k, n, p);
     let bounds = EigenvalueBounds::new(0.3, 3.0).unwrap();
-    let flat: Vec<f64> = samples.iter().flat_map(|s| s.iter().cloned()).collect();
-    let mut costs = CostBatch::new(k, n);
-    for kk in 0..k {
-        costs.insert(kk, &q[kk], phi[kk]).unwrap();
-    }
+    let flat = flat(&samples);
+    let costs = cost_batch(&q, &phi);
     let old = Distribution::isotropic(theta.clone(), 1.0).unwrap();
     let run = |threads| {
-        let rule = UpdateRule::new(
-            hp(
-                k,
-                CostMapping::Exponential { eliteness: 10.0 },
-                Exploration::Adaptive { bounds },
-                PER_STEP,
-            ),
-            p,
-            n,
-            None,
-        )
-        .unwrap();
-        rule.with_threads(threads)
+        update_rule(pi2cma(k, 10.0, bounds), p, n)
+            .with_threads(threads)
             .update(&old, &flat, &costs)
             .unwrap()
             .0
@@ -453,7 +444,7 @@ fn threaded_low_rank_update_is_bit_identical_and_matches_algorithm_1() {
 /// as NaN costs.
 #[test]
 fn an_update_that_overflows_is_refused() {
-    let mut rule = UpdateRule::new(
+    let mut rule = update_rule(
         hp(
             3,
             CostMapping::Exponential { eliteness: 10.0 },
@@ -464,15 +455,10 @@ fn an_update_that_overflows_is_refused() {
         ),
         2,
         2,
-        None,
-    )
-    .unwrap();
+    );
     let old = Distribution::isotropic(DVector::zeros(2), 1e300).unwrap();
     let samples = [0.0, 0.0, 1e150, 3e150, -2e150, 1e150];
-    let mut costs = CostBatch::new(3, 2);
-    costs.insert(0, &[1.0, 1.0], 0.0).unwrap();
-    costs.insert(1, &[0.0, 1.0], 0.0).unwrap();
-    costs.insert(2, &[2.0, 0.0], 0.0).unwrap();
+    let costs = hand_costs();
     let r = rule.update(&old, &samples, &costs);
     assert!(
         matches!(r, Err(CostError::NonFiniteUpdate { .. })),
