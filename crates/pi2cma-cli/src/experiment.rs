@@ -183,6 +183,16 @@ impl ConfigResult {
         mean_over_sessions(self, |s| s.lambda)
     }
 
+    /// The three curves of `mean_curves.csv`, the summary table and Fig. 2: the means over
+    /// sessions of the eval cost, the exploration-cost standard deviation and λ_u.
+    pub fn mean_curves(&self) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        (
+            self.mean_eval_cost(),
+            self.mean_exploration_std(),
+            self.mean_lambda(),
+        )
+    }
+
     /// The first update u ≥ the change from which the mean eval cost stays within 10% of the
     /// jump above the optimum: c(v) ≤ c* + 0.1·(c(change) − c*) for every v ≥ u. `None` if the
     /// run never gets there (or has no change).
@@ -258,11 +268,7 @@ pub fn write_updates_csv(path: &Path, results: &[ConfigResult]) -> std::io::Resu
 pub fn write_mean_csv(path: &Path, results: &[ConfigResult]) -> std::io::Result<()> {
     let mut s = String::from("config,weighting,update,eval_cost,exploration_cost_std,lambda\n");
     for r in results {
-        let (e, sd, l) = (
-            r.mean_eval_cost(),
-            r.mean_exploration_std(),
-            r.mean_lambda(),
-        );
+        let (e, sd, l) = r.mean_curves();
         for u in 0..e.len() {
             let _ = writeln!(
                 s,
@@ -285,11 +291,7 @@ pub fn summary_table(results: &[ConfigResult]) -> String {
         "| config | weighting | sessions | eval cost u=0 | u=19 | u=20 | last | expl. std u=19 | λ u=0 | λ u=19 | λ max after change | λ last | re-converged at |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in results {
-        let (e, sd, l) = (
-            r.mean_eval_cost(),
-            r.mean_exploration_std(),
-            r.mean_lambda(),
-        );
+        let (e, sd, l) = r.mean_curves();
         if e.is_empty() {
             continue;
         }

@@ -129,11 +129,7 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
         }
 
         // Right: learning curve, band and λ.
-        let (e, sd, l) = (
-            r.mean_eval_cost(),
-            r.mean_exploration_std(),
-            r.mean_lambda(),
-        );
+        let (e, sd, l) = r.mean_curves();
         if e.is_empty() {
             continue;
         }
