@@ -19,9 +19,11 @@ use std::process::Command;
 use std::time::Instant;
 
 use pi2cma::ParameterBatch;
-use session::{InProcess, NoObserver, RunConfig, TaskSection};
+use session::{InProcess, NoObserver, RunConfig};
 use tasks::Task;
 use tball::Tball;
+
+mod common;
 
 /// Times T-ball rollouts and updates, in-process and (with `--supervisor`) through the
 /// pipeline with 1 and 2 rollout workers. Prints figures.
@@ -39,15 +41,8 @@ struct Args {
     pipeline_updates: u64,
 }
 
-/// Errors as the user's message (`Display`), not a `Debug` dump of the error value.
 fn main() -> std::process::ExitCode {
-    match run() {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    common::main(run)
 }
 
 fn run() -> Result<(), Box<dyn Error>> {
@@ -57,9 +52,7 @@ fn run() -> Result<(), Box<dyn Error>> {
         pipeline_updates,
     } = clap::Parser::parse();
     let cfg = RunConfig::load(&config)?;
-    let TaskSection::Tball(task_cfg) = &cfg.task else {
-        return Err(format!("{}: not a [task.tball] config", config.display()).into());
-    };
+    let task_cfg = common::tball_task(&cfg, &config)?;
     let mut task = Tball::new(task_cfg)?;
 
     // The rollouts of a real first batch (λ_init around the initial mean), hits and misses alike.

@@ -15,9 +15,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
-use session::{Observer, RunConfig, TaskSection, UpdateRecord, WeightingName};
+use session::{Observer, RunConfig, UpdateRecord, WeightingName};
 use tasks::Task;
 use tball::{Tball, Trace};
+
+mod common;
 
 type Res<T> = Result<T, Box<dyn Error>>;
 
@@ -98,15 +100,8 @@ fn geometric_mean(v: impl Iterator<Item = f64>) -> f64 {
     mean(v.map(f64::ln)).exp()
 }
 
-/// Errors as the user's message (`Display`), not a `Debug` dump of the error value.
 fn main() -> std::process::ExitCode {
-    match run() {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    common::main(run)
 }
 
 fn run() -> Res<()> {
@@ -125,9 +120,7 @@ fn run() -> Res<()> {
         args.sessions,
         cfg.optimizer.weighting
     );
-    let TaskSection::Tball(task_cfg) = &cfg.task else {
-        return Err(format!("{}: not a [task.tball] config", args.config.display()).into());
-    };
+    let task_cfg = common::tball_task(&cfg, &args.config)?;
     std::fs::create_dir_all(&args.out)?;
     let mut sessions = Vec::new();
     let start = std::time::Instant::now();
