@@ -1085,8 +1085,7 @@ fn a_runtime_change_is_judged_with_the_settings_earlier_changes_left() {
     run.wait_status("2 updates", |s| updates_in(s) >= 2);
     // A tee 10¹⁵⁴ m away along y, then as far along x: each alone keeps the costs finite, both
     // overflow the distance. The second is judged with the first in force, not with the config.
-    let (ok, reply) = run.ctl(&["set", "tee_y", "1e154"]);
-    assert!(ok, "{reply}");
+    run.ctl_ok(&["set", "tee_y", "1e154"]);
     let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
     assert!(
         !ok && reply.contains("terminal cost = inf")
@@ -1097,13 +1096,8 @@ fn a_runtime_change_is_judged_with_the_settings_earlier_changes_left() {
     run.wait_status("tee_y in force", |s| s.contains("tee_y = 1e154"));
     let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
     assert!(!ok && reply.contains("tee_y = 1e154"), "{reply}");
-    let (ok, reply) = run.ctl(&["stop"]);
-    assert!(ok, "{reply}");
-    assert!(
-        run.wait(Duration::from_secs(20)).success(),
-        "{}",
-        run.text()
-    );
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
     assert_nothing_left(&run);
 }
 
