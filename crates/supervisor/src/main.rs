@@ -1,6 +1,5 @@
 //! `supervisor`: runs a pi2cma pipeline (updater, sampler, rollout workers over iceoryx2) and
 //! talks to a running one.
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -16,42 +15,7 @@ struct Cli {
 enum Cmd {
     /// Starts a run and supervises it until it ends (without CONFIG: the built-in default,
     /// PI²-CMA on the via-point task with 3 workers).
-    Run {
-        /// A run config (TOML); its `[pipeline]` section sets workers, limits and timeouts.
-        config: Option<PathBuf>,
-        /// Rollout workers to start with (overrides `pipeline.workers`).
-        #[arg(long)]
-        workers: Option<usize>,
-        /// Fix the run id (16 hex digits) instead of drawing one.
-        #[arg(long, value_parser = pipeline::parse_run_id)]
-        run_id: Option<u64>,
-        /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries, and
-        /// optionally `recorder` (default: the supervisor's own directory if they are there;
-        /// whatever is missing, the supervisor's own executable hosts).
-        #[arg(long)]
-        bin_dir: Option<PathBuf>,
-        /// Also write the result (final distribution with exact bits) to this file.
-        #[arg(long)]
-        result: Option<PathBuf>,
-        /// Print no progress lines.
-        #[arg(long)]
-        quiet: bool,
-        /// Write the run's MCAP recording here (default: runs/<run name>-<run id>.mcap in the
-        /// current directory).
-        #[arg(long, value_name = "FILE")]
-        record: Option<PathBuf>,
-        /// Run without the recorder (no MCAP file).
-        #[arg(long, conflicts_with = "record")]
-        no_record: bool,
-        /// Go on from the last update recorded in this MCAP file (a stopped, crashed or
-        /// finished run whose run.updates is raised); without CONFIG, with the config it
-        /// recorded. The result is bit for bit what the run would have given uninterrupted.
-        #[arg(long, value_name = "FILE")]
-        resume: Option<PathBuf>,
-        /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
-        #[arg(long)]
-        updates: Option<u64>,
-    },
+    Run(#[command(flatten)] supervisor::RunOptions),
     /// Shows workers, update rate, current cost and λ of a running run.
     Status {
         /// The run id (needed only when several runs are active).
@@ -124,38 +88,13 @@ fn main() -> ExitCode {
         }
     };
     match cli.command {
-        Cmd::Run {
-            config,
-            workers,
-            run_id,
-            bin_dir,
-            result,
-            quiet,
-            record,
-            no_record,
-            resume,
-            updates,
-        } => {
-            let opts = supervisor::RunOptions {
-                config,
-                workers,
-                run_id,
-                bin_dir,
-                result,
-                quiet,
-                record,
-                no_record,
-                resume,
-                updates,
-            };
-            match supervisor::run(&opts) {
-                Ok(code) => ExitCode::from(code),
-                Err(e) => {
-                    eprintln!("[supervisor] error: {e:#}");
-                    ExitCode::FAILURE
-                }
+        Cmd::Run(opts) => match supervisor::run(&opts) {
+            Ok(code) => ExitCode::from(code),
+            Err(e) => {
+                eprintln!("[supervisor] error: {e:#}");
+                ExitCode::FAILURE
             }
-        }
+        },
         Cmd::Status { run } => remote(run, "status".into()),
         Cmd::Scale { workers, run } => remote(run, format!("scale {workers}")),
         Cmd::Set { name, value, run } => remote(run, format!("set {name} {value:?}")),

@@ -28,28 +28,42 @@ use wire::{Control, Lifecycle, Limits, Overdue, Progress, RunNote, Service};
 use crate::control::{self, Command as Cmd, Request};
 use crate::{EXIT_INTERRUPTED, EXIT_RECORDING_UNFINISHED};
 
-/// What `supervisor run` was asked to do.
-#[derive(Debug, Clone, Default)]
+/// What `supervisor run` was asked to do (its command-line arguments).
+#[derive(Debug, Clone, Default, clap::Args)]
 pub struct RunOptions {
-    /// The config file; `None` runs the built-in default.
+    /// A run config (TOML); its `[pipeline]` section sets workers, limits and timeouts.
     pub config: Option<PathBuf>,
-    /// Overrides `pipeline.workers`.
+    /// Rollout workers to start with (overrides `pipeline.workers`).
+    #[arg(long)]
     pub workers: Option<usize>,
-    /// Fixes the run id (16 hex digits) instead of drawing one.
+    /// Fix the run id (16 hex digits) instead of drawing one.
+    #[arg(long, value_parser = pipeline::parse_run_id)]
     pub run_id: Option<u64>,
-    /// Where the process binaries are; default: next to the supervisor's executable.
+    /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries, and
+    /// optionally `recorder` (default: the supervisor's own directory if they are there;
+    /// whatever is missing, the supervisor's own executable hosts).
+    #[arg(long)]
     pub bin_dir: Option<PathBuf>,
-    /// Copy the result file here.
+    /// Also write the result (final distribution with exact bits) to this file.
+    #[arg(long)]
     pub result: Option<PathBuf>,
-    /// No progress lines.
+    /// Print no progress lines.
+    #[arg(long)]
     pub quiet: bool,
-    /// Where the recorder writes the run's MCAP; default [`default_recording`].
+    /// Write the run's MCAP recording here (default: runs/<run name>-<run id>.mcap in the
+    /// current directory).
+    #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,
-    /// Run without the recorder.
+    /// Run without the recorder (no MCAP file).
+    #[arg(long, conflicts_with = "record")]
     pub no_record: bool,
-    /// Go on from the last update recorded in this MCAP file (see `record::resume`).
+    /// Go on from the last update recorded in this MCAP file (a stopped, crashed or
+    /// finished run whose run.updates is raised); without CONFIG, with the config it
+    /// recorded. The result is bit for bit what the run would have given uninterrupted.
+    #[arg(long, value_name = "FILE")]
     pub resume: Option<PathBuf>,
-    /// Overrides `run.updates` (in the config the processes read and the recording keeps).
+    /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
+    #[arg(long)]
     pub updates: Option<u64>,
 }
 
