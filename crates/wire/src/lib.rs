@@ -483,6 +483,42 @@ pub fn pack_settings(values: &[f64]) -> ([f64; MAX_SETTINGS], u32) {
     (out, n as u32)
 }
 
+/// The publish-subscribe services of a run ([`Limits::settings`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum PubSub {
+    Distribution,
+    Work,
+    Costs,
+    Ready,
+    Recorded,
+    Progress,
+    Lifecycle,
+    Overdue,
+    Notes,
+    Control,
+}
+
+/// What a publish-subscribe service is opened with, besides its types: the most publishers,
+/// subscribers and nodes, and each subscriber's buffer (samples per publisher).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct PubSubSettings {
+    pub publishers: usize,
+    pub subscribers: usize,
+    pub buffer: usize,
+    pub nodes: usize,
+}
+
+/// What an event service (a doorbell) is opened with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct EventSettings {
+    pub notifiers: usize,
+    pub listeners: usize,
+    pub nodes: usize,
+}
+
+/// Samples a subscriber may hold at once, of every service.
+pub(crate) const BORROWED_SAMPLES: usize = 2;
+
 /// The numbers every service size is derived from. Every process of a run must use the same.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Limits {
@@ -504,6 +540,41 @@ impl Limits {
     fn nodes(&self) -> usize {
         2 * self.max_workers + 8
     }
+
+    /// The builder settings of each publish-subscribe service, in one place so that the service
+    /// functions ([`distribution`], [`costs`], …) and what is derived from them cannot
+    /// disagree.
+    pub(crate) fn settings(&self, service: PubSub) -> PubSubSettings {
+        let w = self.max_workers;
+        let (publishers, subscribers, buffer, nodes) = match service {
+            PubSub::Distribution => (2, 4, self.distribution_buffer(), self.nodes()),
+            PubSub::Work => (2, 2, self.rollouts.max(1), 8),
+            PubSub::Costs => (self.worker_ports(), 2, self.cost_buffer(), self.nodes()),
+            PubSub::Ready => (self.worker_ports(), 2, 2 * w + 4, self.nodes()),
+            PubSub::Recorded => (2, 2, 4, self.nodes()),
+            PubSub::Progress => (2, 4, 8, self.nodes()),
+            PubSub::Lifecycle => (self.worker_ports() + 4, 2, 2 * w + 8, self.nodes()),
+            PubSub::Overdue => (2, 2, 2 * w + 4, self.nodes()),
+            PubSub::Notes => (2, 2, 16, self.nodes()),
+            PubSub::Control => (2, 4, 2 * w + 16, self.nodes()),
+        };
+        PubSubSettings {
+            publishers,
+            subscribers,
+            buffer,
+            nodes,
+        }
+    }
+
+    /// The builder settings of every doorbell ([`doorbell`]).
+    pub(crate) fn doorbell_settings(&self) -> EventSettings {
+        EventSettings {
+            notifiers: self.worker_ports() + 4,
+            listeners: 2,
+            nodes: self.nodes(),
+        }
+    }
+
     /// Cost samples a subscriber can hold: one per rollout plus re-executions after a crash, and
     /// room for the recorder's lag: [`RECORDER_SLACK_UPDATES`] updates' worth, as far as
     /// [`SEGMENT_BUDGET_BYTES`] allows (the lag bound shrinks to what fits).
@@ -707,36 +778,30 @@ fn open_or_create<T, E: std::fmt::Debug>(
 /// these counts differ between them.
 fn pubsub_settings<P: std::fmt::Debug + IceoryxSend + ?Sized, H: std::fmt::Debug + ZeroCopySend>(
     builder: publish_subscribe_builder::Builder<P, H, Service>,
-    publishers: usize,
-    subscribers: usize,
-    buffer: usize,
-    nodes: usize,
+    s: PubSubSettings,
 ) -> publish_subscribe_builder::Builder<P, H, Service> {
     builder
-        .max_publishers(publishers)
-        .max_subscribers(subscribers)
-        .subscriber_max_buffer_size(buffer)
-        .subscriber_max_borrowed_samples(2)
+        .max_publishers(s.publishers)
+        .max_subscribers(s.subscribers)
+        .subscriber_max_buffer_size(s.buffer)
+        .subscriber_max_borrowed_samples(BORROWED_SAMPLES)
         .history_size(0)
         .enable_safe_overflow(true)
-        .max_nodes(nodes)
+        .max_nodes(s.nodes)
 }
 
 fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
     node: &Node<Service>,
     run_id: u64,
     tail: &str,
-    publishers: usize,
-    subscribers: usize,
-    buffer: usize,
-    nodes: usize,
+    settings: PubSubSettings,
 ) -> Result<SliceService<H>, WireError> {
     open_or_create(run_id, tail, interrupted, |name| {
         let builder = node
             .service_builder(name)
             .publish_subscribe::<[f64]>()
             .user_header::<H>();
-        pubsub_settings(builder, publishers, subscribers, buffer, nodes).open_or_create()
+        pubsub_settings(builder, settings).open_or_create()
     })
 }
 
@@ -744,14 +809,11 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
     node: &Node<Service>,
     run_id: u64,
     tail: &str,
-    publishers: usize,
-    subscribers: usize,
-    buffer: usize,
-    nodes: usize,
+    settings: PubSubSettings,
 ) -> Result<FixedService<T>, WireError> {
     open_or_create(run_id, tail, interrupted, |name| {
         let builder = node.service_builder(name).publish_subscribe::<T>();
-        pubsub_settings(builder, publishers, subscribers, buffer, nodes).open_or_create()
+        pubsub_settings(builder, settings).open_or_create()
     })
 }
 
@@ -775,10 +837,7 @@ pub fn distribution(
         node,
         run_id,
         "distribution",
-        2,
-        4,
-        l.distribution_buffer(),
-        l.nodes(),
+        l.settings(PubSub::Distribution),
     )
 }
 
@@ -799,10 +858,7 @@ pub fn work(
         node,
         run_id,
         &format!("work/{worker}"),
-        2,
-        2,
-        l.rollouts.max(1),
-        8,
+        l.settings(PubSub::Work),
     )
 }
 
@@ -814,15 +870,7 @@ pub fn costs(
     run_id: u64,
     l: &Limits,
 ) -> Result<SliceService<CostHeader>, WireError> {
-    slice_service(
-        node,
-        run_id,
-        "costs",
-        l.worker_ports(),
-        2,
-        l.cost_buffer(),
-        l.nodes(),
-    )
+    slice_service(node, run_id, "costs", l.settings(PubSub::Costs))
 }
 
 /// `ready`: 2·max_workers + 2 publishers, 2 subscribers, a buffer of 2·max_workers + 4.
@@ -831,15 +879,7 @@ pub fn ready(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<Ready>, WireError> {
-    fixed_service(
-        node,
-        run_id,
-        "ready",
-        l.worker_ports(),
-        2,
-        2 * l.max_workers + 4,
-        l.nodes(),
-    )
+    fixed_service(node, run_id, "ready", l.settings(PubSub::Ready))
 }
 
 /// `recorded`: 1 publisher (the recorder), 2 subscribers (updater, spare), a buffer of 4 (only
@@ -849,7 +889,7 @@ pub fn recorded(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<RecorderAck>, WireError> {
-    fixed_service(node, run_id, "recorded", 2, 2, 4, l.nodes())
+    fixed_service(node, run_id, "recorded", l.settings(PubSub::Recorded))
 }
 
 /// `progress`: 2 publishers, 4 subscribers, a buffer of 8.
@@ -858,7 +898,7 @@ pub fn progress(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<Progress>, WireError> {
-    fixed_service(node, run_id, "progress", 2, 4, 8, l.nodes())
+    fixed_service(node, run_id, "progress", l.settings(PubSub::Progress))
 }
 
 /// `lifecycle`: 2·max_workers + 6 publishers, 2 subscribers, a buffer of 2·max_workers + 8.
@@ -867,15 +907,7 @@ pub fn lifecycle(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<Lifecycle>, WireError> {
-    fixed_service(
-        node,
-        run_id,
-        "lifecycle",
-        l.worker_ports() + 4,
-        2,
-        2 * l.max_workers + 8,
-        l.nodes(),
-    )
+    fixed_service(node, run_id, "lifecycle", l.settings(PubSub::Lifecycle))
 }
 
 /// `overdue`: 2 publishers (the sampler), 2 subscribers (the supervisor), a buffer of
@@ -885,15 +917,7 @@ pub fn overdue(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<Overdue>, WireError> {
-    fixed_service(
-        node,
-        run_id,
-        "overdue",
-        2,
-        2,
-        2 * l.max_workers + 4,
-        l.nodes(),
-    )
+    fixed_service(node, run_id, "overdue", l.settings(PubSub::Overdue))
 }
 
 /// `notes`: 2 publishers (the supervisor), 2 subscribers (the recorder), a buffer of 16.
@@ -902,7 +926,7 @@ pub fn notes(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<RunNote>, WireError> {
-    fixed_service(node, run_id, "notes", 2, 2, 16, l.nodes())
+    fixed_service(node, run_id, "notes", l.settings(PubSub::Notes))
 }
 
 /// `control`: 2 publishers, 4 subscribers, a buffer of 2·max_workers + 16.
@@ -911,15 +935,7 @@ pub fn control(
     run_id: u64,
     l: &Limits,
 ) -> Result<FixedService<Control>, WireError> {
-    fixed_service(
-        node,
-        run_id,
-        "control",
-        2,
-        4,
-        2 * l.max_workers + 16,
-        l.nodes(),
-    )
+    fixed_service(node, run_id, "control", l.settings(PubSub::Control))
 }
 
 /// The doorbell of a receiving process: `wake/updater`, `wake/sampler`, `wake/supervisor`,
@@ -932,12 +948,13 @@ pub fn doorbell(
     l: &Limits,
 ) -> Result<EventService, WireError> {
     let tail = format!("wake/{owner}");
+    let s = l.doorbell_settings();
     open_or_create(run_id, &tail, event_interrupted, |name| {
         node.service_builder(name)
             .event()
-            .max_notifiers(l.worker_ports() + 4)
-            .max_listeners(2)
-            .max_nodes(l.nodes())
+            .max_notifiers(s.notifiers)
+            .max_listeners(s.listeners)
+            .max_nodes(s.nodes)
             .event_id_max_value(HOLD.as_value())
             .open_or_create()
     })
