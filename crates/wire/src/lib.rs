@@ -84,7 +84,8 @@
 //! run's config, subscribing to `work/<w>`, listening on `wake/worker/<w>`, publishing on
 //! `costs` and `ready` and notifying `wake/updater` and `wake/sampler`, then sending [`Ready`]
 //! with [`Ready::NO_CHUNK`]. Every service must be opened with the settings of the functions
-//! below (see [`Limits`]).
+//! below (see [`Limits`]). What the services of a run take of `/dev/shm` is
+//! [`Limits::shared_memory`].
 
 use iceoryx2::port::event_id::EventId;
 use iceoryx2::prelude::*;
@@ -94,6 +95,10 @@ use iceoryx2::service::builder::publish_subscribe::{
     PublishSubscribeOpenOrCreateError,
 };
 use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+mod shared_memory;
+
+pub use shared_memory::SharedMemoryNeed;
 
 /// Number of task settings a header can carry.
 pub const MAX_SETTINGS: usize = 8;
@@ -542,8 +547,8 @@ impl Limits {
     }
 
     /// The builder settings of each publish-subscribe service, in one place so that the service
-    /// functions ([`distribution`], [`costs`], …) and what is derived from them cannot
-    /// disagree.
+    /// functions ([`distribution`], [`costs`], …) and the shared-memory estimate
+    /// ([`Limits::shared_memory`]) cannot disagree.
     pub(crate) fn settings(&self, service: PubSub) -> PubSubSettings {
         let w = self.max_workers;
         let (publishers, subscribers, buffer, nodes) = match service {
