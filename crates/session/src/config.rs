@@ -879,6 +879,14 @@ impl RunConfig {
         })
     }
 
+    /// The fields that set P and N, as messages name them (`task.tball.basis_functions`,
+    /// `task.tball.dt`; `task.external.parameters`, `task.external.steps`): for a limit that
+    /// grows with them, such as the pipeline's shared memory.
+    pub fn size_fields(&self) -> Result<(String, String), ConfigError> {
+        let shape = self.task_shape()?;
+        Ok((shape.p_field.0, shape.n_field.0))
+    }
+
     /// What one process that runs the update (the in-process runner, the pipeline's updater)
     /// holds at its peak, by what scales with K, P and N: an upper estimate (transient copies
     /// are counted as if they coexisted), from the allocations of `pi2cma::UpdateRule::new`,
@@ -1633,6 +1641,22 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("no setting `ball_hight`"), "{e}");
+    }
+
+    #[test]
+    fn the_fields_that_set_p_and_n_are_named_as_messages_name_them() {
+        let fields = |text: &str| parse(text).unwrap().size_fields().unwrap();
+        assert_eq!(
+            fields(include_str!("../../../config/tball.toml")),
+            ("task.tball.basis_functions".into(), "task.tball.dt".into())
+        );
+        assert_eq!(
+            fields(include_str!("../../../config/external-reach.toml")),
+            (
+                "task.external.parameters".into(),
+                "task.external.steps".into()
+            )
+        );
     }
 
     #[test]
