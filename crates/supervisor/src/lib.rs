@@ -13,6 +13,7 @@
 
 mod control;
 mod run;
+mod shm;
 
 pub use control::{client, runs_dir};
 pub use run::{default_recording, process_alive, run, RunOptions};

@@ -26,6 +26,7 @@ use session::{executable_file, PipelineSection, RunConfig};
 use wire::{Control, Lifecycle, Limits, Overdue, Progress, RunNote, Service};
 
 use crate::control::{self, Command as Cmd, Request};
+use crate::shm::{self, size, SHM_DIR};
 use crate::{EXIT_INTERRUPTED, EXIT_RECORDING_UNFINISHED};
 
 /// What `supervisor run` was asked to do (its command-line arguments).
@@ -436,6 +437,22 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             "removed the shared memory and iceoryx2 files run {id} left behind ({files} \
              shared-memory files; all its processes are gone)"
         ));
+    }
+    let (p_field, n_field) = cfg.size_fields()?;
+    for warning in shm::check(&shm::RunSizes {
+        config: &origin,
+        limits,
+        workers: target_workers,
+        workers_field: if opts.workers.is_some() {
+            "--workers"
+        } else {
+            "pipeline.workers"
+        },
+        recorder: recording.is_some(),
+        p_field,
+        n_field,
+    })? {
+        say(&format!("warning: {warning}"));
     }
     if run_dir.exists() {
         bail!(
@@ -1671,7 +1688,10 @@ impl Supervisor {
             // so it does not read as the cause.
             (None, false) => format!("{status}; its last output: {last}"),
         };
-        let cause = match sigbus_hint(status, shm_space(Path::new(SHM_DIR))) {
+        let cause = match sigbus_hint(
+            status,
+            shm::space(Path::new(SHM_DIR)).map(|s| (s.free, s.total)),
+        ) {
             Some(hint) => format!("{cause}; {hint}"),
             None => cause,
         };
@@ -2193,23 +2213,6 @@ fn signal_group(pid: u32, sig: libc::c_int) {
     }
 }
 
-/// Where iceoryx2's shared-memory segments live (POSIX shm_open on Linux).
-const SHM_DIR: &str = "/dev/shm";
-
-/// (free, total) bytes of the file system at `dir`.
-fn shm_space(dir: &Path) -> Option<(u64, u64)> {
-    use std::os::unix::ffi::OsStrExt as _;
-    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
-    // SAFETY: statvfs writes only into the struct it is given; the path is NUL-terminated.
-    #[allow(unsafe_code)]
-    let st = unsafe {
-        let mut st: libc::statvfs = std::mem::zeroed();
-        (libc::statvfs(path.as_ptr(), &mut st) == 0).then_some(st)
-    }?;
-    let frsize = st.f_frsize as u64;
-    Some((st.f_bavail as u64 * frsize, st.f_blocks as u64 * frsize))
-}
-
 /// What a child killed by SIGBUS most likely ran into: iceoryx2 sizes its segments without
 /// reserving their pages, so a full /dev/shm shows only as SIGBUS at the first write to a page
 /// it has no room for, and `signal: 7 (SIGBUS)` alone does not say so.
@@ -2226,14 +2229,6 @@ fn sigbus_hint(status: ExitStatus, shm: Option<(u64, u64)>) -> Option<String> {
         "SIGBUS here most likely means the shared memory is full: {space}; free space there \
          (or enlarge it), or make the run's messages smaller (K, P, N, pipeline.max_workers)"
     ))
-}
-
-fn size(bytes: u64) -> String {
-    if bytes < 1 << 20 {
-        format!("{} KiB", bytes >> 10)
-    } else {
-        format!("{:.1} MiB", bytes as f64 / f64::from(1 << 20))
-    }
 }
 
 /// The child gets SIGKILL when the supervisor dies, however it dies.
@@ -2278,8 +2273,6 @@ mod tests {
         ] {
             assert_eq!(sigbus_hint(other, Some((0, 1))), None);
         }
-        let (free, total) = shm_space(Path::new("/")).unwrap();
-        assert!(free <= total && total > 0);
     }
 
     #[test]
