@@ -15,9 +15,11 @@ use wire::{Limits, SharedMemoryNeed};
 pub(crate) const SHM_DIR: &str = "/dev/shm";
 
 /// A need above this share of the free space is warned about, one above all of it refused.
-/// The need is an upper bound a run can reach (a recorder on a slow disk lets the buffers fill
-/// to the protocol's bounds), so a run above the free space may die of SIGBUS at any time, hours
-/// in: refused, which costs a moment. Within the last 10 % the run fits even at its bound, but
+/// The need is an estimate from the protocol's bounds (a recorder on a slow disk lets the
+/// buffers fill to them), above every peak measured but not a proven maximum (a worker's share
+/// of the costs in flight is taken as twice an equal one); a run above the free space may die
+/// of SIGBUS at any time, hours in: refused, which costs a moment, though one that would have
+/// fit can be refused too (its message says how to make room). Within the last 10 % the run fits even at its bound, but
 /// anything else that writes to /dev/shm meanwhile (another run, a browser) can take that
 /// room: a warning, not a refusal, since measured peaks were 0.36–0.75 times the bound.
 const WARN_SHARE: f64 = 0.9;
