@@ -16,7 +16,7 @@
 //!
 //! | service | payload | user header | publishers → subscribers |
 //! |---|---|---|---|
-//! | `distribution` | `[f64]`: mean (P), then Σ (P×P, column-major) | [`DistributionHeader`] | updater → sampler, supervisor |
+//! | `distribution` | `[f64]`: mean (P), then Σ (P×P, column-major) | [`DistributionHeader`] | updater → sampler, recorder |
 //! | `work/<w>` | `[f64]`: θ (P) | [`WorkHeader`] | sampler → worker `w` (its inbox) |
 //! | `costs` | `[f64]`: immediate costs (N) | [`CostHeader`] | workers → updater |
 //! | `ready` | [`Ready`] | – | workers → sampler |
@@ -621,8 +621,6 @@ pub const RECORDER_RING_INTERVAL: std::time::Duration = std::time::Duration::fro
 /// recorder killed with SIGKILL loses little.
 pub const RECORDER_MAX_LAG: u64 = 16;
 
-/// The node name of worker `w`, incarnation `incarnation`: `worker-<w>.<incarnation>`. The
-/// sampler finds crashed workers by these names among the run's dead nodes.
 /// Wall-clock time in ns since the Unix epoch: [`CostHeader::start_ns`], and the `log_time` of
 /// every message a recording holds, in every process (one clock, so that intervals taken in
 /// different processes can be compared).
@@ -633,6 +631,8 @@ pub fn wall_clock_ns() -> u64 {
         .unwrap_or(0)
 }
 
+/// The node name of worker `w`, incarnation `incarnation`: `worker-<w>.<incarnation>`. The
+/// sampler finds crashed workers by these names among the run's dead nodes.
 pub fn worker_node_name(worker: u32, incarnation: u32) -> String {
     format!("worker-{worker}.{incarnation}")
 }
@@ -830,8 +830,8 @@ pub const RECORDER_SLACK_UPDATES: usize = 2 * RECORDER_MAX_LAG as usize;
 /// The most shared memory the subscriber buffers of one publisher may take (16 MiB).
 pub const SEGMENT_BUDGET_BYTES: usize = 16 << 20;
 
-/// `distribution`: 1 publisher (updater), up to 4 subscribers (sampler, supervisor, recorder,
-/// spare), a buffer of 4 to 32 (see `Limits::distribution_buffer`). Publishers use
+/// `distribution`: 1 publisher (updater), up to 4 subscribers (the sampler and the
+/// recorder, and room for two more, e.g. a monitor of your own), a buffer of 4 to 32 (see `Limits::distribution_buffer`). Publishers use
 /// `initial_max_slice_len(P + P·P)`.
 pub fn distribution(
     node: &Node<Service>,
