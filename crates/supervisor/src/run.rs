@@ -404,14 +404,6 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             .record
             .clone()
             .unwrap_or_else(|| default_recording(&cfg.run.name, run_id));
-        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            std::fs::create_dir_all(parent).with_context(|| {
-                format!(
-                    "cannot create {} for the recording (or run with --no-record)",
-                    parent.display()
-                )
-            })?;
-        }
         if let Some(point) = &point {
             point.check_output(&path, "--record")?;
         }
@@ -460,6 +452,19 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             run_dir.display(),
             wire::run_id_hex(run_id)
         );
+    }
+    // Only now, so that a run refused above leaves no directory behind.
+    if let Some(parent) = recording
+        .as_ref()
+        .and_then(|r| r.path.parent())
+        .filter(|p| !p.as_os_str().is_empty())
+    {
+        std::fs::create_dir_all(parent).with_context(|| {
+            format!(
+                "cannot create {} for the recording (or run with --no-record)",
+                parent.display()
+            )
+        })?;
     }
     // A second attempt covers another run removing the (then empty) runs directory between
     // our creating it and creating our run directory in it.

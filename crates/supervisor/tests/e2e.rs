@@ -1111,6 +1111,22 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert!(run.text().contains("bad.toml"), "{}", run.text());
     assert_nothing_left(&run);
 
+    // A run refused at start (here: its run directory is in use) creates no directory for its
+    // recording.
+    let busy = scratch.runs().join(run_id(508));
+    std::fs::create_dir_all(&busy).unwrap();
+    std::fs::write(busy.join("supervisor.pid"), std::process::id().to_string()).unwrap();
+    let nested = scratch.path("not-yet/run.mcap");
+    let mut run = Run::start(&scratch, 508, &["--record", nested.to_str().unwrap()]);
+    assert!(!run.wait(Duration::from_secs(10)).success());
+    assert!(
+        run.text().contains("is active or was killed"),
+        "{}",
+        run.text()
+    );
+    assert!(!scratch.path("not-yet").exists(), "{}", run.text());
+    std::fs::remove_dir_all(&busy).unwrap();
+
     // A recording in the way: not overwritten (a run that then failed would leave an empty
     // one in its place).
     let keep = scratch.path("keep.mcap");
