@@ -1469,6 +1469,10 @@ impl Supervisor {
                     ));
                 }
                 let was = self.target_workers;
+                if n > was {
+                    let limits = pipeline::limits(&self.cfg).map_err(|e| format!("{e:#}"))?;
+                    shm::check_scale(&limits, self.recording.is_some(), was, n)?;
+                }
                 self.target_workers = n;
                 if matches!(self.phase, Phase::StartWorkers | Phase::Running) {
                     self.apply_scale().map_err(|e| format!("{e:#}"))?;

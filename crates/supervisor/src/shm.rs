@@ -133,6 +133,43 @@ pub(crate) fn judge(run: &RunSizes, space: &Space) -> Verdict {
     }
 }
 
+/// Whether a running run can grow from `from` to `to` workers: the new workers' share of the
+/// estimate must fit in what /dev/shm has free now (the run's own pages are already taken
+/// from it). `Err` is the refusal; nothing to say if /dev/shm cannot be inspected.
+pub(crate) fn check_scale(
+    limits: &Limits,
+    recorder: bool,
+    from: usize,
+    to: usize,
+) -> Result<(), String> {
+    match space(Path::new(SHM_DIR)) {
+        Some(space) => judge_scale(limits, recorder, from, to, &space),
+        None => Ok(()),
+    }
+}
+
+fn judge_scale(
+    limits: &Limits,
+    recorder: bool,
+    from: usize,
+    to: usize,
+    space: &Space,
+) -> Result<(), String> {
+    let need_of = |workers| limits.shared_memory(workers, recorder, space.block).total();
+    let more = need_of(to).saturating_sub(need_of(from));
+    if more <= space.free {
+        return Ok(());
+    }
+    Err(format!(
+        "cannot scale to {to} workers: they need about {} more shared memory, but {SHM_DIR} has \
+         {} free; a worker without room would die of SIGBUS. Free space there, or enlarge it \
+         (`sudo mount -o remount,size={} {SHM_DIR}`)",
+        size(more),
+        size(space.free),
+        suggested_size(more, space)
+    ))
+}
+
 fn refusal(run: &RunSizes, need: &SharedMemoryNeed, space: &Space) -> String {
     let l = &run.limits;
     let total = need.total();
@@ -299,5 +336,27 @@ mod tests {
         let s = space(Path::new("/")).unwrap();
         assert!(s.free <= s.total && s.total > 0 && s.block > 0);
         assert_eq!(space(Path::new("/no/such/dir")), None);
+    }
+
+    #[test]
+    fn scaling_up_is_refused_when_the_new_workers_do_not_fit() {
+        let (run, _) = tball_large(0);
+        let need = |w| run.limits.shared_memory(w, true, 4096).total();
+        let more = need(12) - need(8);
+        let space = |free| Space {
+            free,
+            total: 64 << 20,
+            block: 4096,
+        };
+        assert_eq!(judge_scale(&run.limits, true, 8, 12, &space(more)), Ok(()));
+        let e = judge_scale(&run.limits, true, 8, 12, &space(more - 1)).unwrap_err();
+        assert!(
+            e.starts_with("cannot scale to 12 workers: they need about")
+                && e.contains("SIGBUS")
+                && !e.contains("  "),
+            "{e}"
+        );
+        // Scaling down never needs room.
+        assert_eq!(judge_scale(&run.limits, true, 8, 2, &space(0)), Ok(()));
     }
 }
