@@ -69,6 +69,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let mut batch = optimizer.cost_batch();
     let mut started: Option<Instant> = None;
     let mut last_progress = Instant::now();
+    // Updates completed since the last report: reported within a tick once PROGRESS_INTERVAL
+    // has passed, so the supervisor's view (status, its no-update warning) is never more than
+    // that behind when updates stop coming.
+    let mut unreported = false;
     let mut first_eval = f64::NAN;
     let mut first_done: Option<Instant> = None;
     // PI2CMA_TRACE=1: report updates slower than 20 ms (stalls) at the end.
@@ -229,6 +233,11 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         let Some(t0) = started else {
             return Ok(Flow::Continue);
         };
+        if unreported && last_progress.elapsed() >= PROGRESS_INTERVAL {
+            last_progress = Instant::now();
+            unreported = false;
+            report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
+        }
         // Publishes what waits (if the recorder's back-pressure allows), takes in costs, and
         // after a complete batch updates and publishes again.
         loop {
@@ -311,7 +320,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
             // their progress too).
             let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);
-            if tenth || last_progress.elapsed() >= PROGRESS_INTERVAL {
+            unreported = !(tenth || last_progress.elapsed() >= PROGRESS_INTERVAL);
+            if !unreported {
                 last_progress = Instant::now();
                 report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
             }

@@ -1303,7 +1303,8 @@ impl Supervisor {
             self.unreflected_sets
                 .retain(|(_, _, _, from)| from.is_none_or(|f| f > p.updates));
             if self.progress.is_none_or(|prev| p.updates > prev.updates) {
-                if self.stall_reported {
+                // A stopping updater's last report is no news of updates going on.
+                if self.stall_reported && p.flags & Progress::FINAL == 0 {
                     say(&format!(
                         "updates go on: update {} after {:.1} s without one",
                         p.updates,

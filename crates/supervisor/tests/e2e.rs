@@ -1577,6 +1577,29 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
     assert_nothing_left(&run);
 }
 
+/// Updates that came faster than the updater's progress interval, then stopped: the supervisor
+/// still learns of every one within a moment (it saw none of the five, and its no-update
+/// warning said "since the start"), and a stop is not taken for updates going on.
+#[test]
+fn the_last_updates_before_a_stall_are_reported() {
+    let scratch = Scratch::new("stall-late");
+    let text = config(&[
+        UNBOUNDED,
+        (
+            "max_workers = 16",
+            "max_workers = 16\nfault_hang_at_update = 5",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "stall5.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 711, &cfg, &result);
+    run.wait_status("the 5 updates before the hang", |s| updates_in(s) == 5);
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    assert!(!run.text().contains("updates go on"), "{}", run.text());
+    assert_nothing_left(&run);
+}
+
 /// Workers that hang in the first update (no rollout timeout): the run is reported as stalled
 /// since its start, and a stop still ends it.
 #[test]
