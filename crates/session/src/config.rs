@@ -512,12 +512,12 @@ impl RunConfig {
     /// K, P and N ([`RunConfig::memory_need`]), and only then is the task built.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let o = &self.optimizer;
-        let only = |field: &str, present: bool, methods: &str| -> Result<(), ConfigError> {
+        let only = |field: &str, present: bool, applies_to: &str| -> Result<(), ConfigError> {
             if present {
                 Err(self.invalid(
                     &format!("optimizer.{field}"),
                     "(set)",
-                    &format!("only applies to method {methods}"),
+                    &format!("only applies to {applies_to}"),
                 ))
             } else {
                 Ok(())
@@ -527,29 +527,29 @@ impl RunConfig {
         only(
             "eliteness",
             o.eliteness.is_some() && !is_pi2,
-            "pi2, pi2-decay, pi2-cma",
+            "method pi2, pi2-decay, pi2-cma",
         )?;
-        only("elites", o.elites.is_some() && is_pi2, "cem")?;
+        only("elites", o.elites.is_some() && is_pi2, "method cem")?;
         only(
             "decay",
             o.decay.is_some() && o.method != Method::Pi2Decay,
-            "pi2-decay",
+            "method pi2-decay",
         )?;
         let bounded = matches!(o.method, Method::Pi2Cma | Method::Cem);
         only(
             "lambda_min",
             o.lambda_min.is_some() && !bounded,
-            "pi2-cma, cem",
+            "method pi2-cma, cem",
         )?;
         only(
             "lambda_max",
             o.lambda_max.is_some() && !bounded,
-            "pi2-cma, cem",
+            "method pi2-cma, cem",
         )?;
         only(
             "temporal_averaging",
             o.temporal_averaging.is_some() && o.weighting == WeightingName::Episodic,
-            "any, with weighting = \"per-time-step\"",
+            "weighting = \"per-time-step\"",
         )?;
         if is_pi2 && o.eliteness.is_none() {
             return Err(self.invalid(
@@ -2288,5 +2288,27 @@ mod tests {
         assert!(cfg
             .check_task_change(&[("tee_z".to_string(), 0.0)], "tee_x", 0.1)
             .is_err());
+    }
+
+    #[test]
+    fn a_setting_for_another_method_or_weighting_says_what_it_applies_to() {
+        assert_eq!(
+            error(&edit(
+                DEFAULT_CONFIG,
+                &[(
+                    "weighting = \"episodic\"",
+                    "weighting = \"episodic\"\ntemporal_averaging = \"basis-activation\""
+                )]
+            )),
+            "test.toml: optimizer.temporal_averaging = (set): only applies to weighting = \
+             \"per-time-step\""
+        );
+        assert_eq!(
+            error(&edit(
+                DEFAULT_CONFIG,
+                &[("eliteness = 15.0", "eliteness = 15.0\nelites = 3")]
+            )),
+            "test.toml: optimizer.elites = (set): only applies to method cem"
+        );
     }
 }
