@@ -2,8 +2,8 @@
 # Proof that recordings are readable by tools other than ours: records an in-process run, a
 # pipeline run (recorder process + supervisor) and an in-process run killed with SIGKILL, and has
 # tools/plot_learning_curve.py (PyPI `mcap` + `mcap-protobuf-support` only) decode every topic of
-# each and check its invariants; the killed file is checked as written (streaming read) and after
-# `mcap-tool recover`. Then recomputes every update of these and of runs of every update-rule
+# each and check its invariants; the killed file is checked as written (streaming read, also by
+# tools/check_update.py) and after `mcap-tool recover`. Then recomputes every update of these and of runs of every update-rule
 # variant with tools/check_update.py, a NumPy implementation written from the paper. Exits
 # non-zero on any failure.
 #
@@ -58,6 +58,7 @@ kill -9 "$writer"
 wait "$writer" 2>/dev/null || true
 flushed="$(tail -1 "$work/progress.txt" | awk '{print $3}')"
 python3 tools/plot_learning_curve.py --check "$work/killed.mcap"
+python3 tools/check_update.py "$work/killed.mcap"
 "$bin/mcap-tool" recover "$work/killed.mcap"
 python3 tools/plot_learning_curve.py --check "$work/killed.mcap"
 "$bin/mcap-tool" verify "$work/killed.mcap"

@@ -56,7 +56,8 @@ import math
 import sys
 
 import numpy as np
-from mcap.reader import make_reader
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 MAP_EXP, MAP_ELITES = 1, 2
@@ -77,33 +78,52 @@ def dist(d):
     return np.array(d.mean, float), np.array(d.covariance, float).reshape(p, p)
 
 
+def decoded_messages(path):
+    """The file's decoded messages. A file whose writer was killed (no summary section, as
+    before `pi2cma recover`) is read as a stream up to where it ends."""
+    with open(path, "rb") as f:
+        try:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            indexed = reader.get_summary() is not None
+        except McapError:
+            indexed = False
+        if not indexed:
+            f.seek(0)
+            reader = NonSeekingReader(f, decoder_factories=[DecoderFactory()])
+        try:
+            yield from reader.iter_decoded_messages(log_time_order=False)
+        except McapError as e:
+            if indexed:
+                raise
+            print(f"{path}: not finished, stream ends early ({e!r}); checking the readable "
+                  f"prefix (`pi2cma recover` completes the file)", file=sys.stderr)
+
+
 def read_recording(path):
     run = None
     updates = []
     changes = []
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _s, ch, _m, d in reader.iter_decoded_messages(log_time_order=False):
-            if ch.topic == "/run":
-                run = dict(name=d.name, seed=d.seed, P=d.dim, N=d.steps, hp=hp_dict(d.hyperparameters),
-                           initial=dist(d.initial), first_update=d.update,
-                           basis=(np.array(d.basis_activations, float).reshape(d.steps, d.dim)
-                                  if len(d.basis_activations) else None),
-                           settings={s.name: s.value for s in d.task_settings})
-            elif ch.topic == "/update":
-                K, P, N = d.rollouts, d.dim, d.steps
-                updates.append(dict(
-                    u=d.update, hp=hp_dict(d.hyperparameters), before=dist(d.before), after=dist(d.after),
-                    samples=np.array(d.samples, float).reshape(K, P),
-                    q=np.array(d.cost_per_step, float).reshape(K, N),
-                    phi=np.array(d.cost_terminal, float),
-                    weights=np.array(d.weights, float),
-                    eval_cost=d.eval_cost, expl_mean=d.exploration_cost_mean,
-                    expl_std=d.exploration_cost_std,
-                    lam=getattr(d, "lambda"), lam_next=d.lambda_next,
-                    settings={s.name: s.value for s in d.task_settings}))
-            elif ch.topic == "/task_change":
-                changes.append((d.update, d.name, d.value))
+    for _s, ch, _m, d in decoded_messages(path):
+        if ch.topic == "/run":
+            run = dict(name=d.name, seed=d.seed, P=d.dim, N=d.steps, hp=hp_dict(d.hyperparameters),
+                       initial=dist(d.initial), first_update=d.update,
+                       basis=(np.array(d.basis_activations, float).reshape(d.steps, d.dim)
+                              if len(d.basis_activations) else None),
+                       settings={s.name: s.value for s in d.task_settings})
+        elif ch.topic == "/update":
+            K, P, N = d.rollouts, d.dim, d.steps
+            updates.append(dict(
+                u=d.update, hp=hp_dict(d.hyperparameters), before=dist(d.before), after=dist(d.after),
+                samples=np.array(d.samples, float).reshape(K, P),
+                q=np.array(d.cost_per_step, float).reshape(K, N),
+                phi=np.array(d.cost_terminal, float),
+                weights=np.array(d.weights, float),
+                eval_cost=d.eval_cost, expl_mean=d.exploration_cost_mean,
+                expl_std=d.exploration_cost_std,
+                lam=getattr(d, "lambda"), lam_next=d.lambda_next,
+                settings={s.name: s.value for s in d.task_settings}))
+        elif ch.topic == "/task_change":
+            changes.append((d.update, d.name, d.value))
     updates.sort(key=lambda x: x["u"])
     return run, updates, changes
 
