@@ -21,6 +21,7 @@ import signal
 import sys
 import time
 import tomllib
+import traceback
 
 import iceoryx2 as iox2
 
@@ -102,6 +103,11 @@ for _t, _size in [(WorkHeader, 112), (CostHeader, 48), (Ready, 32), (Lifecycle, 
 
 class WorkerError(Exception):
     pass
+
+
+class TaskFailed(WorkerError):
+    """The task's own code (`rollout`, `set`) raised, or returned what is not costs: the message
+    names the call, the update and the rollout; `serve` prints the task's traceback before it."""
 
 
 class ConfigRefused(WorkerError):
@@ -201,9 +207,13 @@ def serve(make_task, argv=None):
         print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
         sys.exit(EXIT_CONFIG_REFUSED)
     except WorkerError as e:
+        # The task's traceback first: the supervisor reports the last line, this summary.
+        if e.__cause__ is not None:
+            traceback.print_exception(e.__cause__, file=sys.stderr)
         print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
         sys.exit(1)
     except Exception as e:  # an iceoryx2 error or a failing task: report it, as the Rust side does
+        traceback.print_exc(file=sys.stderr)
         print(f"error: {name} failed: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
         sys.exit(1)
     sys.exit(0)
@@ -227,6 +237,41 @@ def _takes_an_argument(make_task):
     if first.kind == first.VAR_POSITIONAL:
         return True  # `*args`: a wrapper that passes on what it gets
     return first.name == "shape" and first.kind in (first.POSITIONAL_ONLY, first.POSITIONAL_OR_KEYWORD)
+
+
+def _costs_of(result, n, where):
+    """The task's `rollout` result as (N floats, a float), or a TaskFailed naming `where` (the
+    update and rollout), the step and the value: a None or a string among the costs failed with
+    only `TypeError: must be real number, not NoneType`, a tuple of another form with Python's
+    unpacking error."""
+    try:
+        per_step, terminal = result
+    except (TypeError, ValueError):
+        raise TaskFailed(
+            f"{where}: the task's rollout returned {_short(result)}, not (step_costs, terminal_cost)"
+        ) from None
+    try:
+        count = len(per_step)
+    except TypeError:
+        raise TaskFailed(f"{where}: the task's rollout returned step costs {_short(per_step)}, not a sequence") from None
+    if count != n:
+        raise TaskFailed(f"{where}: the task's rollout returned {count} step costs, expected {n} (task.external.steps)")
+    values = []
+    for i, v in enumerate(per_step):
+        try:
+            values.append(float(v))
+        except (TypeError, ValueError):
+            raise TaskFailed(f"{where}: the task's rollout returned step cost {i} = {_short(v)}, not a number") from None
+    try:
+        terminal = float(terminal)
+    except (TypeError, ValueError):
+        raise TaskFailed(f"{where}: the task's rollout returned terminal cost {_short(terminal)}, not a number") from None
+    return values, terminal
+
+
+def _short(value):
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _serve(make_task, args):
@@ -345,18 +390,28 @@ def _serve(make_task, args):
                     f"steps, expected {shape.parameters} and {n}"
                 )
             theta = list((ctypes.c_double * count).from_address(item.payload().as_ptr()))
+            update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
             for i in range(min(h.settings_len, len(names))):
                 if applied[i] != h.settings[i]:
-                    task.set(names[i], h.settings[i])
+                    try:
+                        task.set(names[i], h.settings[i])
+                    except Exception as e:
+                        raise TaskFailed(
+                            f"update {update}: the task's set({names[i]!r}, {h.settings[i]!r}) raised "
+                            f"{type(e).__name__}: {e} (a [[schedule]] entry or `supervisor set` "
+                            f"asked for it; every update from there on needs it)"
+                        ) from e
                     applied[i] = h.settings[i]
-            update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
             item.delete()
             # The wall clock first, as the Rust worker does (see crates/pipeline/src/worker.rs).
             start_ns = time.time_ns()
             start = time.monotonic_ns()
-            per_step, terminal = task.rollout(theta)
-            if len(per_step) != n:
-                raise WorkerError(f"the task's rollout returned {len(per_step)} step costs, expected {n}")
+            where = f"update {update}, rollout {rollout}"
+            try:
+                result = task.rollout(theta)
+            except Exception as e:
+                raise TaskFailed(f"{where}: the task's rollout raised {type(e).__name__}: {e}") from e
+            per_step, terminal = _costs_of(result, n, where)
             # Written straight into the loaned shared memory, as the Rust worker does.
             sample = costs.loan_slice_uninit(n)
             values = (ctypes.c_double * n).from_address(sample.payload().as_ptr())

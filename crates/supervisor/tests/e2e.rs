@@ -2054,6 +2054,79 @@ fn a_python_worker_speaks_the_wire_protocol_and_learns_its_task() {
     );
 }
 
+/// A Python task that fails in its own code: the run fails naming the update, the rollout and
+/// what was wrong (a None among the step costs failed with only `TypeError: must be real number,
+/// not NoneType`; an exception with its type and message but neither where nor its traceback),
+/// and the recording keeps every update before it.
+#[test]
+fn a_python_task_that_fails_is_named_with_its_update_rollout_and_value() {
+    use std::os::unix::fs::PermissionsExt;
+    let scratch = Scratch::new("python-fails");
+    let tools = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools");
+    let tools = std::path::absolute(tools).unwrap();
+    for (id, mode, expected) in [
+        (
+            832,
+            "none",
+            [
+                "update 3, rollout 0: the task's rollout returned step cost 7 = None, not a number",
+                "",
+            ],
+        ),
+        (
+            833,
+            "raise",
+            [
+                "update 3, rollout 0: the task's rollout raised RuntimeError: simulator exploded",
+                "in rollout\n",
+            ],
+        ),
+    ] {
+        let script = scratch.path(&format!("{mode}.py"));
+        std::fs::write(
+            &script,
+            format!(
+                r#"#!/usr/bin/env python3
+import sys
+sys.path.insert(0, {tools:?})
+import pi2cma_worker, reach_worker
+class Broken(reach_worker.Reach):
+    def rollout(self, theta):
+        self.n = getattr(self, "n", 0) + 1
+        costs, terminal = super().rollout(theta)
+        if self.n > 3 * 5:  # from update 3 on (5 rollouts, one worker)
+            if {mode:?} == "raise":
+                raise RuntimeError("simulator exploded")
+            costs[7] = None
+        return costs, terminal
+pi2cma_worker.serve(Broken)
+"#
+            ),
+        )
+        .unwrap();
+        std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let text = external_config_from(
+            "external-reach-python.toml",
+            "../tools/reach_worker.py",
+            &script,
+            &[
+                ("workers = 2", "workers = 1\nrestart_limit = 0"),
+                ("rollouts = 10", "rollouts = 5"),
+            ],
+        );
+        let expected: Vec<&str> = expected.into_iter().filter(|e| !e.is_empty()).collect();
+        assert_run_fails_saying(&scratch, id, &format!("{mode}.toml"), &text, &expected);
+        let rec = record::read_recording(&scratch.recording("reach-python", id)).unwrap();
+        assert!(
+            rec.indexed && rec.truncated.is_none(),
+            "{:?}",
+            rec.truncated
+        );
+        assert_eq!(update_indices(&rec), [0, 1, 2]);
+        assert_recomputes(&rec);
+    }
+}
+
 /// The run of a robot that loses power: the whole group is SIGKILLed mid-run, after a runtime
 /// task change, leaving an unfinished recording. The pipeline resumes from that file, as it is,
 /// and reaches the bits of an uninterrupted run with the same change; so does the in-process
