@@ -398,8 +398,8 @@ def _serve(make_task, args):
                     except Exception as e:
                         raise TaskFailed(
                             f"update {update}: the task's set({names[i]!r}, {h.settings[i]!r}) raised "
-                            f"{type(e).__name__}: {e} (a [[schedule]] entry or `supervisor set` "
-                            f"asked for it; every update from there on needs it)"
+                            f"{type(e).__name__}: {e} (the value of task.external.settings, a "
+                            f"[[schedule]] entry or `supervisor set` from that update on)"
                         ) from e
                     applied[i] = h.settings[i]
             item.delete()

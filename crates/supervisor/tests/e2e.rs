@@ -2056,7 +2056,8 @@ fn a_python_worker_speaks_the_wire_protocol_and_learns_its_task() {
 
 /// A Python task that fails in its own code: the run fails naming the update, the rollout and
 /// what was wrong (a None among the step costs failed with only `TypeError: must be real number,
-/// not NoneType`; an exception with its type and message but neither where nor its traceback),
+/// not NoneType`; an exception with its type and message but neither where nor its traceback;
+/// a refused setting without the update),
 /// and the recording keeps every update before it.
 #[test]
 fn a_python_task_that_fails_is_named_with_its_update_rollout_and_value() {
@@ -2081,6 +2082,15 @@ fn a_python_task_that_fails_is_named_with_its_update_rollout_and_value() {
                 "in rollout\n",
             ],
         ),
+        // The config's [[schedule]] moves the target at update 40.
+        (
+            834,
+            "set",
+            [
+                "update 40: the task's set('target_y', 0.78) raised ValueError: out of reach",
+                "(the value of task.external.settings, a [[schedule]] entry or `supervisor set`",
+            ],
+        ),
     ] {
         let script = scratch.path(&format!("{mode}.py"));
         std::fs::write(
@@ -2094,11 +2104,15 @@ class Broken(reach_worker.Reach):
     def rollout(self, theta):
         self.n = getattr(self, "n", 0) + 1
         costs, terminal = super().rollout(theta)
-        if self.n > 3 * 5:  # from update 3 on (5 rollouts, one worker)
+        if self.n > 3 * 5 and {mode:?} != "set":  # from update 3 on (5 rollouts, one worker)
             if {mode:?} == "raise":
                 raise RuntimeError("simulator exploded")
             costs[7] = None
         return costs, terminal
+    def set(self, name, value):
+        if {mode:?} == "set" and value == 0.78:
+            raise ValueError("out of reach")
+        super().set(name, value)
 pi2cma_worker.serve(Broken)
 "#
             ),
@@ -2122,7 +2136,8 @@ pi2cma_worker.serve(Broken)
             "{:?}",
             rec.truncated
         );
-        assert_eq!(update_indices(&rec), [0, 1, 2]);
+        let made = if mode == "set" { 40 } else { 3 };
+        assert_eq!(update_indices(&rec), (0..made).collect::<Vec<u64>>());
         assert_recomputes(&rec);
     }
 }
