@@ -314,6 +314,8 @@ struct Supervisor {
     /// update it takes effect from once the updater has said). A new change is checked with the
     /// settings they and that report give ([`Self::settings_in_force`]).
     unreflected_sets: Vec<(u64, String, f64, Option<u64>)>,
+    /// The sizes of the run's services (`pipeline::limits` of the config).
+    limits: Limits,
     /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
     /// after it was reaped, is not a worker joining from outside.
     spawned: std::collections::BTreeSet<u32>,
@@ -509,11 +511,12 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         answered_sets: VecDeque::new(),
         pending_sets: Vec::new(),
         unreflected_sets: Vec::new(),
+        limits,
         spawned: Default::default(),
         cfg,
         start: point.map(|p| p.start),
     };
-    let result = sup.run(&text, &limits, rx);
+    let result = sup.run(&text, rx);
     // Whatever happened, nothing of the run stays behind.
     sup.ports = None;
     let summary = sup.finish(opts.result.as_deref());
@@ -523,7 +526,9 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
 }
 
 impl Supervisor {
-    fn run(&mut self, text: &str, limits: &Limits, rx: Receiver<Event>) -> anyhow::Result<u8> {
+    fn run(&mut self, text: &str, rx: Receiver<Event>) -> anyhow::Result<u8> {
+        // A copy: `self` is borrowed mutably below.
+        let limits: &Limits = &{ self.limits };
         std::fs::write(&self.config_file, text)
             .with_context(|| format!("cannot write {}", self.config_file.display()))?;
         if let Some(start) = &self.start {
@@ -1471,8 +1476,7 @@ impl Supervisor {
                 }
                 let was = self.target_workers;
                 if n > was {
-                    let limits = pipeline::limits(&self.cfg).map_err(|e| format!("{e:#}"))?;
-                    shm::check_scale(&limits, self.recording.is_some(), was, n)?;
+                    shm::check_scale(&self.limits, self.recording.is_some(), was, n)?;
                 }
                 self.target_workers = n;
                 if matches!(self.phase, Phase::StartWorkers | Phase::Running) {
