@@ -66,6 +66,11 @@ pub struct RunOptions {
     /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
     #[arg(long)]
     pub updates: Option<u64>,
+    /// Start (and later scale up) without checking that /dev/shm has room for the run. The
+    /// check's estimate can be up to ~3 times what a run takes, so it may refuse a run that
+    /// fits; without it, a run that outgrows /dev/shm dies of SIGBUS.
+    #[arg(long)]
+    pub no_shm_check: bool,
 }
 
 /// Where a run's recording goes without `--record`: `runs/<run name>-<run id>.mcap` in the
@@ -316,6 +321,8 @@ struct Supervisor {
     unreflected_sets: Vec<(u64, String, f64, Option<u64>)>,
     /// The sizes of the run's services (`pipeline::limits` of the config).
     limits: Limits,
+    /// `run --no-shm-check`: scale-ups are not checked against /dev/shm either.
+    no_shm_check: bool,
     /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
     /// after it was reaped, is not a worker joining from outside.
     spawned: std::collections::BTreeSet<u32>,
@@ -433,7 +440,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         ));
     }
     let (p_field, n_field) = cfg.size_fields()?;
-    for warning in shm::check(&shm::RunSizes {
+    let shm_sizes = shm::RunSizes {
         config: &origin,
         limits,
         workers: target_workers,
@@ -445,8 +452,15 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         recorder: recording.is_some(),
         p_field,
         n_field,
-    })? {
-        say(&format!("warning: {warning}"));
+    };
+    if opts.no_shm_check {
+        if let Some(judged) = shm::describe(&shm_sizes) {
+            say(&format!("--no-shm-check: {judged}"));
+        }
+    } else {
+        for warning in shm::check(&shm_sizes)? {
+            say(&format!("warning: {warning}"));
+        }
     }
     if run_dir.exists() {
         bail!(
@@ -512,6 +526,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         pending_sets: Vec::new(),
         unreflected_sets: Vec::new(),
         limits,
+        no_shm_check: opts.no_shm_check,
         spawned: Default::default(),
         cfg,
         start: point.map(|p| p.start),
@@ -1475,7 +1490,7 @@ impl Supervisor {
                     ));
                 }
                 let was = self.target_workers;
-                if n > was {
+                if n > was && !self.no_shm_check {
                     shm::check_scale(&self.limits, self.recording.is_some(), was, n)?;
                 }
                 self.target_workers = n;

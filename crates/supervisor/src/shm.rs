@@ -95,6 +95,23 @@ pub(crate) fn check(run: &RunSizes) -> anyhow::Result<Vec<String>> {
     }
 }
 
+/// For `--no-shm-check`: what the check would have said, as information (`None` when /dev/shm
+/// cannot be inspected or the run fits).
+pub(crate) fn describe(run: &RunSizes) -> Option<String> {
+    let space = space(Path::new(SHM_DIR))?;
+    match judge(run, &space) {
+        Verdict::Fits => None,
+        Verdict::Warn(_) | Verdict::Refuse(_) => {
+            Some(format!(
+            "not checking that this run's iceoryx2 services fit in {SHM_DIR}: the estimate is up \
+             to {} with {} free",
+            size(run.limits.shared_memory(run.workers, run.recorder, space.block).total()),
+            size(space.free)
+        ))
+        }
+    }
+}
+
 pub(crate) fn judge(run: &RunSizes, space: &Space) -> Verdict {
     let need_of = |workers| run.limits.shared_memory(workers, run.recorder, space.block);
     let need = need_of(run.workers);
@@ -163,7 +180,8 @@ fn judge_scale(
     Err(format!(
         "cannot scale to {to} workers: they need about {} more shared memory, but {SHM_DIR} has \
          {} free; a worker without room would die of SIGBUS. Free space there, or enlarge it \
-         (`sudo mount -o remount,size={} {SHM_DIR}`)",
+         (`sudo mount -o remount,size={} {SHM_DIR}`); a run started with `--no-shm-check` is \
+         scaled unchecked",
         size(more),
         size(space.free),
         suggested_size(more, space)
@@ -192,7 +210,8 @@ fn refusal(run: &RunSizes, need: &SharedMemoryNeed, space: &Space) -> String {
          (the buffers' sizes), optimizer.rollouts = K = {}, the steps N = {} ({}) and the \
          parameters P = {} ({}). Make the run smaller, free space in {SHM_DIR} (`du -sh \
          {SHM_DIR}/*`), or enlarge it: `sudo mount -o remount,size={} {SHM_DIR}` (in Docker: \
-         `--shm-size`)",
+         `--shm-size`). The estimate can be up to ~3 times what a run takes: if you know this \
+         one fits, `--no-shm-check` starts it unchecked (it dies of SIGBUS if it does not)",
         run.config.display(),
         size(total),
         size(space.free),
@@ -271,6 +290,7 @@ mod tests {
             "the distribution 5.6 MiB, growing with P²".into(),
             // 56 MiB used, 11.6 needed: 70.5 MiB with a quarter to spare.
             "sudo mount -o remount,size=128M /dev/shm".into(),
+            "if you know this one fits, `--no-shm-check` starts it unchecked".into(),
         ] {
             assert!(e.contains(&part), "{part:?} not in {e}");
         }
@@ -353,6 +373,7 @@ mod tests {
         assert!(
             e.starts_with("cannot scale to 12 workers: they need about")
                 && e.contains("SIGBUS")
+                && e.contains("started with `--no-shm-check` is scaled unchecked")
                 && !e.contains("  "),
             "{e}"
         );
