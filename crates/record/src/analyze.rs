@@ -255,6 +255,9 @@ fn gaps(updates: impl IntoIterator<Item = u64>) -> String {
 }
 
 /// A human-readable summary of one recording.
+/// Warnings and errors listed one by one in [`info`].
+const SERIOUS_LISTED: usize = 10;
+
 pub fn info(rec: &Recording) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{} ({} bytes)", rec.path.display(), rec.file_bytes);
@@ -350,6 +353,27 @@ pub fn info(rec: &Recording) -> String {
     if !events.is_empty() {
         let list: Vec<String> = events.iter().map(|(k, v)| format!("{k} ×{v}")).collect();
         let _ = writeln!(s, "  health events: {}", list.join(", "));
+    }
+    // Warnings and errors are what a reader of the summary must not miss (a refused task
+    // change, a recomputation mismatch, a lost update); the rest are counted above.
+    let serious: Vec<_> = rec
+        .logs
+        .iter()
+        .filter(|l| l.event == "warning" || l.event == "error")
+        .collect();
+    for l in serious.iter().take(SERIOUS_LISTED) {
+        let _ = writeln!(
+            s,
+            "    {} at update {} ({}): {}",
+            l.event, l.update, l.name, l.message
+        );
+    }
+    if serious.len() > SERIOUS_LISTED {
+        let _ = writeln!(
+            s,
+            "    … and {} more (every event: the /log topic, or `--out` for log.csv)",
+            serious.len() - SERIOUS_LISTED
+        );
     }
     if rec.run.is_empty() {
         // A run that ended before its first update: what happened is all there is.
@@ -1783,6 +1807,33 @@ mod tests {
             .contains("median 0.010 ms, 90 % within 0.020 ms, slowest 0.020 ms (update 1 to 2)"));
         r.rollouts.retain(|x| x.update == 0);
         assert_eq!(update_times(&r), None);
+    }
+
+    #[test]
+    fn info_lists_warnings_and_errors_and_counts_the_rest() {
+        let mut r = Recording::default();
+        r.run.push(proto::RunInfo::default());
+        let log = |event: &str, update: u64| proto::Log {
+            event: event.into(),
+            update,
+            name: "workers".into(),
+            message: format!("{event} {update}"),
+            ..Default::default()
+        };
+        r.logs.push(log("start", 0));
+        r.logs.push(log("warning", 40));
+        let s = info(&r);
+        assert!(s.contains("health events: start ×1, warning ×1"), "{s}");
+        assert!(
+            s.contains("    warning at update 40 (workers): warning 40\n"),
+            "{s}"
+        );
+        assert!(!s.contains("start 0"), "{s}");
+        r.logs.extend((0..12).map(|u| log("error", u)));
+        let s = info(&r);
+        assert!(s.contains("error at update 8 (workers)"), "{s}");
+        assert!(!s.contains("error at update 9 "), "{s}");
+        assert!(s.contains("    … and 3 more"), "{s}");
     }
 
     #[test]
