@@ -10,7 +10,10 @@ Use: a task object with `parameters`, `steps`, `settings` (a dict, the names of
 `[task.external.settings]`), `set(name, value)` and `rollout(theta) -> (per_step_costs,
 terminal_cost)`, and a script whose main is `pi2cma_worker.serve(make_task)`. Name the script
 in `[task.external] worker`; the supervisor starts, restarts and scales it like its own workers
-(tools/reach_worker.py and config/external-reach-python.toml are the example).
+(tools/reach_worker.py and config/external-reach-python.toml are the example). A `set` that
+raises refuses that change: the rollouts run with the value the task had, their costs say so,
+and the run goes on without the change (before the first rollout there is nothing to fall back
+to, and the worker stops).
 """
 
 import argparse
@@ -62,7 +65,7 @@ class WorkHeader(WireStruct):
 
 
 class CostHeader(WireStruct):
-    WIRE_NAME = "pi2cma.CostHeader.v2"
+    WIRE_NAME = "pi2cma.CostHeader.v3"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("update", ctypes.c_uint64),
@@ -71,6 +74,11 @@ class CostHeader(WireStruct):
         ("duration_ns", ctypes.c_uint64),
         ("terminal", ctypes.c_double),
         ("start_ns", ctypes.c_uint64),
+        # The settings the rollout ran with (they differ from the work item's where the task
+        # refused a change); settings_len 0: the work item's.
+        ("settings_len", ctypes.c_uint32),
+        ("_reserved", ctypes.c_uint32),
+        ("settings", ctypes.c_double * MAX_SETTINGS),
     ]
 
 
@@ -97,7 +105,7 @@ class Lifecycle(WireStruct):
     ]
 
 
-for _t, _size in [(WorkHeader, 112), (CostHeader, 48), (Ready, 32), (Lifecycle, 24)]:
+for _t, _size in [(WorkHeader, 112), (CostHeader, 56 + 8 * MAX_SETTINGS), (Ready, 32), (Lifecycle, 24)]:
     assert ctypes.sizeof(_t) == _size, (_t.__name__, ctypes.sizeof(_t))
 
 
@@ -354,6 +362,9 @@ def _serve(make_task, args):
 
     names = shape.settings
     applied = [None] * len(names)
+    # Whether a rollout has run (with settings the run has used), and the last refused change
+    # reported: (update, setting, value).
+    ran_any, refused = False, None
     chunk, done_in_chunk = None, 0
     last_notify = time.monotonic()
     n = shape.steps
@@ -393,15 +404,32 @@ def _serve(make_task, args):
             update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
             for i in range(min(h.settings_len, len(names))):
                 if applied[i] != h.settings[i]:
+                    value = h.settings[i]
                     try:
-                        task.set(names[i], h.settings[i])
+                        task.set(names[i], value)
                     except Exception as e:
-                        raise TaskFailed(
-                            f"update {update}: the task's set({names[i]!r}, {h.settings[i]!r}) raised "
-                            f"{type(e).__name__}: {e} (the value of task.external.settings, a "
-                            f"[[schedule]] entry or `supervisor set` from that update on)"
-                        ) from e
-                    applied[i] = h.settings[i]
+                        # Before the first rollout there is no value the run has used to fall
+                        # back to: the config's own, or one in force when this worker joined.
+                        if not ran_any:
+                            raise TaskFailed(
+                                f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
+                                f"{type(e).__name__}: {e} (a setting in force when this worker "
+                                f"started: the value of task.external.settings, a [[schedule]] "
+                                f"entry or `supervisor set`)"
+                            ) from e
+                        # A change refused: the rollouts run with the value the run had, and
+                        # their costs say so; the updater takes the change as refused.
+                        if refused != (update, i, value):
+                            refused = (update, i, value)
+                            print(
+                                f"update {update}: the task's set({names[i]!r}, {value!r}) "
+                                f"raised {type(e).__name__}: {e}; its rollouts run with "
+                                f"{names[i]} = {applied[i]!r}",
+                                file=sys.stderr,
+                                flush=True,
+                            )
+                        continue
+                    applied[i] = value
             item.delete()
             # The wall clock first, as the Rust worker does (see crates/pipeline/src/worker.rs).
             start_ns = time.time_ns()
@@ -421,6 +449,11 @@ def _serve(make_task, args):
             header.duration_ns = time.monotonic_ns() - start
             header.terminal = terminal
             header.start_ns = start_ns
+            # The header is not zeroed: every field is written.
+            header.settings_len, header._reserved = (0 if None in applied else len(applied)), 0
+            for i in range(MAX_SETTINGS):
+                header.settings[i] = applied[i] if i < header.settings_len else 0.0
+            ran_any = True
             sample.assume_init().send()
             unannounced = True
             if chunk != chunk_id:

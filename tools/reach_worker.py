@@ -47,6 +47,15 @@ class Reach:
     def set(self, name, value):
         if name not in self.settings:
             raise ValueError(f"the reach task has no setting {name!r}")
+        # A target the arm cannot reach is refused: the pipeline then runs the update with the
+        # target it had, and the run goes on.
+        target = dict(self.settings, **{name: value})
+        distance = math.hypot(target["target_x"], target["target_y"])
+        if distance > sum(LINKS):
+            raise ValueError(
+                f"target ({target['target_x']}, {target['target_y']}) is {distance:.2f} m from the "
+                f"shoulder, out of the arm's reach ({sum(LINKS)} m)"
+            )
         self.settings[name] = value
 
     def rollout(self, theta):

@@ -33,6 +33,10 @@ pub struct RunResult {
     pub covariance_bits: Vec<String>,
     #[serde(default)]
     pub task_changes: Vec<RecordedChange>,
+    /// Changes the workers' task refused (`Task::set` failed): the run went on with the value in
+    /// force before. Not in `task_changes`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refused_changes: Vec<RecordedChange>,
 }
 
 /// A task change and the update index it took effect at.
@@ -41,8 +45,9 @@ pub struct RecordedChange {
     pub from_update: u64,
     pub name: String,
     pub value: f64,
-    /// "schedule" (from the config), "runtime" (`supervisor set`) or "resume" (in force where a
-    /// resumed run began).
+    /// "schedule" (from the config), "runtime" (`supervisor set`), "resume" (in force where a
+    /// resumed run began) or "workers" (what the workers ran with instead of a value they no
+    /// longer took).
     pub source: String,
 }
 

@@ -81,6 +81,12 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let mut slow: Vec<(u64, Duration)> = Vec::new();
     let mut last_eval = f64::NAN;
     let mut recorded: Vec<RecordedChange> = Vec::new();
+    let mut refused_changes: Vec<RecordedChange> = Vec::new();
+    // The settings published for the current update, and those its rollouts ran with (the
+    // first rollout's, with its worker and number): they differ where the workers' task refused
+    // a change.
+    let mut published: Vec<f64> = Vec::new();
+    let mut ran_with: Option<RanWith> = None;
     let mut runtime: Vec<TaskChange> = Vec::new();
     let mut complete = false;
     // The flags of the distribution waiting to be published (the optimizer's current one); it
@@ -247,7 +253,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     return Ok(Flow::Continue);
                 }
                 to_publish = None;
-                publish(&optimizer, &task.settings(), flags)?;
+                let settings = task.settings();
+                published = settings.iter().map(|(_, v)| *v).collect();
+                publish(&optimizer, &settings, flags)?;
                 recorder.published(u, flags & DistributionHeader::FINAL != 0)?;
                 if flags & DistributionHeader::FINAL != 0 {
                     return Ok(Flow::Stop);
@@ -263,7 +271,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     continue; // a re-executed rollout of an earlier update
                 }
                 match batch.insert(h.rollout as usize, sample.payload(), h.terminal) {
-                    Ok(()) => {}
+                    Ok(()) => RanWith::check(&mut ran_with, &h, &published, &*task)?,
                     Err(CostError::Duplicate { .. }) => {} // re-executed after a worker was lost
                     Err(e) => bail!(
                         "update {u}: {e} (reported by worker-{} for rollout {})",
@@ -283,6 +291,15 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 .tell(&batch)
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
+            if let Some(ran) = ran_with.take() {
+                ran.take_refusals(
+                    u,
+                    &published,
+                    &mut *task,
+                    &mut recorded,
+                    &mut refused_changes,
+                )?;
+            }
             if u == first_update {
                 first_eval = summary.eval_cost;
                 first_done = Some(Instant::now());
@@ -371,6 +388,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         mean_bits: bits(d.mean.as_slice()),
         covariance_bits: bits(d.covariance.as_slice()),
         task_changes: recorded,
+        refused_changes,
     };
     result.write(&ctx.result_path())?;
     Ok(())
@@ -398,6 +416,114 @@ fn apply(
         source: source.into(),
     });
     Ok(())
+}
+
+/// The settings the rollouts of an update ran with ([`wire::CostHeader::ran_with`]), as its
+/// first rollout gave them.
+struct RanWith {
+    values: Vec<f64>,
+    worker: u32,
+    rollout: u32,
+}
+
+impl RanWith {
+    /// Takes in rollout `h`'s settings: every rollout of an update must have run with the same
+    /// ones, or its costs are not comparable.
+    fn check(
+        first: &mut Option<RanWith>,
+        h: &wire::CostHeader,
+        published: &[f64],
+        task: &dyn tasks::Task,
+    ) -> anyhow::Result<()> {
+        let values = h.ran_with(published);
+        if values.len() != published.len() {
+            bail!(
+                "update {}: worker-{} ran rollout {} with {} task settings, the run has {}",
+                h.update,
+                h.worker,
+                h.rollout,
+                values.len(),
+                published.len()
+            );
+        }
+        let Some(first) = first else {
+            *first = Some(RanWith {
+                values: values.to_vec(),
+                worker: h.worker,
+                rollout: h.rollout,
+            });
+            return Ok(());
+        };
+        let differ = values
+            .iter()
+            .zip(&first.values)
+            .position(|(a, b)| a.to_bits() != b.to_bits());
+        if let Some(i) = differ {
+            let name = task.settings().get(i).map_or("?", |(n, _)| *n);
+            let (theirs, ours) = (values[i], first.values[i]);
+            bail!(
+                "update {}: worker-{} ran rollout {} with {name} = {}, worker-{} ran rollout {} \
+                 with {name} = {}: one worker's task refused a change another's took, and \
+                 costs of different tasks cannot be weighed against each other (every worker \
+                 of a run must accept the same settings)",
+                h.update,
+                h.worker,
+                h.rollout,
+                tasks::value_text(theirs),
+                first.worker,
+                first.rollout,
+                tasks::value_text(ours)
+            );
+        }
+        Ok(())
+    }
+
+    /// The settings update `u` ran with that differ from those `published` for it: changes the
+    /// workers' task refused. They did not take effect: the run goes on with the values the
+    /// rollouts ran with, and the changes move from `recorded` to `refused`.
+    fn take_refusals(
+        self,
+        u: u64,
+        published: &[f64],
+        task: &mut dyn tasks::Task,
+        recorded: &mut Vec<RecordedChange>,
+        refused: &mut Vec<RecordedChange>,
+    ) -> anyhow::Result<()> {
+        let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
+        for ((name, &ran), &asked) in names.iter().zip(&self.values).zip(published) {
+            if ran.to_bits() == asked.to_bits() {
+                continue;
+            }
+            println!(
+                "task change {name} = {} at update {u} refused by the workers' task (see their \
+                 output): update {u} ran with {name} = {}, which stays in force",
+                tasks::value_text(asked),
+                tasks::value_text(ran)
+            );
+            task.set(name, ran).map_err(|e| {
+                anyhow!("update {u}: the workers ran with {name} = {ran}, which the updater's task refuses: {e}")
+            })?;
+            let before = recorded.len();
+            recorded.retain(|c| {
+                let hit = c.from_update == u && c.name == *name;
+                if hit {
+                    refused.push(c.clone());
+                }
+                !hit
+            });
+            if recorded.len() == before {
+                // A value in force before this update that the workers no longer take (a worker
+                // of another build joined): what they ran with is what is in force now.
+                recorded.push(RecordedChange {
+                    from_update: u,
+                    name: name.to_string(),
+                    value: ran,
+                    source: "workers".into(),
+                });
+            }
+        }
+        Ok(())
+    }
 }
 
 /// How long the updater waits for a recorder that holds it back before it looks for a dead one
@@ -517,5 +643,99 @@ impl RecorderLink {
             let _ = self.bell.notify_with_custom_event_id(wire::WAKE);
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tasks::Task as _;
+
+    fn reach() -> tasks::External {
+        let settings = [("target_x".to_string(), 0.3), ("target_y".to_string(), 0.7)];
+        tasks::External::new(1, 1, vec![0.0], &settings).unwrap()
+    }
+
+    fn cost(worker: u32, rollout: u32, ran_with: &[f64]) -> wire::CostHeader {
+        let (settings, settings_len) = wire::pack_settings(ran_with);
+        wire::CostHeader {
+            update: 40,
+            worker,
+            rollout,
+            settings,
+            settings_len,
+            ..Default::default()
+        }
+    }
+
+    fn change(name: &str, value: f64, source: &str) -> RecordedChange {
+        RecordedChange {
+            from_update: 40,
+            name: name.into(),
+            value,
+            source: source.into(),
+        }
+    }
+
+    #[test]
+    fn rollouts_that_ran_with_other_settings_than_each_other_stop_the_run() {
+        let task = reach();
+        let published = [0.3, 5.0];
+        let mut first = None;
+        // A worker that does not say ran with the published settings.
+        RanWith::check(&mut first, &cost(0, 0, &[]), &published, &task).unwrap();
+        RanWith::check(&mut first, &cost(1, 3, &[0.3, 5.0]), &published, &task).unwrap();
+        let e = RanWith::check(&mut first, &cost(1, 4, &[0.3, 0.7]), &published, &task)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with(
+                "update 40: worker-1 ran rollout 4 with target_y = 0.7, worker-0 ran rollout 0 \
+                 with target_y = 5: one worker's task refused a change another's took"
+            ),
+            "{e}"
+        );
+        let e = RanWith::check(&mut first, &cost(1, 5, &[0.3]), &published, &task)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("ran rollout 5 with 1 task settings, the run has 2"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_refused_change_moves_to_the_refused_and_the_value_run_with_stays() {
+        let mut task = reach();
+        task.set("target_y", 5.0).unwrap();
+        let published = [0.3, 5.0];
+        let mut first = None;
+        RanWith::check(&mut first, &cost(0, 0, &[0.3, 0.7]), &published, &task).unwrap();
+        let mut recorded = vec![
+            change("target_x", 0.3, "runtime"),
+            change("target_y", 5.0, "schedule"),
+        ];
+        recorded[0].from_update = 12;
+        let mut refused = Vec::new();
+        let ran = first.unwrap();
+        ran.take_refusals(40, &published, &mut task, &mut recorded, &mut refused)
+            .unwrap();
+        assert_eq!(task.settings(), [("target_x", 0.3), ("target_y", 0.7)]);
+        assert_eq!(refused, [change("target_y", 5.0, "schedule")]);
+        assert_eq!(recorded.len(), 1);
+        assert_eq!(recorded[0].from_update, 12);
+
+        // Not a change of this update (a worker of another build joined): what the rollouts ran
+        // with is recorded as in force from here.
+        let mut first = None;
+        RanWith::check(&mut first, &cost(0, 0, &[0.25, 0.7]), &[0.3, 0.7], &task).unwrap();
+        let (mut recorded, mut refused) = (Vec::new(), Vec::new());
+        first
+            .unwrap()
+            .take_refusals(40, &[0.3, 0.7], &mut task, &mut recorded, &mut refused)
+            .unwrap();
+        assert!(refused.is_empty());
+        assert_eq!(recorded, [change("target_x", 0.25, "workers")]);
+        assert_eq!(task.settings()[0], ("target_x", 0.25));
     }
 }

@@ -116,6 +116,10 @@ fn slot<T: Task>(
     ring(&sampler_bell, "notify sampler")?;
 
     let mut chunk = (u64::MAX, 0u32);
+    // Whether this worker has run a rollout (with settings the run has used), and the last
+    // refused change it reported (update, setting, value bits), reported once per update.
+    let mut ran_any = false;
+    let mut refused: Option<(u64, usize, u64)> = None;
     let mut last_notify = Instant::now();
     let mut unannounced = false;
     let mut last_run_dir_check = Instant::now();
@@ -150,11 +154,41 @@ fn slot<T: Task>(
             }
             let settings = &h.settings[..(h.settings_len as usize).min(names.len())];
             for (i, v) in settings.iter().enumerate() {
-                if applied[i].to_bits() != v.to_bits() {
-                    task.set(names[i], *v)?;
-                    applied[i] = *v;
+                if applied[i].to_bits() == v.to_bits() {
+                    continue;
+                }
+                match task.set(names[i], *v) {
+                    Ok(()) => applied[i] = *v,
+                    // Before its first rollout this worker has no value the run has used to
+                    // fall back to: the config's own value, or one in force when it joined.
+                    Err(e) if !ran_any => {
+                        bail!(
+                            "update {}: the task refused {} = {} ({e}), a setting in force \
+                             when this worker started",
+                            h.update,
+                            names[i],
+                            tasks::value_text(*v)
+                        )
+                    }
+                    // A change refused: the rollouts run with the value the run had, and their
+                    // costs say so, so that the updater takes the change as refused.
+                    Err(e) => {
+                        if refused != Some((h.update, i, v.to_bits())) {
+                            refused = Some((h.update, i, v.to_bits()));
+                            eprintln!(
+                                "update {}: the task refused {} = {} ({e}); its \
+                                 rollouts run with {} = {}",
+                                h.update,
+                                names[i],
+                                tasks::value_text(*v),
+                                names[i],
+                                tasks::value_text(applied[i])
+                            );
+                        }
+                    }
                 }
             }
+            let (ran_with, ran_with_len) = wire::pack_settings(&applied);
             if hang_at.is_some_and(|n| h.update >= n) {
                 // Fault injection (pipeline.fault_hang_at_update): a simulator or robot that
                 // stops answering. Only a signal ends it.
@@ -182,7 +216,11 @@ fn slot<T: Task>(
                 duration_ns: start.elapsed().as_nanos() as u64,
                 terminal,
                 start_ns,
+                settings_len: ran_with_len,
+                _reserved: 0,
+                settings: ran_with,
             };
+            ran_any = true;
             drop(item);
             iox(sample.send(), "send costs")?;
             unannounced = true;

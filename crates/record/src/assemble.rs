@@ -32,6 +32,8 @@ struct Pending {
     costs: CostBatch,
     timings: Vec<Option<RolloutTiming>>,
     duplicates: u32,
+    /// The settings the first stored rollout says it ran with (`None`: as published).
+    ran_with: Option<Vec<f64>>,
 }
 
 /// One complete update, ready for [`crate::RunWriter::write_update`].
@@ -44,8 +46,11 @@ pub struct Assembled {
     pub samples: ParameterBatch,
     pub costs: CostBatch,
     pub summary: UpdateSummary,
-    /// Task settings in force for this update.
+    /// Task settings in force for this update: those its rollouts ran with.
     pub settings: Vec<(String, f64)>,
+    /// Changes published for this update that its rollouts did not run with (the workers' task
+    /// refused them): (setting, the value refused). `settings` holds the value in force.
+    pub refused: Vec<(String, f64)>,
     /// Settings that differ from the previous update's (task changes taking effect here).
     pub changed: Vec<(String, f64)>,
     pub timings: Vec<RolloutTiming>,
@@ -152,7 +157,8 @@ impl Assembler {
         Ok(())
     }
 
-    /// A cost trajectory of rollout `rollout` of update `update`.
+    /// A cost trajectory of rollout `rollout` of update `update`, and the task settings it ran
+    /// with if its worker says (`wire::CostHeader::settings`).
     pub fn cost(
         &mut self,
         update: u64,
@@ -160,6 +166,7 @@ impl Assembler {
         per_step: &[f64],
         terminal: f64,
         timing: RolloutTiming,
+        ran_with: Option<&[f64]>,
     ) -> Result<CostOutcome, CostError> {
         if self.next.is_some_and(|n| update < n) {
             return Ok(CostOutcome::Stale);
@@ -169,10 +176,14 @@ impl Assembler {
             costs: CostBatch::new(k, n),
             timings: vec![None; k],
             duplicates: 0,
+            ran_with: None,
         });
         match p.costs.insert(rollout, per_step, terminal) {
             Ok(()) => {
                 p.timings[rollout] = Some(timing);
+                if p.ran_with.is_none() {
+                    p.ran_with = ran_with.map(<[f64]>::to_vec);
+                }
                 Ok(CostOutcome::Stored)
             }
             Err(CostError::Duplicate { .. }) => {
@@ -267,11 +278,23 @@ impl Assembler {
                 recomputed.covariance.as_slice(),
                 after.covariance.as_slice(),
             );
+        // The updater fails the run when rollouts disagree, so the first one speaks for all.
+        let ran = pending
+            .ran_with
+            .filter(|r| r.len() == before.settings.len())
+            .unwrap_or_else(|| before.settings.clone());
         let settings: Vec<(String, f64)> = self
             .setting_names
             .iter()
             .cloned()
-            .zip(before.settings.iter().copied())
+            .zip(ran.iter().copied())
+            .collect();
+        let refused = self
+            .setting_names
+            .iter()
+            .zip(before.settings.iter().zip(&ran))
+            .filter(|(_, (asked, ran))| asked.to_bits() != ran.to_bits())
+            .map(|(n, (asked, _))| (n.clone(), *asked))
             .collect();
         let changed = match &self.last_settings {
             Some(prev) => settings
@@ -282,7 +305,7 @@ impl Assembler {
                 .collect(),
             None => Vec::new(),
         };
-        self.last_settings = Some(before.settings.clone());
+        self.last_settings = Some(ran);
         let timings = pending
             .timings
             .into_iter()
@@ -302,6 +325,7 @@ impl Assembler {
             costs: pending.costs,
             summary,
             settings,
+            refused,
             changed,
             timings,
             duplicates: pending.duplicates,
@@ -364,7 +388,7 @@ mod tests {
                     end_ns: 2,
                 };
                 let o = a
-                    .cost(u, r, costs.per_step(r), costs.terminal(r), t)
+                    .cost(u, r, costs.per_step(r), costs.terminal(r), t, None)
                     .unwrap();
                 assert_ne!(o, CostOutcome::Stale);
             }
@@ -411,7 +435,7 @@ mod tests {
             end_ns: 0,
         };
         assert_eq!(
-            a.cost(0, 0, c.per_step(0), c.terminal(0), t).unwrap(),
+            a.cost(0, 0, c.per_step(0), c.terminal(0), t, None).unwrap(),
             CostOutcome::Stale
         );
     }
@@ -434,7 +458,7 @@ mod tests {
             end_ns: 0,
         };
         for k in 0..hp.rollouts {
-            a.cost(7, k, &costs, 0.0, timing()).unwrap();
+            a.cost(7, k, &costs, 0.0, timing(), None).unwrap();
         }
         a.distribution(8, 1, &mean, &cov, &[0.9]).unwrap();
         assert!(a.next_complete().unwrap().unwrap().changed.is_empty());
@@ -447,11 +471,46 @@ mod tests {
         resumed.continue_from(vec![0.1]);
         resumed.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
         for k in 0..hp.rollouts {
-            resumed.cost(7, k, &costs, 0.0, timing()).unwrap();
+            resumed.cost(7, k, &costs, 0.0, timing(), None).unwrap();
         }
         resumed.distribution(8, 1, &mean, &cov, &[0.3]).unwrap();
         let first = resumed.next_complete().unwrap().unwrap();
         assert_eq!(first.changed, [("viapoint".to_string(), 0.3)]);
+    }
+
+    /// Update 8 publishes viapoint = 0.9, which the workers' task refuses: its rollouts say they
+    /// ran with 0.3. The update is recorded with 0.3 and the change as refused, not taken, and
+    /// update 9 (published with 0.3 again) changes nothing.
+    #[test]
+    fn a_change_the_rollouts_did_not_run_with_is_refused_not_taken() {
+        let hp = session::RunConfig::default_config().hyperparameters();
+        let mut a = Assembler::new(hp.clone(), 2, 3, None, vec!["viapoint".to_string()]);
+        let (mean, cov) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
+        let timing = || RolloutTiming {
+            worker: "w".into(),
+            start_ns: 0,
+            end_ns: 0,
+        };
+        for (u, published, ran) in [(7, 0.3, None), (8, 0.9, Some(0.3)), (9, 0.3, None)] {
+            a.distribution(u, 1, &mean, &cov, &[published]).unwrap();
+            for k in 0..hp.rollouts {
+                let ran = ran.map(|r| [r]);
+                a.cost(u, k, &[1.0; 3], 0.0, timing(), ran.as_ref().map(|r| &r[..]))
+                    .unwrap();
+            }
+        }
+        a.distribution(10, 1, &mean, &cov, &[0.3]).unwrap();
+        let updates: Vec<Assembled> = std::iter::from_fn(|| a.next_complete())
+            .map(Result::unwrap)
+            .collect();
+        assert_eq!(updates.len(), 3);
+        let viapoint = |v: f64| vec![("viapoint".to_string(), v)];
+        assert_eq!(updates[1].settings, viapoint(0.3));
+        assert_eq!(updates[1].refused, viapoint(0.9));
+        for u in &updates {
+            assert!(u.changed.is_empty(), "update {}: {:?}", u.update, u.changed);
+        }
+        assert!(updates[0].refused.is_empty() && updates[2].refused.is_empty());
     }
 
     #[test]
@@ -474,6 +533,7 @@ mod tests {
                 start_ns: 0,
                 end_ns: 0,
             },
+            None,
         )
         .unwrap();
         assert!(a.next_complete().is_none());

@@ -391,10 +391,15 @@ impl WriterState {
             }
             Msg::Cost(h, costs, received_ns) => {
                 let timing = rollout_timing(&h, received_ns);
-                match self
-                    .assembler
-                    .cost(h.update, h.rollout as usize, &costs, h.terminal, timing)
-                {
+                let ran_with = (h.settings_len > 0).then(|| h.ran_with(&[]));
+                match self.assembler.cost(
+                    h.update,
+                    h.rollout as usize,
+                    &costs,
+                    h.terminal,
+                    timing,
+                    ran_with,
+                ) {
                     Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
                     Err(e) => self.writer.write_event(
                         h.update,
@@ -503,6 +508,22 @@ impl WriterState {
                 let a = a.map_err(anyhow::Error::msg)?;
                 for (name, value) in &a.changed {
                     self.writer.write_task_change(a.update, name, *value)?;
+                }
+                for (name, asked) in &a.refused {
+                    let ran = a.settings.iter().find(|(n, _)| n == name).map(|(_, v)| *v);
+                    self.writer.write_event(
+                        a.update,
+                        Event::Warning,
+                        "workers",
+                        0,
+                        &format!(
+                            "task change {name} = {} refused by the workers' task: update {} \
+                             ran with {name} = {}, which stays in force",
+                            tasks::value_text(*asked),
+                            a.update,
+                            ran.map_or_else(|| "?".into(), tasks::value_text)
+                        ),
+                    )?;
                 }
                 let settings: Vec<(&str, f64)> =
                     a.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();

@@ -110,9 +110,9 @@ impl Task for Reach {
     }
 
     fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
-        let slot = match name {
-            "target_x" => &mut self.target[0],
-            "target_y" => &mut self.target[1],
+        let i = match name {
+            "target_x" => 0,
+            "target_y" => 1,
             _ => {
                 return Err(TaskError::UnknownSetting {
                     task: "reach",
@@ -121,7 +121,23 @@ impl Task for Reach {
                 })
             }
         };
-        *slot = value;
+        // The run's check (finite values) knows nothing of this arm: a target it cannot reach
+        // is refused here. The pipeline then runs the update with the target it had, and the
+        // run goes on.
+        let mut target = self.target;
+        target[i] = value;
+        let (reach, distance) = (LINKS[0] + LINKS[1], target[0].hypot(target[1]));
+        if distance > reach {
+            return Err(TaskError::Invalid {
+                task: "reach",
+                reason: format!(
+                    "target ({}, {}) is {distance:.2} m from the shoulder, out of the arm's \
+                     reach ({reach} m)",
+                    target[0], target[1]
+                ),
+            });
+        }
+        self.target = target;
         Ok(())
     }
 }

@@ -1917,6 +1917,16 @@ impl Supervisor {
                     )
                 });
             }
+            for c in &r.refused_changes {
+                say(&format!(
+                    "  task change {} = {} at update {} ({}) refused by the workers' task: not \
+                     taken",
+                    c.name,
+                    tasks::value_text(c.value),
+                    c.from_update,
+                    c.source
+                ));
+            }
         }
         match &self.outcome {
             Some(Outcome::Complete) => say("finished"),

@@ -987,6 +987,16 @@ fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
     assert_nothing_left(&next);
 }
 
+/// The update a `supervisor set` reply says its change takes effect from.
+fn takes_effect_from(reply: &str) -> u64 {
+    reply
+        .split("takes effect from update ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no update index in the reply: {reply}"))
+}
+
 #[test]
 fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     let scratch = Scratch::new("continual");
@@ -1018,13 +1028,7 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
     for value in ["0.2", "0.25"] {
         let reply = run.ctl_ok(&["set", "viapoint", value]);
         replies.push(reply.clone());
-        let from: u64 = reply
-            .split("takes effect from update ")
-            .nth(1)
-            .and_then(|r| r.split_whitespace().next())
-            .and_then(|n| n.parse().ok())
-            .unwrap_or_else(|| panic!("no update index in the reply: {reply}"));
-        said.push(from);
+        said.push(takes_effect_from(&reply));
     }
     // The second replaces the first for that update if both are due from it, and says so.
     let replacing = "replacing viapoint = 0.2, which was due from the same update";
@@ -1806,6 +1810,151 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     assert_nothing_left(&run);
 }
 
+/// A change the workers' task refuses (a target out of the arm's reach) is not taken: the update
+/// runs with the value in force, the run goes on, and ends as the same run without the change,
+/// bit for bit. The result file and the recording say what was refused. A value the task
+/// refuses before any rollout (the config's own) still stops the run, since there is nothing to
+/// fall back to. Both for the Rust example worker and for the Python one.
+#[test]
+fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
+    let scratch = Scratch::exclusive("refused");
+    let out_of_reach = ("value = 0.78", "value = 5.0");
+    let no_schedule = (
+        "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n",
+        "",
+    );
+    type ConfigOf = fn(&[(&str, &str)]) -> String;
+    let cases: [(&str, ConfigOf, u64); 2] = [
+        ("reach", external_config, 850),
+        ("reach-python", python_config, 853),
+    ];
+    for (name, config, id) in cases {
+        let cfg = write_config(&scratch, &format!("{id}.toml"), &config(&[out_of_reach]));
+        let result = scratch.path(&format!("{id}.result.toml"));
+        let mut run = Run::start(
+            &scratch,
+            id,
+            &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
+        );
+        run.wait_exit(Duration::from_secs(120), 0);
+        let out = run.text();
+        for expected in [
+            "update 40: the task",
+            "out of the arm's reach (0.9 m)",
+            "task change target_y = 5 at update 40 refused by the workers' task",
+            "update 40 ran with target_y = 0.7, which stays in force",
+        ] {
+            assert!(
+                out.contains(expected),
+                "{name}: `{expected}` not in:\n{out}"
+            );
+        }
+        let r = RunResult::read(&result).unwrap();
+        assert_eq!((r.updates, r.complete), (80, true), "{name}");
+        assert!(r.task_changes.is_empty(), "{name}: {:?}", r.task_changes);
+        assert_eq!(r.refused_changes.len(), 1, "{name}");
+        let c = &r.refused_changes[0];
+        assert_eq!(
+            (c.from_update, c.name.as_str(), c.value, c.source.as_str()),
+            (40, "target_y", 5.0, "schedule"),
+            "{name}"
+        );
+        let rec = record::read_recording(&scratch.recording(name, id)).unwrap();
+        assert_recorded(&rec, 80);
+        assert!(
+            rec.task_changes.is_empty(),
+            "{name}: {:?}",
+            rec.task_changes
+        );
+        for u in &rec.updates {
+            let y = u
+                .task_settings
+                .iter()
+                .find(|s| s.name == "target_y")
+                .unwrap();
+            assert_eq!(y.value, 0.7, "{name}: update {}", u.update);
+        }
+        assert!(
+            rec.logs.iter().any(|l| l.event == "warning"
+                && l.update == 40
+                && l.message.contains("target_y = 5 refused")),
+            "{name}: {:#?}",
+            rec.logs
+        );
+        assert_nothing_left(&run);
+
+        // The same run without the change: the same bits.
+        let cfg = write_config(
+            &scratch,
+            &format!("{id}-none.toml"),
+            &config(&[no_schedule]),
+        );
+        let plain = scratch.path(&format!("{id}-none.result.toml"));
+        let mut run = Run::start_quiet(&scratch, id + 1, &cfg, &plain);
+        run.wait_exit(Duration::from_secs(120), 0);
+        let p = RunResult::read(&plain).unwrap();
+        assert_eq!(
+            (&r.mean_bits, &r.covariance_bits),
+            (&p.mean_bits, &p.covariance_bits),
+            "{name}"
+        );
+        assert_nothing_left(&run);
+
+        // Refused before the first rollout: the config's own target.
+        let stop_at_first = ("workers = 2", "workers = 2\nrestart_limit = 0");
+        assert_run_fails_saying(
+            &scratch,
+            id + 2,
+            &format!("{id}-far.toml"),
+            &config(&[("target_y = 0.70", "target_y = 7.0"), stop_at_first]),
+            &[
+                "update 0: the task",
+                "a setting in force when this worker started",
+                "out of the arm's reach",
+            ],
+        );
+    }
+
+    // At runtime: `supervisor set` is answered when the updater takes the change; the workers
+    // refuse it, status then shows the target in force, and the next change is taken.
+    let text = external_config(&[
+        no_schedule,
+        ("updates = 80\n", ""),
+        (
+            "/reach-worker\"]",
+            "/reach-worker\", \"--rollout-ms\", \"1\"]",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "runtime.toml", &text);
+    let result = scratch.path("runtime.result.toml");
+    let mut run = Run::start_quiet(&scratch, 856, &cfg, &result);
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let reply = run.ctl_ok(&["set", "target_x", "3.0"]);
+    let from = takes_effect_from(&reply);
+    let status = run.wait_status("the refused update done", |s| updates_in(s) > from + 1);
+    assert!(
+        status.contains("task: target_x = 0.3, target_y = 0.7"),
+        "{status}"
+    );
+    run.ctl_ok(&["set", "target_x", "0.35"]);
+    run.wait_status("the next change in force", |s| {
+        s.contains("target_x = 0.35")
+    });
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    let r = RunResult::read(&result).unwrap();
+    let changes = |list: &[pipeline::result::RecordedChange]| -> Vec<(String, f64, String)> {
+        list.iter()
+            .map(|c| (c.name.clone(), c.value, c.source.clone()))
+            .collect()
+    };
+    let runtime = |v: f64| ("target_x".to_string(), v, "runtime".to_string());
+    assert_eq!(changes(&r.refused_changes), [runtime(3.0)]);
+    assert_eq!(r.refused_changes[0].from_update, from);
+    assert_eq!(changes(&r.task_changes), [runtime(0.35)]);
+    assert_nothing_left(&run);
+}
+
 /// `reach-worker --basis-activations`: the `[task.external] basis_activations` line of its task.
 fn reach_basis_activations() -> String {
     let worker = Path::new(SUPERVISOR)
@@ -2082,13 +2231,14 @@ fn a_python_task_that_fails_is_named_with_its_update_rollout_and_value() {
                 "in rollout\n",
             ],
         ),
-        // The config's [[schedule]] moves the target at update 40.
+        // The config's own target: refused before any rollout, nothing to fall back to.
         (
             834,
             "set",
             [
-                "update 40: the task's set('target_y', 0.78) raised ValueError: out of reach",
-                "(the value of task.external.settings, a [[schedule]] entry or `supervisor set`",
+                "update 0: the task's set('target_y', 0.7) raised ValueError: out of reach",
+                "(a setting in force when this worker started: the value of \
+                 task.external.settings, a [[schedule]] entry or `supervisor set`)",
             ],
         ),
     ] {
@@ -2110,7 +2260,7 @@ class Broken(reach_worker.Reach):
             costs[7] = None
         return costs, terminal
     def set(self, name, value):
-        if {mode:?} == "set" and value == 0.78:
+        if {mode:?} == "set" and value == 0.7:
             raise ValueError("out of reach")
         super().set(name, value)
 pi2cma_worker.serve(Broken)
@@ -2136,7 +2286,7 @@ pi2cma_worker.serve(Broken)
             "{:?}",
             rec.truncated
         );
-        let made = if mode == "set" { 40 } else { 3 };
+        let made = if mode == "set" { 0 } else { 3 };
         assert_eq!(update_indices(&rec), (0..made).collect::<Vec<u64>>());
         assert_recomputes(&rec);
     }

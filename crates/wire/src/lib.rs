@@ -190,7 +190,7 @@ impl WorkHeader {
 /// Header of a `costs` sample. Payload: the N immediate costs q_i.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.CostHeader.v2")]
+#[type_name("pi2cma.CostHeader.v3")]
 pub struct CostHeader {
     pub run_id: u64,
     pub update: u64,
@@ -205,6 +205,25 @@ pub struct CostHeader {
     /// rounds, up to a millisecond after they were sent, so only the worker knows when its
     /// rollout ran.
     pub start_ns: u64,
+    /// Valid entries of `settings`; 0: the rollout ran with its work item's settings.
+    pub settings_len: u32,
+    pub _reserved: u32,
+    /// The task settings the rollout ran with, in the order of the work item's. They differ
+    /// from the work item's when the task refused a change (`Task::set` failed): the worker
+    /// keeps the value it had and says so here, and the updater takes the change as refused
+    /// ([`CostHeader::ran_with`]).
+    pub settings: [f64; MAX_SETTINGS],
+}
+
+impl CostHeader {
+    /// The settings the rollout ran with: its own when it gives them, else `published` (the
+    /// settings of the update's distribution).
+    pub fn ran_with<'a>(&'a self, published: &'a [f64]) -> &'a [f64] {
+        match self.settings_len {
+            0 => published,
+            n => &self.settings[..(n as usize).min(MAX_SETTINGS)],
+        }
+    }
 }
 
 /// A worker asks for work.
@@ -977,7 +996,7 @@ mod tests {
             56 + 8 * MAX_SETTINGS
         );
         assert_eq!(std::mem::size_of::<WorkHeader>(), 48 + 8 * MAX_SETTINGS);
-        assert_eq!(std::mem::size_of::<CostHeader>(), 48);
+        assert_eq!(std::mem::size_of::<CostHeader>(), 56 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
