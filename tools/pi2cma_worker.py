@@ -11,9 +11,9 @@ Use: a task object with `parameters`, `steps`, `settings` (a dict, the names of
 terminal_cost)`, and a script whose main is `pi2cma_worker.serve(make_task)`. Name the script
 in `[task.external] worker`; the supervisor starts, restarts and scales it like its own workers
 (tools/reach_worker.py and config/external-reach-python.toml are the example). A `set` that
-raises refuses that change: the rollouts run with the value the task had, their costs say so,
-and the run goes on without the change (before the first rollout there is nothing to fall back
-to, and the worker stops).
+raises refuses that change: the rollouts run with the value the update before ran with, their
+costs say so, and the run goes on without the change (a value already in force before, such as
+the config's at the first update, leaves nothing to fall back to, and the worker stops).
 """
 
 import argparse
@@ -49,7 +49,7 @@ class WireStruct(ctypes.Structure):
 
 
 class WorkHeader(WireStruct):
-    WIRE_NAME = "pi2cma.WorkHeader.v1"
+    WIRE_NAME = "pi2cma.WorkHeader.v2"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
         ("update", ctypes.c_uint64),
@@ -61,6 +61,8 @@ class WorkHeader(WireStruct):
         ("settings_len", ctypes.c_uint32),
         ("flags", ctypes.c_uint32),
         ("settings", ctypes.c_double * MAX_SETTINGS),
+        # What the update before ran with: where the task refuses a value of `settings`.
+        ("previous_settings", ctypes.c_double * MAX_SETTINGS),
     ]
 
 
@@ -105,7 +107,7 @@ class Lifecycle(WireStruct):
     ]
 
 
-for _t, _size in [(WorkHeader, 112), (CostHeader, 56 + 8 * MAX_SETTINGS), (Ready, 32), (Lifecycle, 24)]:
+for _t, _size in [(WorkHeader, 48 + 16 * MAX_SETTINGS), (CostHeader, 56 + 8 * MAX_SETTINGS), (Ready, 32), (Lifecycle, 24)]:
     assert ctypes.sizeof(_t) == _size, (_t.__name__, ctypes.sizeof(_t))
 
 
@@ -362,9 +364,8 @@ def _serve(make_task, args):
 
     names = shape.settings
     applied = [None] * len(names)
-    # Whether a rollout has run (with settings the run has used), and the last refused change
-    # reported: (update, setting, value).
-    ran_any, refused = False, None
+    # The last refused change reported: (update, setting, value).
+    refused = None
     chunk, done_in_chunk = None, 0
     last_notify = time.monotonic()
     n = shape.steps
@@ -403,33 +404,44 @@ def _serve(make_task, args):
             theta = list((ctypes.c_double * count).from_address(item.payload().as_ptr()))
             update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
             for i in range(min(h.settings_len, len(names))):
-                if applied[i] != h.settings[i]:
-                    value = h.settings[i]
-                    try:
-                        task.set(names[i], value)
-                    except Exception as e:
-                        # Before the first rollout there is no value the run has used to fall
-                        # back to: the config's own, or one in force when this worker joined.
-                        if not ran_any:
-                            raise TaskFailed(
-                                f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
-                                f"{type(e).__name__}: {e} (a setting in force when this worker "
-                                f"started: the value of task.external.settings, a [[schedule]] "
-                                f"entry or `supervisor set`)"
-                            ) from e
-                        # A change refused: the rollouts run with the value the run had, and
-                        # their costs say so; the updater takes the change as refused.
-                        if refused != (update, i, value):
-                            refused = (update, i, value)
-                            print(
-                                f"update {update}: the task's set({names[i]!r}, {value!r}) "
-                                f"raised {type(e).__name__}: {e}; its rollouts run with "
-                                f"{names[i]} = {applied[i]!r}",
-                                file=sys.stderr,
-                                flush=True,
-                            )
-                        continue
+                value, fallback = h.settings[i], h.previous_settings[i]
+                if applied[i] == value:
+                    continue
+                try:
+                    task.set(names[i], value)
                     applied[i] = value
+                    continue
+                except Exception as e:
+                    error = e
+                # Refused: the rollouts run with what the update before ran with, as every
+                # worker's do (a fresh one's too), and their costs say so; the updater takes the
+                # change as refused (see crates/pipeline/src/worker.rs, apply_settings).
+                if fallback == value:
+                    raise TaskFailed(
+                        f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
+                        f"{type(error).__name__}: {error} (a value in force before this update: the "
+                        f"config's, or an earlier change the other workers took): nothing to fall "
+                        f"back to"
+                    ) from error
+                if applied[i] != fallback:
+                    try:
+                        task.set(names[i], fallback)
+                    except Exception as e:
+                        raise TaskFailed(
+                            f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
+                            f"{type(error).__name__}: {error}, and set({names[i]!r}, {fallback!r}), "
+                            f"the value the update before ran with, raised {type(e).__name__}: {e}"
+                        ) from e
+                    applied[i] = fallback
+                if refused != (update, i, value):
+                    refused = (update, i, value)
+                    print(
+                        f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
+                        f"{type(error).__name__}: {error}; its rollouts run with {names[i]} = "
+                        f"{fallback!r}, as the update before",
+                        file=sys.stderr,
+                        flush=True,
+                    )
             item.delete()
             # The wall clock first, as the Rust worker does (see crates/pipeline/src/worker.rs).
             start_ns = time.time_ns()
@@ -453,7 +465,6 @@ def _serve(make_task, args):
             header.settings_len, header._reserved = (0 if None in applied else len(applied)), 0
             for i in range(MAX_SETTINGS):
                 header.settings[i] = applied[i] if i < header.settings_len else 0.0
-            ran_any = True
             sample.assume_init().send()
             unannounced = True
             if chunk != chunk_id:

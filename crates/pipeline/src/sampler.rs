@@ -46,6 +46,7 @@ struct Current {
     update: u64,
     batch: ParameterBatch,
     settings: [f64; MAX_SETTINGS],
+    previous_settings: [f64; MAX_SETTINGS],
     settings_len: u32,
 }
 
@@ -175,6 +176,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 update: h.update,
                 batch: ParameterBatch::sample(&d, h.seed, h.update, k_total),
                 settings: h.settings,
+                previous_settings: h.previous_settings,
                 settings_len: h.settings_len,
             });
             pending = (0..k_total as u32).collect();
@@ -296,6 +298,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     settings_len: cur.settings_len,
                     flags,
                     settings: cur.settings,
+                    previous_settings: cur.previous_settings,
                 };
                 if iox(sample.send(), "send work item")? == 0 {
                     delivered = false;

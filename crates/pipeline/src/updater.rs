@@ -87,6 +87,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // a change.
     let mut published: Vec<f64> = Vec::new();
     let mut ran_with: Option<RanWith> = None;
+    // What the last update ran with: a worker whose task refuses a change runs with it.
+    let mut previous: Option<Vec<f64>> = None;
     let mut runtime: Vec<TaskChange> = Vec::new();
     let mut complete = false;
     // The flags of the distribution waiting to be published (the optimizer's current one); it
@@ -122,12 +124,13 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     }
 
     let publish = |optimizer: &pi2cma::Optimizer,
-                   settings: &[(&'static str, f64)],
+                   values: &[f64],
+                   previous: &[f64],
                    flags: u32|
      -> anyhow::Result<()> {
         let d = optimizer.distribution();
-        let values: Vec<f64> = settings.iter().map(|(_, v)| *v).collect();
-        let (packed, len) = wire::pack_settings(&values);
+        let (packed, len) = wire::pack_settings(values);
+        let (previous, _) = wire::pack_settings(previous);
         let sample = iox(
             dist_pub.loan_slice_uninit(dim + dim * dim),
             "loan distribution",
@@ -151,6 +154,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             _reserved: 0,
             lambda: optimizer.lambda(),
             settings: packed,
+            previous_settings: previous,
         };
         iox(sample.send(), "send distribution")?;
         iox(
@@ -253,9 +257,13 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     return Ok(Flow::Continue);
                 }
                 to_publish = None;
-                let settings = task.settings();
-                published = settings.iter().map(|(_, v)| *v).collect();
-                publish(&optimizer, &settings, flags)?;
+                published = task.settings().iter().map(|(_, v)| *v).collect();
+                publish(
+                    &optimizer,
+                    &published,
+                    previous.as_deref().unwrap_or(&published),
+                    flags,
+                )?;
                 recorder.published(u, flags & DistributionHeader::FINAL != 0)?;
                 if flags & DistributionHeader::FINAL != 0 {
                     return Ok(Flow::Stop);
@@ -300,6 +308,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     &mut refused_changes,
                 )?;
             }
+            // Before the next update's changes: what this one ran with.
+            previous = Some(task.settings().iter().map(|(_, v)| *v).collect());
             if u == first_update {
                 first_eval = summary.eval_cost;
                 first_done = Some(Instant::now());

@@ -116,9 +116,7 @@ fn slot<T: Task>(
     ring(&sampler_bell, "notify sampler")?;
 
     let mut chunk = (u64::MAX, 0u32);
-    // Whether this worker has run a rollout (with settings the run has used), and the last
-    // refused change it reported (update, setting, value bits), reported once per update.
-    let mut ran_any = false;
+    // The last refused change reported: (update, setting, value bits).
     let mut refused: Option<(u64, usize, u64)> = None;
     let mut last_notify = Instant::now();
     let mut unannounced = false;
@@ -152,40 +150,28 @@ fn slot<T: Task>(
                     h.steps
                 );
             }
-            let settings = &h.settings[..(h.settings_len as usize).min(names.len())];
-            for (i, v) in settings.iter().enumerate() {
-                if applied[i].to_bits() == v.to_bits() {
-                    continue;
-                }
-                match task.set(names[i], *v) {
-                    Ok(()) => applied[i] = *v,
-                    // Before its first rollout this worker has no value the run has used to
-                    // fall back to: the config's own value, or one in force when it joined.
-                    Err(e) if !ran_any => {
-                        bail!(
-                            "update {}: the task refused {} = {} ({e}), a setting in force \
-                             when this worker started",
-                            h.update,
-                            names[i],
-                            tasks::value_text(*v)
-                        )
-                    }
-                    // A change refused: the rollouts run with the value the run had, and their
-                    // costs say so, so that the updater takes the change as refused.
-                    Err(e) => {
-                        if refused != Some((h.update, i, v.to_bits())) {
-                            refused = Some((h.update, i, v.to_bits()));
-                            eprintln!(
-                                "update {}: the task refused {} = {} ({e}); its \
-                                 rollouts run with {} = {}",
-                                h.update,
-                                names[i],
-                                tasks::value_text(*v),
-                                names[i],
-                                tasks::value_text(applied[i])
-                            );
-                        }
-                    }
+            let len = (h.settings_len as usize).min(names.len());
+            let refusals = apply_settings(
+                &mut task,
+                &names,
+                &mut applied,
+                &h.settings[..len],
+                &h.previous_settings[..len],
+                h.update,
+            )?;
+            for (i, value, e) in refusals {
+                // Once per update and setting, not once per rollout.
+                if refused != Some((h.update, i, value.to_bits())) {
+                    refused = Some((h.update, i, value.to_bits()));
+                    eprintln!(
+                        "update {}: the task refused {} = {} ({e}); its rollouts run with {} = {}, \
+                         as the update before",
+                        h.update,
+                        names[i],
+                        tasks::value_text(value),
+                        names[i],
+                        tasks::value_text(applied[i])
+                    );
                 }
             }
             let (ran_with, ran_with_len) = wire::pack_settings(&applied);
@@ -220,7 +206,6 @@ fn slot<T: Task>(
                 _reserved: 0,
                 settings: ran_with,
             };
-            ran_any = true;
             drop(item);
             iox(sample.send(), "send costs")?;
             unannounced = true;
@@ -266,6 +251,54 @@ fn slot<T: Task>(
         Ok(Flow::Continue)
     })?;
     Ok(())
+}
+
+/// Applies a work item's `settings` to `task`, whose values are `applied`. A value the task
+/// refuses is replaced by the one the update before ran with (`previous`), so that every
+/// rollout of an update runs with the same settings whichever worker runs it, a fresh one
+/// included, and the updater sees the change refused. Returns the refusals: (setting, refused
+/// value, why). Fails if there is nothing to fall back to (the value is the one in force before,
+/// as at a run's first update) or the task refuses that too.
+fn apply_settings<T: Task>(
+    task: &mut T,
+    names: &[&'static str],
+    applied: &mut [f64],
+    settings: &[f64],
+    previous: &[f64],
+    update: u64,
+) -> anyhow::Result<Vec<(usize, f64, tasks::TaskError)>> {
+    let mut refusals = Vec::new();
+    for (i, (&value, &fallback)) in settings.iter().zip(previous).enumerate() {
+        if applied[i].to_bits() == value.to_bits() {
+            continue;
+        }
+        let name = names[i];
+        let Err(e) = task.set(name, value) else {
+            applied[i] = value;
+            continue;
+        };
+        if fallback.to_bits() == value.to_bits() {
+            bail!(
+                "update {update}: the task refused {name} = {} ({e}), a value in force before this \
+                 update (the config's, or an earlier change the other workers took): nothing to \
+                 fall back to",
+                tasks::value_text(value)
+            );
+        }
+        if applied[i].to_bits() != fallback.to_bits() {
+            task.set(name, fallback).map_err(|e2| {
+                anyhow::anyhow!(
+                    "update {update}: the task refused {name} = {} ({e}) and {name} = {}, the \
+                     value the update before ran with ({e2})",
+                    tasks::value_text(value),
+                    tasks::value_text(fallback)
+                )
+            })?;
+            applied[i] = fallback;
+        }
+        refusals.push((i, value, e));
+    }
+    Ok(refusals)
 }
 
 /// Parses the arguments the supervisor passes a worker and runs [`serve`]; returns the exit
@@ -372,4 +405,101 @@ fn check_shape(task: &dyn Task, config: &RunConfig) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tasks::TaskError;
+
+    /// A task with one setting, `reach`, that refuses values above 1 and starts unset (NaN), as
+    /// a worker's own task does before the run's settings arrive.
+    struct Arm {
+        reach: f64,
+        sets: usize,
+    }
+
+    impl Task for Arm {
+        fn name(&self) -> &'static str {
+            "arm"
+        }
+        fn parameters(&self) -> usize {
+            1
+        }
+        fn steps(&self) -> usize {
+            1
+        }
+        fn initial_mean(&self) -> Vec<f64> {
+            vec![0.0]
+        }
+        fn rollout(&mut self, _: &[f64], c: &mut [f64]) -> f64 {
+            c.fill(self.reach);
+            0.0
+        }
+        fn settings(&self) -> Vec<(&'static str, f64)> {
+            vec![("reach", self.reach)]
+        }
+        fn set(&mut self, _: &str, value: f64) -> Result<(), TaskError> {
+            self.sets += 1;
+            if value > 1.0 {
+                return Err(TaskError::Invalid {
+                    task: "arm",
+                    reason: "out of reach".into(),
+                });
+            }
+            self.reach = value;
+            Ok(())
+        }
+    }
+
+    fn arm() -> (Arm, Vec<f64>) {
+        (
+            Arm {
+                reach: f64::NAN,
+                sets: 0,
+            },
+            vec![f64::NAN],
+        )
+    }
+
+    #[test]
+    fn a_refused_value_is_replaced_by_the_one_the_update_before_ran_with() {
+        // A worker that ran the update before with 0.5.
+        let (mut task, mut applied) = arm();
+        apply_settings(&mut task, &["reach"], &mut applied, &[0.5], &[0.5], 0).unwrap();
+        let r = apply_settings(&mut task, &["reach"], &mut applied, &[5.0], &[0.5], 7).unwrap();
+        assert_eq!((r.len(), r[0].0, r[0].1), (1, 0, 5.0));
+        assert_eq!((task.reach, applied[0]), (0.5, 0.5));
+        // A fresh worker (restarted mid-update) ends up with the same value.
+        let (mut fresh, mut applied) = arm();
+        let r = apply_settings(&mut fresh, &["reach"], &mut applied, &[5.0], &[0.5], 7).unwrap();
+        assert_eq!((r.len(), fresh.reach, applied[0]), (1, 0.5, 0.5));
+        // The next update, published with the value in force again, changes nothing.
+        let sets = fresh.sets;
+        let r = apply_settings(&mut fresh, &["reach"], &mut applied, &[0.5], &[0.5], 8).unwrap();
+        assert!(r.is_empty());
+        assert_eq!(fresh.sets, sets);
+    }
+
+    #[test]
+    fn a_refused_value_with_nothing_to_fall_back_to_stops_the_worker() {
+        // The config's own value at the first update: previous = settings.
+        let (mut task, mut applied) = arm();
+        let e = apply_settings(&mut task, &["reach"], &mut applied, &[5.0], &[5.0], 0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("update 0: the task refused reach = 5 (task `arm`: out of reach), a value in force before this update"),
+            "{e}"
+        );
+        // The value before refused too.
+        let (mut task, mut applied) = arm();
+        let e = apply_settings(&mut task, &["reach"], &mut applied, &[5.0], &[3.0], 4)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("and reach = 3, the value the update before ran with"),
+            "{e}"
+        );
+    }
 }

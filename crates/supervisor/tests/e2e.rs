@@ -1909,7 +1909,8 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
             &config(&[("target_y = 0.70", "target_y = 7.0"), stop_at_first]),
             &[
                 "update 0: the task",
-                "a setting in force when this worker started",
+                "a value in force before this update",
+                "nothing to fall back to",
                 "out of the arm's reach",
             ],
         );
@@ -1952,6 +1953,83 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
     assert_eq!(changes(&r.refused_changes), [runtime(3.0)]);
     assert_eq!(r.refused_changes[0].from_update, from);
     assert_eq!(changes(&r.task_changes), [runtime(0.35)]);
+    assert_nothing_left(&run);
+}
+
+/// A worker restarted in the middle of the update whose change its task refuses starts with the
+/// config's values, not those the update before ran with: it falls back to the work item's
+/// `previous_settings`, as the worker it replaces did, so the update's rollouts all ran with the
+/// same settings and the run ends as the same run without the change. (Before the work items
+/// carried them, it had nothing to fall back to and stopped at every restart.)
+#[test]
+fn a_worker_restarted_in_the_update_of_a_refused_change_falls_back_as_the_others_did() {
+    let scratch = Scratch::exclusive("refused-restart");
+    // One worker, 50 ms rollouts: update 3, with the refused target, takes 0.5 s.
+    let edits = |schedule: (&'static str, &'static str)| {
+        external_config(&[
+            ("updates = 80", "updates = 6"),
+            ("workers = 2", "workers = 1"),
+            (
+                "/reach-worker\"]",
+                "/reach-worker\", \"--rollout-ms\", \"50\"]",
+            ),
+            schedule,
+        ])
+    };
+    let refused = edits((
+        "from_update = 40\nset = \"target_y\"\nvalue = 0.78",
+        "from_update = 3\nset = \"target_y\"\nvalue = 5.0",
+    ));
+    let cfg = write_config(&scratch, "refused.toml", &refused);
+    let result = scratch.path("refused.result.toml");
+    let mut run = Run::start(
+        &scratch,
+        860,
+        &[
+            cfg.to_str().unwrap(),
+            "--no-record",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    let status = run.wait_status("update 3 under way", |s| updates_in(s) >= 3);
+    assert_eq!(updates_in(&status), 3, "{status}");
+    signal(pid_of(&status, "worker-0"), "-9");
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    // Both incarnations met the refused value, and ran update 3 with the one before.
+    let refusal = "[worker-0] update 3: the task refused target_y = 5";
+    assert_eq!(out.matches(refusal).count(), 2, "{out}");
+    assert!(out.contains("as the update before"), "{out}");
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(
+        (r.updates, r.task_changes.len(), r.refused_changes.len()),
+        (6, 0, 1)
+    );
+
+    let plain = edits((
+        "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n",
+        "",
+    ));
+    let cfg = write_config(&scratch, "plain.toml", &plain);
+    let plain_result = scratch.path("plain.result.toml");
+    let mut run = Run::start(
+        &scratch,
+        861,
+        &[
+            cfg.to_str().unwrap(),
+            "--no-record",
+            "--quiet",
+            "--result",
+            plain_result.to_str().unwrap(),
+        ],
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    let p = RunResult::read(&plain_result).unwrap();
+    assert_eq!(
+        (&r.mean_bits, &r.covariance_bits),
+        (&p.mean_bits, &p.covariance_bits)
+    );
     assert_nothing_left(&run);
 }
 
@@ -2237,8 +2315,8 @@ fn a_python_task_that_fails_is_named_with_its_update_rollout_and_value() {
             "set",
             [
                 "update 0: the task's set('target_y', 0.7) raised ValueError: out of reach",
-                "(a setting in force when this worker started: the value of \
-                 task.external.settings, a [[schedule]] entry or `supervisor set`)",
+                "(a value in force before this update: the config's, or an earlier change the \
+                 other workers took): nothing to fall back to",
             ],
         ),
     ] {

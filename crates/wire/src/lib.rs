@@ -43,9 +43,10 @@
 //!    rollouts (pending as at the start of the hand-out), one `work/<w>` sample per rollout, all
 //!    with the same [`WorkHeader::chunk`]; it rings the workers after publishing every chunk.
 //! 3. The worker executes each θ and writes the N immediate costs straight into a loaned `costs`
-//!    sample ([`CostHeader::terminal`] holds the terminal cost). After the last rollout of its
-//!    chunk it publishes [`Ready`] with `completed_chunk` = that chunk, then rings
-//!    `wake/updater`, then rings `wake/sampler` unless the chunk carried
+//!    sample ([`CostHeader::terminal`] holds the terminal cost, [`CostHeader::settings`] the
+//!    task settings it ran with: the work item's unless its task refused a change). After the
+//!    last rollout of its chunk it publishes [`Ready`] with `completed_chunk` = that chunk,
+//!    then rings `wake/updater`, then rings `wake/sampler` unless the chunk carried
 //!    [`WorkHeader::QUEUE_EMPTY`]. Ready goes out before the updater's bell: the updater may
 //!    publish the next distribution as soon as it has the costs, and the sampler, woken by that,
 //!    must find every finished worker's Ready. Within a long chunk the worker also rings
@@ -127,7 +128,7 @@ pub type Service = ipc::Service;
 /// in column-major order.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.DistributionHeader.v1")]
+#[type_name("pi2cma.DistributionHeader.v2")]
 pub struct DistributionHeader {
     pub run_id: u64,
     /// The update whose rollouts are drawn from this distribution (0-based).
@@ -149,6 +150,10 @@ pub struct DistributionHeader {
     pub lambda: f64,
     /// Task settings in force for `update`, in the order of the task's `settings()`.
     pub settings: [f64; MAX_SETTINGS],
+    /// The settings the previous update ran with (`settings_len` of them); those of `update`
+    /// itself at the first update of a run. A worker whose task refuses a change runs with
+    /// these instead ([`WorkHeader::previous_settings`]).
+    pub previous_settings: [f64; MAX_SETTINGS],
 }
 
 impl DistributionHeader {
@@ -158,7 +163,7 @@ impl DistributionHeader {
 /// Header of a `work/<w>` sample. Payload: θ, P `f64`s.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.WorkHeader.v1")]
+#[type_name("pi2cma.WorkHeader.v2")]
 pub struct WorkHeader {
     pub run_id: u64,
     pub update: u64,
@@ -177,6 +182,10 @@ pub struct WorkHeader {
     pub flags: u32,
     /// Task settings for `update` (see [`DistributionHeader::settings`]).
     pub settings: [f64; MAX_SETTINGS],
+    /// What the previous update ran with ([`DistributionHeader::previous_settings`]): where the
+    /// task refuses a value of `settings`, the worker runs with this one instead and says so in
+    /// [`CostHeader::settings`]. Equal to `settings` where there is nothing to fall back to.
+    pub previous_settings: [f64; MAX_SETTINGS],
 }
 
 impl WorkHeader {
@@ -210,8 +219,8 @@ pub struct CostHeader {
     pub _reserved: u32,
     /// The task settings the rollout ran with, in the order of the work item's. They differ
     /// from the work item's when the task refused a change (`Task::set` failed): the worker
-    /// keeps the value it had and says so here, and the updater takes the change as refused
-    /// ([`CostHeader::ran_with`]).
+    /// runs with [`WorkHeader::previous_settings`] there and says so here, and the updater takes
+    /// the change as refused ([`CostHeader::ran_with`]).
     pub settings: [f64; MAX_SETTINGS],
 }
 
@@ -993,9 +1002,9 @@ mod tests {
         // A foreign worker relies on these sizes; changing them needs a new type name version.
         assert_eq!(
             std::mem::size_of::<DistributionHeader>(),
-            56 + 8 * MAX_SETTINGS
+            56 + 16 * MAX_SETTINGS
         );
-        assert_eq!(std::mem::size_of::<WorkHeader>(), 48 + 8 * MAX_SETTINGS);
+        assert_eq!(std::mem::size_of::<WorkHeader>(), 48 + 16 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<CostHeader>(), 56 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);

@@ -235,9 +235,10 @@ mod tests {
     /// files of a real run, 20–90 s of `supervisor run --updates 1000000` on the 2-core
     /// development machine; with a recorder, the larger of a run left alone and one whose
     /// recorder was SIGSTOPped for 4–20 s (the updater then waits at the lag bound). A1, tball
-    /// and many were measured again with `CostHeader` v3 (120 bytes, 72 more per cost sample):
-    /// 20 s runs, the recorder stopped for 6 of them. The two "large" runs are v2's: their
-    /// samples hold 8 008 bytes of costs, so the header adds under 1 %.
+    /// and many were measured again when the headers grew (`CostHeader` v3, 72 more bytes per
+    /// cost sample; `DistributionHeader` and `WorkHeader` v2, 64 more): 20 s runs, the recorder
+    /// stopped for 6 of them, twice, the larger peak kept. The two "large" runs are from before:
+    /// their samples hold 8 008 bytes of costs and 2 800 of θ, so the headers add under 3 %.
     struct Measured {
         run: &'static str,
         limits: Limits,
@@ -301,9 +302,11 @@ mod tests {
 
     #[test]
     fn samples_are_laid_out_as_iceoryx2_does() {
-        // Sizes of real segments (ls -l) divided by their chunks: the header is 120 bytes.
+        // Sizes of real segments (ls -l) of the quick start's run, less their own 4 014, 702
+        // and 294 bytes, divided by their 966, 138 and 36 chunks.
         assert_eq!(chunk_bytes::<CostHeader>(8 * 101, 8), 976);
-        assert_eq!(chunk_bytes::<DistributionHeader>(8 * 6, 8), 216);
+        assert_eq!(chunk_bytes::<DistributionHeader>(8 * 6, 8), 280);
+        assert_eq!(chunk_bytes::<WorkHeader>(8 * 2, 8), 240);
         assert_eq!(chunk_bytes::<()>(size_of::<Control>(), 8), 128);
         let via_point = Limits {
             max_workers: 16,
