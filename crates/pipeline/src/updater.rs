@@ -98,6 +98,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // from), echoed in `Progress`; a `Cell` because `report` reads it while the control loop
     // sets it.
     let changes = std::cell::Cell::new((0u64, 0u64));
+    // (refused changes so far, the last one's setting index, value and update), in `Progress`.
+    let refusals = std::cell::Cell::new((0u32, 0u32, 0.0f64, 0u64));
     // What is in force from the start: a resumed run's settings, and the scheduled changes of
     // its first update.
     if let Some(start) = &start {
@@ -183,6 +185,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 settings: packed,
                 last_change_seq: changes.get().0,
                 last_change_from: changes.get().1,
+                refused: refusals.get().0,
+                last_refused_setting: refusals.get().1,
+                last_refused_value: refusals.get().2,
+                last_refused_update: refusals.get().3,
             }),
             "send progress",
         )?;
@@ -299,14 +305,21 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 .tell(&batch)
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
+            let mut news = false;
             if let Some(ran) = ran_with.take() {
-                ran.take_refusals(
+                let taken = ran.take_refusals(
                     u,
                     &published,
                     &mut *task,
                     &mut recorded,
                     &mut refused_changes,
                 )?;
+                if let Some(&(i, value)) = taken.last() {
+                    let so_far = refusals.get().0 + taken.len() as u32;
+                    refusals.set((so_far, i as u32, value, u));
+                    // Reported at once: `supervisor status` shows it.
+                    news = true;
+                }
             }
             // Before the next update's changes: what this one ran with.
             previous = Some(task.settings().iter().map(|(_, v)| *v).collect());
@@ -347,7 +360,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
             // their progress too).
             let tenth = cfg.run.updates.is_some_and(|n| next % (n / 10).max(1) == 0);
-            unreported = !(tenth || last_progress.elapsed() >= PROGRESS_INTERVAL);
+            unreported = !(news || tenth || last_progress.elapsed() >= PROGRESS_INTERVAL);
             if !unreported {
                 last_progress = Instant::now();
                 report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
@@ -490,7 +503,8 @@ impl RanWith {
 
     /// The settings update `u` ran with that differ from those `published` for it: changes the
     /// workers' task refused. They did not take effect: the run goes on with the values the
-    /// rollouts ran with, and the changes move from `recorded` to `refused`.
+    /// rollouts ran with, and the changes move from `recorded` to `refused`. Returns them:
+    /// (setting index, the value refused).
     fn take_refusals(
         self,
         u: u64,
@@ -498,12 +512,15 @@ impl RanWith {
         task: &mut dyn tasks::Task,
         recorded: &mut Vec<RecordedChange>,
         refused: &mut Vec<RecordedChange>,
-    ) -> anyhow::Result<()> {
+    ) -> anyhow::Result<Vec<(usize, f64)>> {
         let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
-        for ((name, &ran), &asked) in names.iter().zip(&self.values).zip(published) {
+        let mut taken = Vec::new();
+        for (i, ((name, &ran), &asked)) in names.iter().zip(&self.values).zip(published).enumerate()
+        {
             if ran.to_bits() == asked.to_bits() {
                 continue;
             }
+            taken.push((i, asked));
             println!(
                 "task change {name} = {} at update {u} refused by the workers' task (see their \
                  output): update {u} ran with {name} = {}, which stays in force",
@@ -532,7 +549,7 @@ impl RanWith {
                 });
             }
         }
-        Ok(())
+        Ok(taken)
     }
 }
 
@@ -728,8 +745,10 @@ mod tests {
         recorded[0].from_update = 12;
         let mut refused = Vec::new();
         let ran = first.unwrap();
-        ran.take_refusals(40, &published, &mut task, &mut recorded, &mut refused)
+        let taken = ran
+            .take_refusals(40, &published, &mut task, &mut recorded, &mut refused)
             .unwrap();
+        assert_eq!(taken, [(1, 5.0)]);
         assert_eq!(task.settings(), [("target_x", 0.3), ("target_y", 0.7)]);
         assert_eq!(refused, [change("target_y", 5.0, "schedule")]);
         assert_eq!(recorded.len(), 1);

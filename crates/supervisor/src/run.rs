@@ -1571,6 +1571,12 @@ impl Supervisor {
     fn answer_sets(&mut self, taken: u64, from: Option<u64>, flush: bool) {
         let now = Instant::now();
         let ends_before = self.cfg.run.updates;
+        // Only the workers know their own task's limits: say where a refusal would show.
+        let may_refuse = if matches!(self.cfg.task, session::TaskSection::External(_)) {
+            "; the workers' task may still refuse it (`supervisor status` then says so)"
+        } else {
+            ""
+        };
         let answered = &mut self.answered_sets;
         self.pending_sets.retain(|p| {
             let reply = match from {
@@ -1595,7 +1601,10 @@ impl Supervisor {
                     if answered.len() > 16 {
                         answered.pop_front();
                     }
-                    format!("{}: takes effect from update {u} (0-based){replaced}", p.what)
+                    format!(
+                        "{}: takes effect from update {u} (0-based){replaced}{may_refuse}",
+                        p.what
+                    )
                 }
                 // Taken, but its answer was overtaken by a later change's.
                 _ if p.seq <= taken => format!(
@@ -1675,8 +1684,21 @@ impl Supervisor {
                     .iter()
                     .map(|(n, v)| format!("{n} = {}", tasks::value_text(*v)))
                     .collect();
+                let refused = match p.refused {
+                    0 => String::new(),
+                    n => format!(
+                        "refused by the workers' task: {n} change{} (the last: {} = {} at \
+                         update {})\n",
+                        if n == 1 { "" } else { "s" },
+                        self.reported_settings(p)
+                            .get(p.last_refused_setting as usize)
+                            .map_or("?", |(name, _)| name.as_str()),
+                        tasks::value_text(p.last_refused_value),
+                        p.last_refused_update
+                    ),
+                };
                 s += &format!(
-                    "updates: {} of {}, {:.1} updates/s, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n",
+                    "updates: {} of {}, {:.1} updates/s, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n{refused}",
                     p.updates,
                     self.cfg
                         .run

@@ -1931,10 +1931,17 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
     let mut run = Run::start_quiet(&scratch, 856, &cfg, &result);
     run.wait_status("3 updates", |s| updates_in(s) >= 3);
     let reply = run.ctl_ok(&["set", "target_x", "3.0"]);
+    assert!(
+        reply.contains("the workers' task may still refuse it (`supervisor status` then says so)"),
+        "{reply}"
+    );
     let from = takes_effect_from(&reply);
     let status = run.wait_status("the refused update done", |s| updates_in(s) > from + 1);
     assert!(
-        status.contains("task: target_x = 0.3, target_y = 0.7"),
+        status.contains("task: target_x = 0.3, target_y = 0.7")
+            && status.contains(&format!(
+                "refused by the workers' task: 1 change (the last: target_x = 3 at update {from})"
+            )),
         "{status}"
     );
     run.ctl_ok(&["set", "target_x", "0.35"]);

@@ -258,7 +258,7 @@ impl Ready {
 /// and its answer to each runtime task change ([`Progress::TASK_CHANGE`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Progress.v3")]
+#[type_name("pi2cma.Progress.v4")]
 pub struct Progress {
     pub run_id: u64,
     /// Updates completed.
@@ -278,6 +278,12 @@ pub struct Progress {
     pub last_change_seq: u64,
     /// The update that change takes effect from.
     pub last_change_from: u64,
+    /// Task changes the workers' task refused so far (see [`CostHeader::settings`]), and the
+    /// last of them: its setting (index into `settings`), value and update.
+    pub refused: u32,
+    pub last_refused_setting: u32,
+    pub last_refused_value: f64,
+    pub last_refused_update: u64,
 }
 
 impl Progress {
@@ -1009,7 +1015,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
-        assert_eq!(std::mem::size_of::<Progress>(), 64 + 8 * MAX_SETTINGS);
+        assert_eq!(std::mem::size_of::<Progress>(), 88 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
         assert_eq!(std::mem::size_of::<Overdue>(), 48);
         assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);
