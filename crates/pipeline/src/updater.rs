@@ -380,6 +380,18 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             c.from_update
         );
     }
+    // Stopped in the middle of an update whose rollouts in so far ran with other settings than
+    // published: the change was refused all the same, and the value run with stays in force
+    // (the recorder does not record the change either, so that `--resume` goes on without it).
+    if let Some(ran) = ran_with.take() {
+        ran.take_refusals(
+            optimizer.update_index(),
+            &published,
+            &mut *task,
+            &mut recorded,
+            &mut refused_changes,
+        )?;
+    }
     if trace {
         eprintln!("{} updates slower than 20 ms: {slow:?}", slow.len());
     }

@@ -75,6 +75,17 @@ pub struct Assembler {
     next: Option<u64>,
 }
 
+/// The task changes of the update after the last one handed out ([`Assembler::changes_ahead`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ahead {
+    pub update: u64,
+    /// (setting, value) published for `update` and not refused by the rollouts in so far.
+    pub changed: Vec<(String, f64)>,
+    /// (setting, value published, value the rollouts in so far ran with): changes the
+    /// workers' task refused.
+    pub refused: Vec<(String, f64, f64)>,
+}
+
 /// What happened to a cost message.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CostOutcome {
@@ -241,20 +252,41 @@ impl Assembler {
     /// The task changes that the distribution of the next update carries (published, but its
     /// update not complete), against the settings of the last update handed out: changes that
     /// take effect at an update the recording does not reach, as when the run stops right
-    /// after `supervisor set`. Empty before the first update is handed out.
-    pub fn changes_ahead(&self) -> Option<(u64, Vec<(String, f64)>)> {
+    /// after `supervisor set`. Empty before the first update is handed out. A change that the
+    /// rollouts of that update already in say they did not run with (the workers' task refused
+    /// it) is not among them: it is in [`Ahead::refused`], with the value run with.
+    pub fn changes_ahead(&self) -> Option<Ahead> {
         let u = self.next?;
         let prev = self.last_settings.as_ref()?;
         let next = self.distributions.get(&u)?;
-        let changed = self
+        let ran = self
+            .pending
+            .get(&u)
+            .and_then(|p| p.ran_with.as_ref())
+            .filter(|r| r.len() == next.settings.len());
+        let mut ahead = Ahead {
+            update: u,
+            changed: Vec::new(),
+            refused: Vec::new(),
+        };
+        for (i, ((name, v), p)) in self
             .setting_names
             .iter()
             .zip(&next.settings)
             .zip(prev)
-            .filter(|((_, v), p)| v.to_bits() != p.to_bits())
-            .map(|((n, v), _)| (n.clone(), *v))
-            .collect();
-        Some((u, changed))
+            .enumerate()
+        {
+            if v.to_bits() == p.to_bits() {
+                continue;
+            }
+            match ran.map(|r| r[i]) {
+                Some(r) if r.to_bits() != v.to_bits() => {
+                    ahead.refused.push((name.clone(), *v, r));
+                }
+                _ => ahead.changed.push((name.clone(), *v)),
+            }
+        }
+        Some(ahead)
     }
 
     fn assemble(
@@ -464,7 +496,21 @@ mod tests {
         assert!(a.next_complete().unwrap().unwrap().changed.is_empty());
         assert_eq!(
             a.changes_ahead(),
-            Some((8, vec![("viapoint".to_string(), 0.9)]))
+            Some(Ahead {
+                update: 8,
+                changed: vec![("viapoint".to_string(), 0.9)],
+                refused: Vec::new(),
+            })
+        );
+        // A rollout of update 8 that ran with the old value: the change is refused.
+        a.cost(8, 0, &costs, 0.0, timing(), Some(&[0.3])).unwrap();
+        assert_eq!(
+            a.changes_ahead(),
+            Some(Ahead {
+                update: 8,
+                changed: Vec::new(),
+                refused: vec![("viapoint".to_string(), 0.9, 0.3)],
+            })
         );
 
         let mut resumed = Assembler::new(hp.clone(), 2, 101, None, names);

@@ -316,9 +316,26 @@ impl WriterState {
         // stopped right after `supervisor set`, or before a scheduled change) reached the
         // published distribution but no update: without it here, `--resume` would go on with
         // the old settings and the joined analysis would lack its marker.
-        if let Some((u, changed)) = self.assembler.changes_ahead() {
-            for (name, value) in &changed {
+        // A change its rollouts in so far did not run with was refused by the workers' task:
+        // not a change, so that `--resume` goes on with the value in force.
+        if let Some(ahead) = self.assembler.changes_ahead() {
+            let u = ahead.update;
+            for (name, value) in &ahead.changed {
                 self.writer.write_task_change(u, name, *value)?;
+            }
+            for (name, asked, ran) in &ahead.refused {
+                self.writer.write_event(
+                    u,
+                    Event::Warning,
+                    "workers",
+                    0,
+                    &format!(
+                        "task change {name} = {} refused by the workers' task: update {u}, \
+                         which the run stopped in, ran with {name} = {}, which stays in force",
+                        tasks::value_text(*asked),
+                        tasks::value_text(*ran)
+                    ),
+                )?;
             }
         }
         self.writer.write_event(

@@ -2040,6 +2040,77 @@ fn a_worker_restarted_in_the_update_of_a_refused_change_falls_back_as_the_others
     assert_nothing_left(&run);
 }
 
+/// A run stopped in the middle of an update whose workers refused its change: the rollouts in
+/// so far ran with the old value, so the change is refused (result file), not recorded as a
+/// change ahead, and `--resume` goes on with the value in force (it went on with the refused
+/// one, which the resumed run's new workers refused before any rollout: the run failed).
+#[test]
+fn a_change_refused_in_the_update_a_run_stops_in_is_not_resumed_with() {
+    let scratch = Scratch::new("refused-stop");
+    let text = external_config(&[
+        (
+            "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n",
+            "",
+        ),
+        ("updates = 80\n", ""),
+        (
+            "/reach-worker\"]",
+            "/reach-worker\", \"--rollout-ms\", \"300\"]",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "slow.toml", &text);
+    let result = scratch.path("slow.result.toml");
+    let id = 858;
+    let mut run = Run::start(
+        &scratch,
+        id,
+        &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
+    );
+    run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let from = takes_effect_from(&run.ctl_ok(&["set", "target_y", "5"]));
+    run.wait_output(
+        &format!("update {from}: the task refused target_y = 5"),
+        Instant::now() + Duration::from_secs(30),
+    );
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    let out = run.text();
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(
+        r.updates, from,
+        "the update refused in was finished:\n{out}"
+    );
+    assert!(r.task_changes.is_empty(), "{:?}\n{out}", r.task_changes);
+    let refused: Vec<_> = r
+        .refused_changes
+        .iter()
+        .map(|c| (c.from_update, c.name.as_str(), c.value, c.source.as_str()))
+        .collect();
+    assert_eq!(refused, [(from, "target_y", 5.0, "runtime")], "{out}");
+    assert!(
+        out.contains(&format!(
+            "task change target_y = 5 at update {from} refused by the workers' task"
+        )),
+        "{out}"
+    );
+    let recording = scratch.recording("reach", id);
+    let rec = record::read_recording(&recording).unwrap();
+    assert!(rec.task_changes.is_empty(), "{:?}", rec.task_changes);
+    assert!(
+        rec.logs.iter().any(|l| l.event == "warning"
+            && l.update == from
+            && l.message.contains("target_y = 5 refused")),
+        "{:#?}",
+        rec.logs
+    );
+    let point = record::resume::resume_point(&recording).unwrap();
+    assert_eq!(
+        point.start.settings,
+        [("target_x".to_string(), 0.3), ("target_y".to_string(), 0.7)]
+    );
+    assert_nothing_left(&run);
+}
+
 /// `reach-worker --basis-activations`: the `[task.external] basis_activations` line of its task.
 fn reach_basis_activations() -> String {
     let worker = Path::new(SUPERVISOR)
