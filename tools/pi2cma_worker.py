@@ -364,8 +364,8 @@ def _serve(make_task, args):
 
     names = shape.settings
     applied = [None] * len(names)
-    # The last refused change reported: (update, setting, value).
-    refused = None
+    # The update of the work items last applied, and the (setting, value) its task refused in it.
+    refused_update, refused = None, set()
     chunk, done_in_chunk = None, 0
     last_notify = time.monotonic()
     n = shape.steps
@@ -403,9 +403,14 @@ def _serve(make_task, args):
                 )
             theta = list((ctypes.c_double * count).from_address(item.payload().as_ptr()))
             update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
+            if update != refused_update:
+                refused_update, refused = update, set()
             for i in range(min(h.settings_len, len(names))):
                 value, fallback = h.settings[i], h.previous_settings[i]
-                if applied[i] == value:
+                # A value refused is not tried again for another item of the same update: every
+                # rollout of an update must run with the same settings, and whether the task
+                # takes a value may depend on the others, which may have changed since.
+                if applied[i] == value or (i, value) in refused:
                     continue
                 try:
                     task.set(names[i], value)
@@ -433,15 +438,14 @@ def _serve(make_task, args):
                             f"the value the update before ran with, raised {type(e).__name__}: {e}"
                         ) from e
                     applied[i] = fallback
-                if refused != (update, i, value):
-                    refused = (update, i, value)
-                    print(
-                        f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
-                        f"{type(error).__name__}: {error}; its rollouts run with {names[i]} = "
-                        f"{fallback!r}, as the update before",
-                        file=sys.stderr,
-                        flush=True,
-                    )
+                refused.add((i, value))
+                print(
+                    f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
+                    f"{type(error).__name__}: {error}; its rollouts run with {names[i]} = "
+                    f"{fallback!r}, as the update before",
+                    file=sys.stderr,
+                    flush=True,
+                )
             item.delete()
             # The wall clock first, as the Rust worker does (see crates/pipeline/src/worker.rs).
             start_ns = time.time_ns()

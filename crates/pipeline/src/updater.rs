@@ -496,11 +496,17 @@ impl RanWith {
         if let Some(i) = differ {
             let name = task.settings().get(i).map_or("?", |(n, _)| *n);
             let (theirs, ours) = (values[i], first.values[i]);
+            let why = if h.worker == first.worker {
+                "its task took a value for one rollout that it refused for another (a worker \
+                 must run every rollout of an update with the same settings)"
+            } else {
+                "one worker's task refused a change another's took (every worker of a run must \
+                 accept the same settings)"
+            };
             bail!(
                 "update {}: worker-{} ran rollout {} with {name} = {}, worker-{} ran rollout {} \
-                 with {name} = {}: one worker's task refused a change another's took, and \
-                 costs of different tasks cannot be weighed against each other (every worker \
-                 of a run must accept the same settings)",
+                 with {name} = {}: {why}, and costs of different tasks cannot be weighed against \
+                 each other",
                 h.update,
                 h.worker,
                 h.rollout,
@@ -732,6 +738,13 @@ mod tests {
                 "update 40: worker-1 ran rollout 4 with target_y = 0.7, worker-0 ran rollout 0 \
                  with target_y = 5: one worker's task refused a change another's took"
             ),
+            "{e}"
+        );
+        let e = RanWith::check(&mut first, &cost(0, 6, &[0.3, 0.7]), &published, &task)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("with target_y = 5: its task took a value for one rollout that it refused"),
             "{e}"
         );
         let e = RanWith::check(&mut first, &cost(1, 5, &[0.3]), &published, &task)

@@ -71,8 +71,7 @@ fn slot<T: Task>(
         );
     }
     let mut task = make_task(&ctx)?;
-    let names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
-    let mut applied: Vec<f64> = task.settings().iter().map(|(_, v)| *v).collect();
+    let mut applied = Applied::new(&task);
     let nan_from = ctx.config.pipeline().fault_nan_from_update;
     let hang_at = ctx
         .config
@@ -116,8 +115,6 @@ fn slot<T: Task>(
     ring(&sampler_bell, "notify sampler")?;
 
     let mut chunk = (u64::MAX, 0u32);
-    // The last refused change reported: (update, setting, value bits).
-    let mut refused: Option<(u64, usize, u64)> = None;
     let mut last_notify = Instant::now();
     let mut unannounced = false;
     let mut last_run_dir_check = Instant::now();
@@ -150,31 +147,24 @@ fn slot<T: Task>(
                     h.steps
                 );
             }
-            let len = (h.settings_len as usize).min(names.len());
-            let refusals = apply_settings(
+            let len = (h.settings_len as usize).min(applied.names.len());
+            let refusals = applied.apply(
                 &mut task,
-                &names,
-                &mut applied,
+                h.update,
                 &h.settings[..len],
                 &h.previous_settings[..len],
-                h.update,
             )?;
             for (i, value, e) in refusals {
-                // Once per update and setting, not once per rollout.
-                if refused != Some((h.update, i, value.to_bits())) {
-                    refused = Some((h.update, i, value.to_bits()));
-                    eprintln!(
-                        "update {}: the task refused {} = {} ({e}); its rollouts run with {} = {}, \
-                         as the update before",
-                        h.update,
-                        names[i],
-                        tasks::value_text(value),
-                        names[i],
-                        tasks::value_text(applied[i])
-                    );
-                }
+                let name = applied.names[i];
+                eprintln!(
+                    "update {}: the task refused {name} = {} ({e}); its rollouts run with {name} \
+                     = {}, as the update before",
+                    h.update,
+                    tasks::value_text(value),
+                    tasks::value_text(applied.values[i])
+                );
             }
-            let (ran_with, ran_with_len) = wire::pack_settings(&applied);
+            let (ran_with, ran_with_len) = wire::pack_settings(&applied.values);
             if hang_at.is_some_and(|n| h.update >= n) {
                 // Fault injection (pipeline.fault_hang_at_update): a simulator or robot that
                 // stops answering. Only a signal ends it.
@@ -253,52 +243,86 @@ fn slot<T: Task>(
     Ok(())
 }
 
-/// Applies a work item's `settings` to `task`, whose values are `applied`. A value the task
-/// refuses is replaced by the one the update before ran with (`previous`), so that every
-/// rollout of an update runs with the same settings whichever worker runs it, a fresh one
-/// included, and the updater sees the change refused. Returns the refusals: (setting, refused
-/// value, why). Fails if there is nothing to fall back to (the value is the one in force before,
-/// as at a run's first update) or the task refuses that too.
-fn apply_settings<T: Task>(
-    task: &mut T,
-    names: &[&'static str],
-    applied: &mut [f64],
-    settings: &[f64],
-    previous: &[f64],
+/// The task settings a worker has applied, and the values its task refused in the update it is
+/// at.
+struct Applied {
+    names: Vec<&'static str>,
+    values: Vec<f64>,
+    /// The update of the work items last applied, and the (setting, value bits) its task
+    /// refused in it.
     update: u64,
-) -> anyhow::Result<Vec<(usize, f64, tasks::TaskError)>> {
-    let mut refusals = Vec::new();
-    for (i, (&value, &fallback)) in settings.iter().zip(previous).enumerate() {
-        if applied[i].to_bits() == value.to_bits() {
-            continue;
+    refused: Vec<(usize, u64)>,
+}
+
+impl Applied {
+    fn new<T: Task>(task: &T) -> Self {
+        let settings = task.settings();
+        Self {
+            names: settings.iter().map(|(n, _)| *n).collect(),
+            values: settings.iter().map(|(_, v)| *v).collect(),
+            update: u64::MAX,
+            refused: Vec::new(),
         }
-        let name = names[i];
-        let Err(e) = task.set(name, value) else {
-            applied[i] = value;
-            continue;
-        };
-        if fallback.to_bits() == value.to_bits() {
-            bail!(
-                "update {update}: the task refused {name} = {} ({e}), a value in force before this \
-                 update (the config's, or an earlier change the other workers took): nothing to \
-                 fall back to",
-                tasks::value_text(value)
-            );
-        }
-        if applied[i].to_bits() != fallback.to_bits() {
-            task.set(name, fallback).map_err(|e2| {
-                anyhow::anyhow!(
-                    "update {update}: the task refused {name} = {} ({e}) and {name} = {}, the \
-                     value the update before ran with ({e2})",
-                    tasks::value_text(value),
-                    tasks::value_text(fallback)
-                )
-            })?;
-            applied[i] = fallback;
-        }
-        refusals.push((i, value, e));
     }
-    Ok(refusals)
+
+    /// Applies the `settings` of a work item of `update`. A value the task refuses is replaced
+    /// by the one the update before ran with (`previous`), so that every rollout of an update
+    /// runs with the same settings whichever worker runs it, a fresh one included, and the
+    /// updater sees the change refused. A value refused is not tried again for the update's
+    /// other items: whether a task takes a value may depend on the others (the reach task
+    /// refuses target_x = 0.8 with target_y = 0.7, out of reach, and takes it once target_y =
+    /// 0.1 is in), and a retry would run the update's rollouts with different settings.
+    ///
+    /// Returns the refusals new in this item: (setting, refused value, why). Fails if there is
+    /// nothing to fall back to (the value was in force before, as at a run's first update) or
+    /// the task refuses that too.
+    fn apply<T: Task>(
+        &mut self,
+        task: &mut T,
+        update: u64,
+        settings: &[f64],
+        previous: &[f64],
+    ) -> anyhow::Result<Vec<(usize, f64, tasks::TaskError)>> {
+        if update != self.update {
+            self.update = update;
+            self.refused.clear();
+        }
+        let mut refusals = Vec::new();
+        for (i, (&value, &fallback)) in settings.iter().zip(previous).enumerate() {
+            if self.values[i].to_bits() == value.to_bits()
+                || self.refused.contains(&(i, value.to_bits()))
+            {
+                continue;
+            }
+            let name = self.names[i];
+            let Err(e) = task.set(name, value) else {
+                self.values[i] = value;
+                continue;
+            };
+            if fallback.to_bits() == value.to_bits() {
+                bail!(
+                    "update {update}: the task refused {name} = {} ({e}), a value in force before \
+                     this update (the config's, or an earlier change the other workers took): \
+                     nothing to fall back to",
+                    tasks::value_text(value)
+                );
+            }
+            if self.values[i].to_bits() != fallback.to_bits() {
+                task.set(name, fallback).map_err(|e2| {
+                    anyhow::anyhow!(
+                        "update {update}: the task refused {name} = {} ({e}) and {name} = {}, \
+                         the value the update before ran with ({e2})",
+                        tasks::value_text(value),
+                        tasks::value_text(fallback)
+                    )
+                })?;
+                self.values[i] = fallback;
+            }
+            self.refused.push((i, value.to_bits()));
+            refusals.push((i, value, e));
+        }
+        Ok(refusals)
+    }
 }
 
 /// Parses the arguments the supervisor passes a worker and runs [`serve`]; returns the exit
@@ -412,16 +436,17 @@ mod tests {
     use super::*;
     use tasks::TaskError;
 
-    /// A task with one setting, `reach`, that refuses values above 1 and starts unset (NaN), as
-    /// a worker's own task does before the run's settings arrive.
-    struct Arm {
-        reach: f64,
+    /// A target (x, y) that must stay within 1 of the origin, as the reach task's must stay
+    /// within the arm's reach; unset (NaN) until the run's settings arrive, as a worker's own
+    /// task is.
+    struct Target {
+        xy: [f64; 2],
         sets: usize,
     }
 
-    impl Task for Arm {
+    impl Task for Target {
         fn name(&self) -> &'static str {
-            "arm"
+            "target"
         }
         fn parameters(&self) -> usize {
             1
@@ -433,72 +458,108 @@ mod tests {
             vec![0.0]
         }
         fn rollout(&mut self, _: &[f64], c: &mut [f64]) -> f64 {
-            c.fill(self.reach);
+            c.fill(0.0);
             0.0
         }
         fn settings(&self) -> Vec<(&'static str, f64)> {
-            vec![("reach", self.reach)]
+            vec![("x", self.xy[0]), ("y", self.xy[1])]
         }
-        fn set(&mut self, _: &str, value: f64) -> Result<(), TaskError> {
+        fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
             self.sets += 1;
-            if value > 1.0 {
+            let mut xy = self.xy;
+            xy[usize::from(name == "y")] = value;
+            if xy[0].hypot(xy[1]) > 1.0 {
                 return Err(TaskError::Invalid {
-                    task: "arm",
+                    task: "target",
                     reason: "out of reach".into(),
                 });
             }
-            self.reach = value;
+            self.xy = xy;
             Ok(())
         }
     }
 
-    fn arm() -> (Arm, Vec<f64>) {
-        (
-            Arm {
-                reach: f64::NAN,
-                sets: 0,
-            },
-            vec![f64::NAN],
-        )
+    fn fresh() -> (Target, Applied) {
+        let task = Target {
+            xy: [f64::NAN; 2],
+            sets: 0,
+        };
+        let applied = Applied::new(&task);
+        (task, applied)
     }
 
     #[test]
     fn a_refused_value_is_replaced_by_the_one_the_update_before_ran_with() {
-        // A worker that ran the update before with 0.5.
-        let (mut task, mut applied) = arm();
-        apply_settings(&mut task, &["reach"], &mut applied, &[0.5], &[0.5], 0).unwrap();
-        let r = apply_settings(&mut task, &["reach"], &mut applied, &[5.0], &[0.5], 7).unwrap();
-        assert_eq!((r.len(), r[0].0, r[0].1), (1, 0, 5.0));
-        assert_eq!((task.reach, applied[0]), (0.5, 0.5));
-        // A fresh worker (restarted mid-update) ends up with the same value.
-        let (mut fresh, mut applied) = arm();
-        let r = apply_settings(&mut fresh, &["reach"], &mut applied, &[5.0], &[0.5], 7).unwrap();
-        assert_eq!((r.len(), fresh.reach, applied[0]), (1, 0.5, 0.5));
-        // The next update, published with the value in force again, changes nothing.
-        let sets = fresh.sets;
-        let r = apply_settings(&mut fresh, &["reach"], &mut applied, &[0.5], &[0.5], 8).unwrap();
-        assert!(r.is_empty());
-        assert_eq!(fresh.sets, sets);
+        // A worker that ran the update before with (0.3, 0.5).
+        let (mut task, mut applied) = fresh();
+        let before = [0.3, 0.5];
+        applied.apply(&mut task, 6, &before, &before).unwrap();
+        let r = applied.apply(&mut task, 7, &[0.3, 5.0], &before).unwrap();
+        assert_eq!(r.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(), [(1, 5.0)]);
+        assert_eq!((task.xy, &applied.values[..]), ([0.3, 0.5], &before[..]));
+        // Its next item of the same update: not tried again, nothing new to report.
+        let sets = task.sets;
+        assert!(applied
+            .apply(&mut task, 7, &[0.3, 5.0], &before)
+            .unwrap()
+            .is_empty());
+        assert_eq!(task.sets, sets);
+        // A fresh worker (restarted mid-update) ends up with the same values.
+        let (mut other, mut applied) = fresh();
+        let r = applied.apply(&mut other, 7, &[0.3, 5.0], &before).unwrap();
+        assert_eq!(
+            (r.len(), other.xy, &applied.values[..]),
+            (1, before, &before[..])
+        );
+        // The next update, published with the values in force again, changes nothing.
+        let sets = other.sets;
+        assert!(applied
+            .apply(&mut other, 8, &before, &before)
+            .unwrap()
+            .is_empty());
+        assert_eq!(other.sets, sets);
+    }
+
+    #[test]
+    fn a_value_refused_stays_refused_for_the_update_though_another_change_would_let_it_in() {
+        // (0.8, 0.7) is out of reach, (0.8, 0.1) is not: x = 0.8 is refused with y as it was,
+        // and not tried again once y = 0.1 is in, or the update's rollouts would differ.
+        let (mut task, mut applied) = fresh();
+        let before = [0.3, 0.7];
+        applied.apply(&mut task, 4, &before, &before).unwrap();
+        let change = [0.8, 0.1];
+        for _ in 0..3 {
+            applied.apply(&mut task, 5, &change, &before).unwrap();
+            assert_eq!(applied.values, [0.3, 0.1]);
+        }
+        // In a later update it is tried again (and taken).
+        applied.apply(&mut task, 6, &change, &[0.3, 0.1]).unwrap();
+        assert_eq!(applied.values, change);
     }
 
     #[test]
     fn a_refused_value_with_nothing_to_fall_back_to_stops_the_worker() {
         // The config's own value at the first update: previous = settings.
-        let (mut task, mut applied) = arm();
-        let e = apply_settings(&mut task, &["reach"], &mut applied, &[5.0], &[5.0], 0)
+        let (mut task, mut applied) = fresh();
+        let e = applied
+            .apply(&mut task, 0, &[0.3, 5.0], &[0.3, 5.0])
             .unwrap_err()
             .to_string();
         assert!(
-            e.starts_with("update 0: the task refused reach = 5 (task `arm`: out of reach), a value in force before this update"),
+            e.starts_with(
+                "update 0: the task refused y = 5 (task `target`: out of reach), a value in force \
+                 before this update"
+            ),
             "{e}"
         );
         // The value before refused too.
-        let (mut task, mut applied) = arm();
-        let e = apply_settings(&mut task, &["reach"], &mut applied, &[5.0], &[3.0], 4)
+        let (mut task, mut applied) = fresh();
+        let e = applied
+            .apply(&mut task, 4, &[0.3, 5.0], &[0.3, 3.0])
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("and reach = 3, the value the update before ran with"),
+            e.contains("and y = 3, the value the update before ran with"),
             "{e}"
         );
     }

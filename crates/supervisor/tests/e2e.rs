@@ -1963,6 +1963,61 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
     assert_nothing_left(&run);
 }
 
+/// Two changes at one update, the first refused with the other setting as it was and taken with
+/// the other as changed (target (0.8, 0.7) is out of the arm's reach, (0.8, 0.1) is not): the
+/// workers tried the refused value again for their next rollout of the update and took it, the
+/// update's rollouts ran with different targets, and the updater stopped the run. A value refused
+/// stays refused for the update.
+#[test]
+fn a_change_refused_stays_refused_for_every_rollout_of_its_update() {
+    let scratch = Scratch::new("refused-pair");
+    let schedule = (
+        "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n",
+        "[[schedule]]\nfrom_update = 5\nset = \"target_x\"\nvalue = 0.8\n\n\
+         [[schedule]]\nfrom_update = 5\nset = \"target_y\"\nvalue = 0.1\n",
+    );
+    type ConfigOf = fn(&[(&str, &str)]) -> String;
+    let cases: [(&str, ConfigOf, u64); 2] = [
+        ("reach", external_config, 862),
+        ("reach-python", python_config, 863),
+    ];
+    for (name, config, id) in cases {
+        let text = config(&[schedule, ("updates = 80", "updates = 20")]);
+        let cfg = write_config(&scratch, &format!("{id}.toml"), &text);
+        let result = scratch.path(&format!("{id}.result.toml"));
+        let mut run = Run::start(
+            &scratch,
+            id,
+            &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
+        );
+        run.wait_exit(Duration::from_secs(120), 0);
+        let out = run.text();
+        let r = RunResult::read(&result).unwrap();
+        let changes = |list: &[pipeline::result::RecordedChange]| -> Vec<(u64, String, f64)> {
+            list.iter()
+                .map(|c| (c.from_update, c.name.clone(), c.value))
+                .collect()
+        };
+        assert_eq!(r.updates, 20, "{name}:\n{out}");
+        assert_eq!(
+            changes(&r.refused_changes),
+            [(5, "target_x".to_string(), 0.8)],
+            "{name}:\n{out}"
+        );
+        assert_eq!(
+            changes(&r.task_changes),
+            [(5, "target_y".to_string(), 0.1)],
+            "{name}:\n{out}"
+        );
+        let rec = record::read_recording(&scratch.recording(name, id)).unwrap();
+        for u in rec.updates.iter().filter(|u| u.update >= 5) {
+            let s: Vec<f64> = u.task_settings.iter().map(|s| s.value).collect();
+            assert_eq!(s, [0.3, 0.1], "{name}: update {}", u.update);
+        }
+        assert_nothing_left(&run);
+    }
+}
+
 /// A worker restarted in the middle of the update whose change its task refuses starts with the
 /// config's values, not those the update before ran with: it falls back to the work item's
 /// `previous_settings`, as the worker it replaces did, so the update's rollouts all ran with the
