@@ -1810,6 +1810,21 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     assert_nothing_left(&run);
 }
 
+/// Runs config `text` (written as `<id>.toml`) to its end, which must be a success: the run,
+/// its output and its result file.
+fn run_to_its_end(scratch: &Scratch, id: u64, text: &str) -> (Run, String, RunResult) {
+    let cfg = write_config(scratch, &format!("{id}.toml"), text);
+    let result = scratch.path(&format!("{id}.result.toml"));
+    let mut run = Run::start(
+        scratch,
+        id,
+        &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
+    );
+    run.wait_exit(Duration::from_secs(120), 0);
+    let out = run.text();
+    (run, out, RunResult::read(&result).unwrap())
+}
+
 /// A change the workers' task refuses (a target out of the arm's reach) is not taken: the update
 /// runs with the value in force, the run goes on, and ends as the same run without the change,
 /// bit for bit. The result file and the recording say what was refused. A value the task
@@ -1829,15 +1844,7 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
         ("reach-python", python_config, 853),
     ];
     for (name, config, id) in cases {
-        let cfg = write_config(&scratch, &format!("{id}.toml"), &config(&[out_of_reach]));
-        let result = scratch.path(&format!("{id}.result.toml"));
-        let mut run = Run::start(
-            &scratch,
-            id,
-            &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
-        );
-        run.wait_exit(Duration::from_secs(120), 0);
-        let out = run.text();
+        let (run, out, r) = run_to_its_end(&scratch, id, &config(&[out_of_reach]));
         for expected in [
             "update 40: the task",
             "out of the arm's reach (0.9 m)",
@@ -1849,7 +1856,6 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
                 "{name}: `{expected}` not in:\n{out}"
             );
         }
-        let r = RunResult::read(&result).unwrap();
         assert_eq!((r.updates, r.complete), (80, true), "{name}");
         assert!(r.task_changes.is_empty(), "{name}: {:?}", r.task_changes);
         assert_eq!(r.refused_changes.len(), 1, "{name}");
@@ -1983,16 +1989,7 @@ fn a_change_refused_stays_refused_for_every_rollout_of_its_update() {
     ];
     for (name, config, id) in cases {
         let text = config(&[schedule, ("updates = 80", "updates = 20")]);
-        let cfg = write_config(&scratch, &format!("{id}.toml"), &text);
-        let result = scratch.path(&format!("{id}.result.toml"));
-        let mut run = Run::start(
-            &scratch,
-            id,
-            &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
-        );
-        run.wait_exit(Duration::from_secs(120), 0);
-        let out = run.text();
-        let r = RunResult::read(&result).unwrap();
+        let (run, out, r) = run_to_its_end(&scratch, id, &text);
         let changes = |list: &[pipeline::result::RecordedChange]| -> Vec<(u64, String, f64)> {
             list.iter()
                 .map(|c| (c.from_update, c.name.clone(), c.value))
