@@ -87,8 +87,14 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // a change.
     let mut published: Vec<f64> = Vec::new();
     let mut ran_with: Option<RanWith> = None;
-    // What the last update ran with: a worker whose task refuses a change runs with it.
-    let mut previous: Option<Vec<f64>> = None;
+    // What the last update ran with: a worker whose task refuses a change runs with it. For a
+    // resumed run, what the recording's last update ran with.
+    let mut previous: Option<Vec<f64>> = start.as_ref().map(|s| {
+        let settings = task.settings();
+        let names: Vec<&str> = settings.iter().map(|(n, _)| *n).collect();
+        let in_force: Vec<f64> = settings.iter().map(|(_, v)| *v).collect();
+        s.ran_with_values(&names, &in_force)
+    });
     let mut runtime: Vec<TaskChange> = Vec::new();
     let mut complete = false;
     // The flags of the distribution waiting to be published (the optimizer's current one); it
@@ -550,7 +556,9 @@ impl RanWith {
             })?;
             let before = recorded.len();
             recorded.retain(|c| {
-                let hit = c.from_update == u && c.name == *name;
+                // The refused value only: a resumed run's "resume" entry holds the value in force.
+                let hit =
+                    c.from_update == u && c.name == *name && c.value.to_bits() == asked.to_bits();
                 if hit {
                     refused.push(c.clone());
                 }
@@ -765,6 +773,8 @@ mod tests {
         RanWith::check(&mut first, &cost(0, 0, &[0.3, 0.7]), &published, &task).unwrap();
         let mut recorded = vec![
             change("target_x", 0.3, "runtime"),
+            // In force where a resumed run began, then changed by its schedule.
+            change("target_y", 0.7, "resume"),
             change("target_y", 5.0, "schedule"),
         ];
         recorded[0].from_update = 12;
@@ -776,8 +786,9 @@ mod tests {
         assert_eq!(taken, [(1, 5.0)]);
         assert_eq!(task.settings(), [("target_x", 0.3), ("target_y", 0.7)]);
         assert_eq!(refused, [change("target_y", 5.0, "schedule")]);
-        assert_eq!(recorded.len(), 1);
+        assert_eq!(recorded.len(), 2);
         assert_eq!(recorded[0].from_update, 12);
+        assert_eq!(recorded[1], change("target_y", 0.7, "resume"));
 
         // Not a change of this update (a worker of another build joined): what the rollouts ran
         // with is recorded as in force from here.

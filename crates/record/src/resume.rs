@@ -98,11 +98,12 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
         .as_ref()
         .map(|r| r.config_toml.clone())
         .filter(|t| !t.is_empty());
-    let mut settings: Vec<(String, f64)> = last
+    let ran_with: Vec<(String, f64)> = last
         .task_settings
         .iter()
         .map(|s| (s.name.clone(), s.value))
         .collect();
+    let mut settings = ran_with.clone();
     // Changes recorded for the update after the last (the run stopped right after them) are
     // what that update runs with: the distribution it samples from already carried them.
     for c in rec
@@ -119,6 +120,7 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
             update: last.update + 1,
             distribution,
             settings,
+            ran_with,
             origin: path.display().to_string(),
         },
         seed: last.seed,

@@ -433,6 +433,7 @@ mod tests {
                 update: at as u64,
                 distribution: full[at - 1].after.clone(),
                 settings: full[at - 1].settings.clone(),
+                ran_with: Vec::new(),
                 origin: "test".into(),
             };
             let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
@@ -443,6 +444,7 @@ mod tests {
             update: 30,
             distribution: full[29].after.clone(),
             settings: vec![("viapoint".into(), 0.2)],
+            ran_with: Vec::new(),
             origin: "test".into(),
         };
         let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
@@ -455,6 +457,7 @@ mod tests {
             update: 5,
             distribution: Distribution::isotropic(nalgebra::DVector::zeros(3), 1.0).unwrap(),
             settings: Vec::new(),
+            ran_with: Vec::new(),
             origin: "test".into(),
         };
         let e = InProcess::resume(&cfg, 1, wrong).err().unwrap().to_string();

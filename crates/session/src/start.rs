@@ -25,6 +25,9 @@ pub struct Start {
     /// with (scheduled and runtime changes included), and changes already recorded for update
     /// `update` (a run stopped right after them).
     pub settings: Vec<(String, f64)>,
+    /// The settings update `update − 1` ran with, by name: what a worker whose task refuses a
+    /// change of `settings` runs update `update` with. Empty: the same as `settings`.
+    pub ran_with: Vec<(String, f64)>,
     /// Where the state came from (a recording's path), for messages and recordings.
     pub origin: String,
 }
@@ -48,6 +51,8 @@ struct StartFile {
     /// Column-major, as nalgebra stores it.
     covariance_bits: Vec<String>,
     settings: Vec<SettingBits>,
+    #[serde(default)]
+    ran_with: Vec<SettingBits>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -101,14 +106,8 @@ impl Start {
                 .iter()
                 .map(|v| to_hex(*v))
                 .collect(),
-            settings: self
-                .settings
-                .iter()
-                .map(|(name, v)| SettingBits {
-                    name: name.clone(),
-                    value_bits: to_hex(*v),
-                })
-                .collect(),
+            settings: setting_bits(&self.settings),
+            ran_with: setting_bits(&self.ran_with),
         };
         let err = |reason: String| StartFileError {
             file: path.display().to_string(),
@@ -141,12 +140,14 @@ impl Start {
                 covariance.len()
             )));
         }
-        let settings = file
-            .settings
-            .into_iter()
-            .map(|s| Ok((s.name, from_hex(&s.value_bits)?)))
-            .collect::<Result<Vec<_>, String>>()
-            .map_err(err)?;
+        let named = |bits: Vec<SettingBits>| {
+            bits.into_iter()
+                .map(|s| Ok((s.name, from_hex(&s.value_bits)?)))
+                .collect::<Result<Vec<_>, String>>()
+                .map_err(err)
+        };
+        let settings = named(file.settings)?;
+        let ran_with = named(file.ran_with)?;
         Ok(Self {
             update: file.update,
             distribution: Distribution {
@@ -154,9 +155,36 @@ impl Start {
                 covariance: DMatrix::from_vec(p, p, covariance),
             },
             settings,
+            ran_with,
             origin: file.origin,
         })
     }
+
+    /// [`Start::ran_with`] as values in the order of `names` (a task's settings); a setting it
+    /// does not name keeps its value in `settings`, then `in_force`.
+    pub fn ran_with_values(&self, names: &[&str], in_force: &[f64]) -> Vec<f64> {
+        names
+            .iter()
+            .zip(in_force)
+            .map(|(name, v)| {
+                self.ran_with
+                    .iter()
+                    .chain(&self.settings)
+                    .find(|(n, _)| n == name)
+                    .map_or(*v, |(_, v)| *v)
+            })
+            .collect()
+    }
+}
+
+fn setting_bits(settings: &[(String, f64)]) -> Vec<SettingBits> {
+    settings
+        .iter()
+        .map(|(name, v)| SettingBits {
+            name: name.clone(),
+            value_bits: to_hex(*v),
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -174,6 +202,7 @@ mod tests {
                 covariance: DMatrix::from_column_slice(2, 2, &awkward[2..]),
             },
             settings: vec![("viapoint_y".into(), 0.1 + 0.7), ("other".into(), -0.0)],
+            ran_with: vec![("viapoint_y".into(), 0.3)],
             origin: "runs/a.mcap".into(),
         };
         let dir = std::env::temp_dir().join(format!("start-{}", std::process::id()));
@@ -184,6 +213,12 @@ mod tests {
         assert_eq!(bits(&back.distribution), bits(&start.distribution));
         assert_eq!(back.settings[1].1.to_bits(), (-0.0f64).to_bits());
         assert_eq!(back.settings[0], start.settings[0]);
+        assert_eq!(back.ran_with, start.ran_with);
+        // What the update before ran with, by name; the rest as in force.
+        assert_eq!(
+            back.ran_with_values(&["other", "viapoint_y", "new"], &[1.0, 2.0, 3.0]),
+            [-0.0, 0.3, 3.0]
+        );
         assert_eq!((back.update, back.origin.as_str()), (21, "runs/a.mcap"));
 
         std::fs::write(&path, "origin = \"x\"\nupdate = 1\ndim = 1\nmean_bits = [\"zz\"]\ncovariance_bits = []\nsettings = []\n").unwrap();

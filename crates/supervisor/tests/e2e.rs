@@ -2015,6 +2015,74 @@ fn a_change_refused_stays_refused_for_every_rollout_of_its_update() {
     }
 }
 
+/// A resumed run's first update falls back, for a change the workers' task refuses, to what the
+/// recording's last update ran with (before the start file carried it, its workers had nothing
+/// to fall back to and the resumed run failed), and ends as the same resume without the change.
+#[test]
+fn a_change_refused_at_the_update_a_run_resumes_from_falls_back_to_the_recorded_settings() {
+    let scratch = Scratch::new("refused-resume");
+    let first = external_config(&[
+        ("updates = 80", "updates = 10"),
+        (
+            "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n",
+            "",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "first.toml", &first);
+    let recording = scratch.path("first.mcap");
+    let mut run = Run::start(
+        &scratch,
+        864,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            recording.to_str().unwrap(),
+        ],
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    let resume = |id: u64, schedule: &str| {
+        let text = first.clone() + schedule;
+        let cfg = write_config(&scratch, &format!("{id}.toml"), &text);
+        let result = scratch.path(&format!("{id}.result.toml"));
+        let mut run = Run::start(
+            &scratch,
+            id,
+            &[
+                cfg.to_str().unwrap(),
+                "--resume",
+                recording.to_str().unwrap(),
+                "--updates",
+                "20",
+                "--no-record",
+                "--result",
+                result.to_str().unwrap(),
+            ],
+        );
+        run.wait_exit(Duration::from_secs(60), 0);
+        (run.text(), RunResult::read(&result).unwrap())
+    };
+    let (out, refused) = resume(
+        865,
+        "\n[[schedule]]\nfrom_update = 10\nset = \"target_y\"\nvalue = 5.0\n",
+    );
+    assert!(
+        out.contains("update 10: the task refused target_y = 5"),
+        "{out}"
+    );
+    assert_eq!(refused.updates, 20);
+    let c = &refused.refused_changes;
+    assert_eq!(c.len(), 1, "{c:?}");
+    assert_eq!((c[0].from_update, c[0].value), (10, 5.0));
+    // The settings in force where it resumed stay recorded as such.
+    assert!(refused.task_changes.iter().all(|c| c.source == "resume"));
+    let (_, plain) = resume(866, "");
+    assert_eq!(
+        (&refused.mean_bits, &refused.covariance_bits),
+        (&plain.mean_bits, &plain.covariance_bits)
+    );
+}
+
 /// A worker restarted in the middle of the update whose change its task refuses starts with the
 /// config's values, not those the update before ran with: it falls back to the work item's
 /// `previous_settings`, as the worker it replaces did, so the update's rollouts all ran with the
