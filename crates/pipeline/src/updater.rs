@@ -320,12 +320,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     &mut recorded,
                     &mut refused_changes,
                 )?;
-                if let Some(&(i, value)) = taken.last() {
-                    let so_far = refusals.get().0 + taken.len() as u32;
-                    refusals.set((so_far, i as u32, value, u));
-                    // Reported at once: `supervisor status` shows it.
-                    news = true;
-                }
+                // Reported at once: `supervisor status` shows it.
+                news = count_refusals(&refusals, &taken, u);
             }
             // Before the next update's changes: what this one ran with.
             previous = Some(task.settings().iter().map(|(_, v)| *v).collect());
@@ -390,13 +386,16 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // published: the change was refused all the same, and the value run with stays in force
     // (the recorder does not record the change either, so that `--resume` goes on without it).
     if let Some(ran) = ran_with.take() {
-        ran.take_refusals(
-            optimizer.update_index(),
+        let u = optimizer.update_index();
+        let taken = ran.take_refusals(
+            u,
             &published,
             &mut *task,
             &mut recorded,
             &mut refused_changes,
         )?;
+        // In the last report too.
+        count_refusals(&refusals, &taken, u);
     }
     if trace {
         eprintln!("{} updates slower than 20 ms: {slow:?}", slow.len());
@@ -457,6 +456,21 @@ fn apply(
         source: source.into(),
     });
     Ok(())
+}
+
+/// Adds the changes refused at update `u` (`taken`: setting index, value) to the count and the
+/// last refusal that `Progress` reports; whether there were any.
+fn count_refusals(
+    refusals: &std::cell::Cell<(u32, u32, f64, u64)>,
+    taken: &[(usize, f64)],
+    u: u64,
+) -> bool {
+    let Some(&(i, value)) = taken.last() else {
+        return false;
+    };
+    let so_far = refusals.get().0 + taken.len() as u32;
+    refusals.set((so_far, i as u32, value, u));
+    true
 }
 
 /// The settings the rollouts of an update ran with ([`wire::CostHeader::ran_with`]), as its
