@@ -311,18 +311,15 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 .tell(&batch)
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
-            let mut news = false;
-            if let Some(ran) = ran_with.take() {
-                let taken = ran.take_refusals(
-                    u,
-                    &published,
-                    &mut *task,
-                    &mut recorded,
-                    &mut refused_changes,
-                )?;
-                // Reported at once: `supervisor status` shows it.
-                news = count_refusals(&refusals, &taken, u);
-            }
+            // A refusal is reported at once: `supervisor status` shows it.
+            let news = RanWith::settle(
+                &mut ran_with,
+                u,
+                &published,
+                &mut *task,
+                (&mut recorded, &mut refused_changes),
+                &refusals,
+            )?;
             // Before the next update's changes: what this one ran with.
             previous = Some(task.settings().iter().map(|(_, v)| *v).collect());
             if u == first_update {
@@ -385,18 +382,14 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // Stopped in the middle of an update whose rollouts in so far ran with other settings than
     // published: the change was refused all the same, and the value run with stays in force
     // (the recorder does not record the change either, so that `--resume` goes on without it).
-    if let Some(ran) = ran_with.take() {
-        let u = optimizer.update_index();
-        let taken = ran.take_refusals(
-            u,
-            &published,
-            &mut *task,
-            &mut recorded,
-            &mut refused_changes,
-        )?;
-        // In the last report too.
-        count_refusals(&refusals, &taken, u);
-    }
+    RanWith::settle(
+        &mut ran_with,
+        optimizer.update_index(),
+        &published,
+        &mut *task,
+        (&mut recorded, &mut refused_changes),
+        &refusals,
+    )?;
     if trace {
         eprintln!("{} updates slower than 20 ms: {slow:?}", slow.len());
     }
@@ -456,21 +449,6 @@ fn apply(
         source: source.into(),
     });
     Ok(())
-}
-
-/// Adds the changes refused at update `u` (`taken`: setting index, value) to the count and the
-/// last refusal that `Progress` reports; whether there were any.
-fn count_refusals(
-    refusals: &std::cell::Cell<(u32, u32, f64, u64)>,
-    taken: &[(usize, f64)],
-    u: u64,
-) -> bool {
-    let Some(&(i, value)) = taken.last() else {
-        return false;
-    };
-    let so_far = refusals.get().0 + taken.len() as u32;
-    refusals.set((so_far, i as u32, value, u));
-    true
 }
 
 /// The settings the rollouts of an update ran with ([`wire::CostHeader::ran_with`]), as its
@@ -537,6 +515,29 @@ impl RanWith {
             );
         }
         Ok(())
+    }
+
+    /// After update `u` (or a stop in its middle): takes the settings its rollouts in so far ran
+    /// with ([`RanWith::take_refusals`]) and adds the refusals to `count` (changes refused so
+    /// far, the last one's setting index, value and update, as `Progress` reports them).
+    /// Whether there were any.
+    fn settle(
+        slot: &mut Option<RanWith>,
+        u: u64,
+        published: &[f64],
+        task: &mut dyn tasks::Task,
+        (recorded, refused): (&mut Vec<RecordedChange>, &mut Vec<RecordedChange>),
+        count: &std::cell::Cell<(u32, u32, f64, u64)>,
+    ) -> anyhow::Result<bool> {
+        let Some(ran) = slot.take() else {
+            return Ok(false);
+        };
+        let taken = ran.take_refusals(u, published, task, recorded, refused)?;
+        let Some(&(i, value)) = taken.last() else {
+            return Ok(false);
+        };
+        count.set((count.get().0 + taken.len() as u32, i as u32, value, u));
+        Ok(true)
     }
 
     /// The settings update `u` ran with that differ from those `published` for it: changes the
@@ -809,12 +810,18 @@ mod tests {
         let mut first = None;
         RanWith::check(&mut first, &cost(0, 0, &[0.25, 0.7]), &[0.3, 0.7], &task).unwrap();
         let (mut recorded, mut refused) = (Vec::new(), Vec::new());
-        first
-            .unwrap()
-            .take_refusals(40, &[0.3, 0.7], &mut task, &mut recorded, &mut refused)
-            .unwrap();
+        // One refusal counted before: settling adds this one and names it the last.
+        let count = std::cell::Cell::new((1, 1, 5.0, 12));
+        let lists = (&mut recorded, &mut refused);
+        assert!(RanWith::settle(&mut first, 40, &[0.3, 0.7], &mut task, lists, &count).unwrap());
+        assert!(first.is_none());
         assert!(refused.is_empty());
         assert_eq!(recorded, [change("target_x", 0.25, "workers")]);
         assert_eq!(task.settings()[0], ("target_x", 0.25));
+        assert_eq!(count.get(), (2, 0, 0.3, 40));
+        // Nothing in (a run stopped before any rollout of its update reported): nothing to count.
+        let lists = (&mut recorded, &mut refused);
+        assert!(!RanWith::settle(&mut None, 40, &[0.3, 0.7], &mut task, lists, &count).unwrap());
+        assert_eq!(count.get(), (2, 0, 0.3, 40));
     }
 }

@@ -49,8 +49,8 @@ pub struct Assembled {
     /// Task settings in force for this update: those its rollouts ran with.
     pub settings: Vec<(String, f64)>,
     /// Changes published for this update that its rollouts did not run with (the workers' task
-    /// refused them): (setting, the value refused). `settings` holds the value in force.
-    pub refused: Vec<(String, f64)>,
+    /// refused them): (setting, the value refused, the value run with, which `settings` holds).
+    pub refused: Vec<(String, f64, f64)>,
     /// Settings that differ from the previous update's (task changes taking effect here).
     pub changed: Vec<(String, f64)>,
     pub timings: Vec<RolloutTiming>,
@@ -326,7 +326,7 @@ impl Assembler {
             .iter()
             .zip(before.settings.iter().zip(&ran))
             .filter(|(_, (asked, ran))| asked.to_bits() != ran.to_bits())
-            .map(|(n, (asked, _))| (n.clone(), *asked))
+            .map(|(n, (asked, ran))| (n.clone(), *asked, *ran))
             .collect();
         let changed = match &self.last_settings {
             Some(prev) => settings
@@ -552,7 +552,7 @@ mod tests {
         assert_eq!(updates.len(), 3);
         let viapoint = |v: f64| vec![("viapoint".to_string(), v)];
         assert_eq!(updates[1].settings, viapoint(0.3));
-        assert_eq!(updates[1].refused, viapoint(0.9));
+        assert_eq!(updates[1].refused, [("viapoint".to_string(), 0.9, 0.3)]);
         for u in &updates {
             assert!(u.changed.is_empty(), "update {}: {:?}", u.update, u.changed);
         }

@@ -324,18 +324,7 @@ impl WriterState {
                 self.writer.write_task_change(u, name, *value)?;
             }
             for (name, asked, ran) in &ahead.refused {
-                self.writer.write_event(
-                    u,
-                    Event::Warning,
-                    "workers",
-                    0,
-                    &format!(
-                        "task change {name} = {} refused by the workers' task: update {u}, \
-                         which the run stopped in, ran with {name} = {}, which stays in force",
-                        tasks::value_text(*asked),
-                        tasks::value_text(*ran)
-                    ),
-                )?;
+                self.write_refusal(u, ", which the run stopped in,", name, *asked, *ran)?;
             }
         }
         self.writer.write_event(
@@ -511,6 +500,31 @@ impl WriterState {
         Ok(())
     }
 
+    /// The `warning` on /log for a change the workers' task refused at update `u` (`which`
+    /// describes the update, after its number).
+    fn write_refusal(
+        &mut self,
+        u: u64,
+        which: &str,
+        name: &str,
+        asked: f64,
+        ran: f64,
+    ) -> anyhow::Result<()> {
+        self.writer.write_event(
+            u,
+            Event::Warning,
+            "workers",
+            0,
+            &format!(
+                "task change {name} = {} refused by the workers' task: update {u}{which} ran with \
+                 {name} = {}, which stays in force",
+                tasks::value_text(asked),
+                tasks::value_text(ran)
+            ),
+        )?;
+        Ok(())
+    }
+
     /// Writes every complete update; with `skip_lost`, also gives up (with an `error` event) on
     /// updates whose inputs can no longer arrive, and writes what that unblocks.
     /// Calls `written(u)` after update u is written and flushed (or given up).
@@ -526,21 +540,8 @@ impl WriterState {
                 for (name, value) in &a.changed {
                     self.writer.write_task_change(a.update, name, *value)?;
                 }
-                for (name, asked) in &a.refused {
-                    let ran = a.settings.iter().find(|(n, _)| n == name).map(|(_, v)| *v);
-                    self.writer.write_event(
-                        a.update,
-                        Event::Warning,
-                        "workers",
-                        0,
-                        &format!(
-                            "task change {name} = {} refused by the workers' task: update {} \
-                             ran with {name} = {}, which stays in force",
-                            tasks::value_text(*asked),
-                            a.update,
-                            ran.map_or_else(|| "?".into(), tasks::value_text)
-                        ),
-                    )?;
+                for (name, asked, ran) in &a.refused {
+                    self.write_refusal(a.update, "", name, *asked, *ran)?;
                 }
                 let settings: Vec<(&str, f64)> =
                     a.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();

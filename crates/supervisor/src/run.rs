@@ -1679,8 +1679,9 @@ impl Supervisor {
         }
         match &self.progress {
             Some(p) => {
-                let settings: Vec<String> = self
-                    .reported_settings(p)
+                // Named once: it builds the task for its setting names.
+                let named = self.reported_settings(p);
+                let settings: Vec<String> = named
                     .iter()
                     .map(|(n, v)| format!("{n} = {}", tasks::value_text(*v)))
                     .collect();
@@ -1690,7 +1691,7 @@ impl Supervisor {
                         "refused by the workers' task: {n} change{} (the last: {} = {} at \
                          update {})\n",
                         if n == 1 { "" } else { "s" },
-                        self.reported_settings(p)
+                        named
                             .get(p.last_refused_setting as usize)
                             .map_or("?", |(name, _)| name.as_str()),
                         tasks::value_text(p.last_refused_value),
