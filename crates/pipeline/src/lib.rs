@@ -92,17 +92,7 @@ impl Context {
     /// The names of this run's dead nodes (processes killed without cleaning up); their stale
     /// iceoryx2 resources are removed on the way.
     pub fn dead_nodes(&self) -> Vec<String> {
-        let mut names = Vec::new();
-        let _ = Node::<Service>::list(self.node.config(), |state| {
-            if let NodeState::Dead(view) = state {
-                if let Some(d) = view.details().as_ref() {
-                    names.push(d.name().as_str().to_string());
-                }
-                let _ = view.try_remove_stale_resources();
-            }
-            CallbackProgression::Continue
-        });
-        names
+        remove_dead_nodes(&self.node)
     }
 
     /// A notifier ringing the doorbell `wake/<owner>` of this run.
@@ -351,6 +341,23 @@ pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::proc
             }
         }
     }
+}
+
+/// The names of the dead nodes (processes killed without cleaning up) under `node`'s config,
+/// whose stale iceoryx2 resources (ports, which count against the services' limits) are removed
+/// on the way: before a dead process is replaced, its ports must go.
+pub fn remove_dead_nodes(node: &Node<Service>) -> Vec<String> {
+    let mut names = Vec::new();
+    let _ = Node::<Service>::list(node.config(), |state| {
+        if let NodeState::Dead(view) = state {
+            if let Some(d) = view.details().as_ref() {
+                names.push(d.name().as_str().to_string());
+            }
+            let _ = view.try_remove_stale_resources();
+        }
+        CallbackProgression::Continue
+    });
+    names
 }
 
 #[cfg(test)]

@@ -219,6 +219,11 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     to_publish = Some(0);
                 }
                 Control::RECORDER_LOST => recorder.detach("the supervisor reports it gone"),
+                // The dead recorder's unwritten updates are lost with it: the lag is counted
+                // from here, where the new one begins.
+                Control::RECORDER_BACK if started.is_some() => {
+                    recorder.attach_if_running(optimizer.update_index())
+                }
                 Control::SET_TASK => {
                     let change = TaskChange {
                         // Update u's rollouts may be under way (or its distribution held back by
@@ -632,11 +637,13 @@ impl RecorderLink {
         })
     }
 
-    /// At START: a recorder that is running then has its publisher on `recorded` (the
-    /// supervisor starts it first and waits for it).
+    /// At START, or at RECORDER_BACK: a recorder that is running then has its publisher on
+    /// `recorded` (the supervisor starts it first and waits for it).
     fn attach_if_running(&mut self, first_update: u64) {
         self.attached = self.service.dynamic_config().number_of_publishers() > 0;
         self.next_update = first_update;
+        self.held_since = None;
+        self.last_ring = None;
         if self.attached {
             println!(
                 "recorder attached: the updater stays at most {} updates ahead of it",

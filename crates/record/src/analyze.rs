@@ -151,16 +151,23 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
             // A resumed run's files, or the parts of a split recording (or both).
             let begins: Vec<String> = rec.run.iter().map(|r| r.update.to_string()).collect();
+            // Updates a restarted recorder's predecessor had not written.
+            let missing = gaps(rec.updates.iter().map(|u| u.update));
             let _ = writeln!(
                 out,
-                "{}: one run of {} updates{}, its files beginning at updates {}",
+                "{}: one run of {} updates{}, its files beginning at updates {}{}",
                 names.join(" + "),
                 rec.updates.len(),
                 match (rec.updates.first(), rec.updates.last()) {
                     (Some(a), Some(b)) => format!(" ({}..={})", a.update, b.update),
                     _ => String::new(),
                 },
-                begins.join(", ")
+                begins.join(", "),
+                if missing.is_empty() {
+                    String::new()
+                } else {
+                    format!("; missing {missing} (not recorded: the recorder was restarted)")
+                }
             );
         }
         if let Some(dir) = &args.out {

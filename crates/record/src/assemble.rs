@@ -153,7 +153,12 @@ impl Assembler {
         if self.next.is_some_and(|n| update < n) {
             return Ok(());
         }
-        self.next.get_or_insert(update);
+        if self.next.is_none() {
+            // A recorder that joined a run under way may hold costs of an update whose
+            // distribution it missed: they can never complete one.
+            self.pending.retain(|&u, _| u >= update);
+            self.next = Some(update);
+        }
         self.distributions.insert(
             update,
             Published {

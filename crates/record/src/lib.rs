@@ -47,8 +47,8 @@ pub use error::RecordError;
 pub use reader::{join_resumed, read_ends, read_recording, read_recording_slim, Ends, Recording};
 pub use recorder::McapRecorder;
 pub use split::{
-    analyze_command, describe_parts, first_part, last_part, part_path, program_name,
-    recording_parts, refuse_overwrite, RunFiles,
+    analyze_command, describe_parts, first_part, last_part, part_number, part_path,
+    part_path_or_first, program_name, recording_parts, refuse_overwrite, RunFiles,
 };
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 

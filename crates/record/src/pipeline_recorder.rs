@@ -50,6 +50,15 @@ pub struct RecorderArgs {
     /// for them.
     #[arg(long, value_name = "FILE")]
     pub start: Option<PathBuf>,
+    /// A recorder started after the run's recorder died (the supervisor's restart count). It
+    /// goes on with the recording in part `--part` and begins at the first distribution
+    /// published after it announced itself: the updates its predecessor had not written are
+    /// not recorded.
+    #[arg(long, value_name = "N", requires = "part")]
+    pub restart: Option<u32>,
+    /// The part a restarted recorder writes (2 or more; it must not exist yet).
+    #[arg(long, value_name = "N", requires = "restart")]
+    pub part: Option<u32>,
 }
 
 /// A message taken from one of the subscribers.
@@ -93,7 +102,10 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let updater_bell = ctx.notifier("updater")?;
     let acks = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("recorded")?;
 
-    let mut writer = RunFiles::create(&out)?;
+    let mut writer = match cli.part {
+        Some(part) => RunFiles::continue_in_part(&out, part)?,
+        None => RunFiles::create(&out)?,
+    };
     writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb));
     // The settings a resumed run starts from: the supervisor's start file, read at once, not
     // the origin recording, which is streamed whole (a day's run: gigabytes) before the
@@ -106,7 +118,19 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         (None, None) => None,
     };
     let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone(), start_settings)?;
-    let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, 0)?;
+    state.restart = cli.restart;
+    if cli.restart.is_some() {
+        // Joining a run under way: a distribution already taken in may have had costs
+        // published before the costs subscriber existed. Every distribution published from
+        // here on has all its costs after it.
+        while iox(dist_sub.receive(), "receive distribution")?.is_some() {}
+        while iox(costs_sub.receive(), "receive costs")?.is_some() {}
+    }
+    let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, cli.restart.unwrap_or(0))?;
+    let out = match cli.part {
+        Some(part) => crate::part_path(&out, part),
+        None => out,
+    };
     eprintln!("recording to {}", out.display());
 
     let p = ctx.limits.dim;
@@ -243,6 +267,10 @@ struct WriterState {
     written: u64,
     mismatches: u64,
     resumed_from: Option<String>,
+    /// A restarted recorder's restart count ([`RecorderArgs::restart`]).
+    restart: Option<u32>,
+    /// Events a restarted recorder took in before its first distribution ([`Self::log`]).
+    deferred: Vec<(Event, String, u32, String)>,
 }
 
 impl WriterState {
@@ -298,6 +326,8 @@ impl WriterState {
             written: 0,
             mismatches: 0,
             resumed_from,
+            restart: None,
+            deferred: Vec::new(),
         })
     }
 
@@ -327,6 +357,12 @@ impl WriterState {
                 self.write_refusal(u, ", which the run stopped in,", name, *asked, *ran)?;
             }
         }
+        // A restarted recorder stopped before its first distribution: what it took in still
+        // goes into its part.
+        for (event, name, pid, message) in std::mem::take(&mut self.deferred) {
+            self.writer
+                .write_event(self.current_update, event, &name, pid, &message)?;
+        }
         self.writer.write_event(
             self.current_update,
             Event::Exit,
@@ -351,6 +387,13 @@ impl WriterState {
                 let settings = &h.settings[..(h.settings_len as usize).min(h.settings.len())];
                 if !self.started {
                     self.started = true;
+                    if self.restart.is_some() {
+                        // What the update before ran with: a change taking effect at the first
+                        // update of this part is recorded as one.
+                        let n = (h.settings_len as usize).min(h.previous_settings.len());
+                        self.assembler
+                            .continue_from(h.previous_settings[..n].to_vec());
+                    }
                     let initial = pi2cma::Distribution {
                         mean: nalgebra::DVector::from_column_slice(mean),
                         covariance: nalgebra::DMatrix::from_column_slice(p, p, cov),
@@ -374,7 +417,27 @@ impl WriterState {
                         task_settings: &task_settings,
                         resumed_from: self.resumed_from.as_deref(),
                         part: None,
+                        run_id: Some(self.run_id),
+                        recorder_restart: self.restart,
                     })?;
+                    if let Some(n) = self.restart {
+                        self.writer.write_event(
+                            h.update,
+                            Event::Warning,
+                            "recorder",
+                            pid,
+                            &format!(
+                                "the recorder was restarted (restart {n}) after the one before \
+                                 it died: this part begins at update {}; the updates between \
+                                 the last one of the part before and this one were not recorded",
+                                h.update
+                            ),
+                        )?;
+                        for (event, name, pid, message) in std::mem::take(&mut self.deferred) {
+                            self.writer
+                                .write_event(h.update, event, &name, pid, &message)?;
+                        }
+                    }
                     self.writer.write_event(
                         h.update,
                         Event::Start,
@@ -428,8 +491,7 @@ impl WriterState {
                         ),
                         _ => (Event::Crash, "crashed"),
                     };
-                    self.writer.write_event(
-                        self.current_update,
+                    self.log(
                         event,
                         &format!("worker-{}", c.worker),
                         c.pid,
@@ -442,8 +504,7 @@ impl WriterState {
                         ),
                     )?
                 }
-                Control::SET_TASK => self.writer.write_event(
-                    self.current_update,
+                Control::SET_TASK => self.log(
                     Event::Info,
                     "supervisor",
                     0,
@@ -454,13 +515,7 @@ impl WriterState {
                         c.value
                     ),
                 )?,
-                Control::START => self.writer.write_event(
-                    self.current_update,
-                    Event::Info,
-                    "supervisor",
-                    0,
-                    "start",
-                )?,
+                Control::START => self.log(Event::Info, "supervisor", 0, "start")?,
                 _ => {}
             },
             Msg::Note(n) => {
@@ -469,8 +524,7 @@ impl WriterState {
                     RunNote::WARNING => Event::Warning,
                     _ => Event::Info,
                 };
-                self.writer
-                    .write_event(self.current_update, event, "supervisor", 0, n.text())?;
+                self.log(event, "supervisor", 0, n.text())?;
             }
             Msg::Lifecycle(l) => {
                 if l.pid == pid {
@@ -483,8 +537,7 @@ impl WriterState {
                 } else {
                     (Event::Start, "ready")
                 };
-                self.writer.write_event(
-                    self.current_update,
+                self.log(
                     event,
                     &role_name(&l),
                     l.pid,
@@ -497,6 +550,19 @@ impl WriterState {
                 )?;
             }
         }
+        Ok(())
+    }
+
+    /// An event on /log at the update at hand. A restarted recorder keeps what comes before
+    /// its first distribution for the update it begins at, after its `/run`.
+    fn log(&mut self, event: Event, name: &str, pid: u32, message: &str) -> anyhow::Result<()> {
+        if self.restart.is_some() && !self.started {
+            self.deferred
+                .push((event, name.to_string(), pid, message.to_string()));
+            return Ok(());
+        }
+        self.writer
+            .write_event(self.current_update, event, name, pid, message)?;
         Ok(())
     }
 

@@ -339,6 +339,41 @@ impl Recording {
             && first.before == last.after
     }
 
+    /// Whether `next` is the part a restarted pipeline recorder began after this one's recorder
+    /// died: metadata `recorder_restart`, the same `run_id` (a random 64-bit id per run), this
+    /// recording's last file as its `previous_part` (by file name, so that moved files still
+    /// join), the same seed, task shape and hyperparameters, and a later first update. The
+    /// updates between them, which the dead recorder had not written, are missing from the
+    /// joined run (the info summary lists them).
+    pub fn is_continued_after_restart_by(&self, next: &Recording) -> bool {
+        let meta = |r: &Recording| {
+            r.metadata
+                .get(topics::METADATA)
+                .cloned()
+                .unwrap_or_default()
+        };
+        let (mine, theirs) = (meta(self), meta(next));
+        let file_name = |p: &Path| p.file_name().map(|n| n.to_os_string());
+        let previous_is_mine = theirs
+            .get("previous_part")
+            .and_then(|p| file_name(Path::new(p)))
+            .is_some_and(|p| self.files.last().and_then(|f| file_name(f)) == Some(p));
+        let same_run = theirs.contains_key("recorder_restart")
+            && theirs.contains_key("run_id")
+            && theirs.get("run_id") == mine.get("run_id")
+            && previous_is_mine;
+        let (Some(mine), Some(theirs)) = (self.run_info(), next.run_info()) else {
+            return false;
+        };
+        // Where this recording ends: after its last update, or where it began if the recorder
+        // died before writing one.
+        let end = self.updates.last().map_or(mine.update, |u| u.update + 1);
+        same_run
+            && theirs.update >= end
+            && (theirs.seed, theirs.dim, theirs.steps) == (mine.seed, mine.dim, mine.steps)
+            && theirs.hyperparameters == mine.hyperparameters
+    }
+
     /// This recording followed by `next` ([`Recording::is_continued_by`]), as one run: the
     /// messages of both in order, each `/run` kept (the second says where the run resumed),
     /// the metadata of the first, and the damage of the second (the first's end was resumed
@@ -377,7 +412,8 @@ impl Recording {
 }
 
 /// Recordings grouped into runs: each run is a recording followed by those that resume it
-/// ([`Recording::is_continued_by`]), in any order given; runs are in the order of their first
+/// ([`Recording::is_continued_by`]) or that a restarted recorder went on with
+/// ([`Recording::is_continued_after_restart_by`]), in any order given; runs are in the order of their first
 /// file. Returns each run with the files it was joined from.
 pub fn join_resumed(recs: Vec<Recording>) -> Vec<(Recording, Vec<PathBuf>)> {
     let n = recs.len();
@@ -385,9 +421,11 @@ pub fn join_resumed(recs: Vec<Recording>) -> Vec<(Recording, Vec<PathBuf>)> {
     let mut successor: Vec<Option<usize>> = vec![None; n];
     let mut has_predecessor = vec![false; n];
     for (j, next) in recs.iter().enumerate() {
-        if let Some(i) =
-            (0..n).find(|&i| i != j && successor[i].is_none() && recs[i].is_continued_by(next))
-        {
+        if let Some(i) = (0..n).find(|&i| {
+            i != j
+                && successor[i].is_none()
+                && (recs[i].is_continued_by(next) || recs[i].is_continued_after_restart_by(next))
+        }) {
             successor[i] = Some(j);
             has_predecessor[j] = true;
         }
@@ -548,6 +586,48 @@ mod tests {
             topic_counts: [("/update".to_string(), to - from)].into(),
             ..Default::default()
         }
+    }
+
+    /// A restarted recorder's part joins the part its predecessor left, across the updates
+    /// neither wrote, and only when its metadata ties it to that part of the same run.
+    #[test]
+    fn a_restarted_recorders_part_joins_across_the_gap_only_with_its_own_run() {
+        let with_meta = |mut r: Recording, meta: &[(&str, &str)]| {
+            r.files = vec![r.path.clone()];
+            let meta = meta.iter().map(|(k, v)| (k.to_string(), v.to_string()));
+            r.metadata
+                .insert(topics::METADATA.to_string(), meta.collect());
+            r
+        };
+        let run_id = ("run_id", "00000000000000aa");
+        let first = with_meta(part("dir/a.mcap", 7, 0, 10), &[run_id]);
+        // Moved elsewhere since: joined by the previous part's file name.
+        let restart = [
+            run_id,
+            ("recorder_restart", "1"),
+            ("previous_part", "/elsewhere/a.mcap"),
+        ];
+        let second = with_meta(part("dir/a.part-2.mcap", 7, 13, 20), &restart);
+        assert!(first.is_continued_after_restart_by(&second));
+        assert!(!first.is_continued_by(&second));
+        let runs = join_resumed(vec![second.clone(), first.clone()]);
+        assert_eq!(runs.len(), 1);
+        let joined: Vec<u64> = runs[0].0.updates.iter().map(|u| u.update).collect();
+        assert_eq!(joined, (0..10).chain(13..20).collect::<Vec<_>>());
+        let untied = [
+            vec![("run_id", "00000000000000bb"), restart[1], restart[2]],
+            vec![run_id, restart[2]],
+            vec![run_id, restart[1], ("previous_part", "b.mcap")],
+            vec![restart[1], restart[2]],
+        ];
+        for meta in untied {
+            let other = with_meta(part("dir/a.part-2.mcap", 7, 13, 20), &meta);
+            assert!(!first.is_continued_after_restart_by(&other), "{meta:?}");
+            assert_eq!(join_resumed(vec![first.clone(), other]).len(), 2);
+        }
+        // Overlapping the first part: not a continuation.
+        let early = with_meta(part("dir/a.part-2.mcap", 7, 5, 20), &restart);
+        assert!(!first.is_continued_after_restart_by(&early));
     }
 
     /// Streamed, the ends of a recording are those of the whole read, for a finished file and

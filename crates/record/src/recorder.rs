@@ -106,6 +106,8 @@ fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordErr
                 task_settings: &settings,
                 resumed_from: s.resumed_from.as_deref(),
                 part: None,
+                run_id: None,
+                recorder_restart: None,
             })?;
             w.write_event(
                 s.update,

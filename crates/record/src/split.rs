@@ -22,6 +22,27 @@ pub fn part_path(first: &Path, n: u32) -> PathBuf {
     first.with_file_name(format!("{stem}.part-{n}.mcap"))
 }
 
+/// Part `n` of the recording whose first part is `first`: `first` itself for n = 1.
+pub fn part_path_or_first(first: &Path, n: u32) -> PathBuf {
+    match n {
+        0 | 1 => first.to_path_buf(),
+        n => part_path(first, n),
+    }
+}
+
+/// The number of the part `path` is (1 for a first part).
+pub fn part_number(path: &Path) -> u32 {
+    let name = path
+        .file_name()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    name.strip_suffix(".mcap")
+        .and_then(|s| s.rsplit_once(".part-"))
+        .and_then(|(_, n)| n.parse::<u32>().ok())
+        .filter(|&n| n >= 2)
+        .unwrap_or(1)
+}
+
 /// The first part of the recording `path` belongs to (`path` itself unless it is a part).
 pub fn first_part(path: &Path) -> PathBuf {
     let name = path
@@ -149,6 +170,7 @@ struct Run {
     config_toml: String,
     executor: String,
     resumed_from: Option<String>,
+    run_id: Option<u64>,
 }
 
 /// Writes a run's recording: [`RunWriter`]'s calls, and a new part once the current one holds
@@ -195,6 +217,34 @@ impl RunFiles {
         })
     }
 
+    /// Goes on with the recording whose first part is `first` in part `part` (≥ 2), which must
+    /// not exist yet: the parts before it stay as they are (a restarted recorder's predecessor
+    /// left them; the supervisor recovers the unfinished one).
+    pub fn continue_in_part(first: &Path, part: u32) -> Result<Self, RecordError> {
+        if part < 2 {
+            return Err(RecordError::invalid(
+                first.to_path_buf(),
+                format!("a recording goes on in part 2 or later, not in part {part}"),
+            ));
+        }
+        let path = part_path(first, part);
+        if path.exists() {
+            return Err(RecordError::invalid(
+                path,
+                "is there already: a restarted recorder begins a new part",
+            ));
+        }
+        Ok(Self {
+            writer: Some(RunWriter::create(&path)?),
+            first: first.to_path_buf(),
+            part,
+            split_bytes: None,
+            run: None,
+            full: false,
+            pending_changes: Vec::new(),
+        })
+    }
+
     /// Splits into parts of about `mb` MB of messages before compression (`recording.split_mb`);
     /// `None`: one file.
     pub fn split_at_mb(&mut self, mb: Option<u64>) {
@@ -209,10 +259,7 @@ impl RunFiles {
 
     /// The part being written.
     fn file(&self) -> PathBuf {
-        match self.part {
-            1 => self.first.clone(),
-            n => part_path(&self.first, n),
-        }
+        part_path_or_first(&self.first, self.part)
     }
 
     pub fn write_start(&mut self, start: &RunStart<'_>) -> Result<(), RecordError> {
@@ -225,8 +272,19 @@ impl RunFiles {
             config_toml: start.config_toml.to_string(),
             executor: start.executor.to_string(),
             resumed_from: start.resumed_from.map(str::to_string),
+            run_id: start.run_id,
         });
-        self.writer()?.write_start(start)
+        match (self.part, start.part) {
+            // A restarted recorder's part names the one its predecessor left.
+            (n @ 2.., None) => {
+                let previous = part_path_or_first(&self.first, n - 1).display().to_string();
+                self.writer()?.write_start(&RunStart {
+                    part: Some((n, &previous)),
+                    ..*start
+                })
+            }
+            _ => self.writer()?.write_start(start),
+        }
     }
 
     /// As [`RunWriter::write_update`], into a new part first if the current one is full;
@@ -275,6 +333,8 @@ impl RunFiles {
             task_settings: u.task_settings,
             resumed_from: run.resumed_from.as_deref(),
             part: Some((self.part, &previous)),
+            run_id: run.run_id,
+            recorder_restart: None,
         })?;
         w.write_event(
             u.summary.update,
@@ -341,6 +401,26 @@ impl RunFiles {
 mod tests {
     use super::*;
     use crate::{join_resumed, read_recording, recompute::verify, McapRecorder, Recording};
+
+    #[test]
+    fn a_recording_goes_on_only_in_a_new_part_after_the_first() {
+        let dir = std::env::temp_dir().join(format!("split-continue-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("r.mcap");
+        assert_eq!(part_number(&first), 1);
+        assert_eq!(part_number(&part_path(&first, 3)), 3);
+        assert_eq!(part_path_or_first(&first, 1), first);
+        assert!(RunFiles::continue_in_part(&first, 1).is_err());
+        let files = RunFiles::continue_in_part(&first, 2).unwrap();
+        files.finish().unwrap();
+        assert!(part_path(&first, 2).is_file() && !first.exists());
+        let again = RunFiles::continue_in_part(&first, 2)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(again.contains("is there already"), "{again}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn a_directory_given_for_a_recording_is_named_as_one() {

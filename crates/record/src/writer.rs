@@ -59,6 +59,12 @@ pub struct RunStart<'a> {
     /// For a part after the first of a split recording ([`crate::RunFiles`]): its number (2, 3,
     /// …) and the file of the part before it (metadata `part`, `previous_part`).
     pub part: Option<(u32, &'a str)>,
+    /// The pipeline run's id (metadata `run_id`, hex): what ties the parts of a recording whose
+    /// recorder was restarted across the updates it did not record.
+    pub run_id: Option<u64>,
+    /// For the part a restarted pipeline recorder begins: how many restarts (metadata
+    /// `recorder_restart`).
+    pub recorder_restart: Option<u32>,
 }
 
 /// Everything about one finished update.
@@ -276,6 +282,12 @@ impl<W: Write + Seek> RunWriter<W> {
         if let Some((part, previous)) = start.part {
             meta.insert("part".to_string(), part.to_string());
             meta.insert("previous_part".to_string(), previous.to_string());
+        }
+        if let Some(id) = start.run_id {
+            meta.insert("run_id".to_string(), format!("{id:016x}"));
+        }
+        if let Some(n) = start.recorder_restart {
+            meta.insert("recorder_restart".to_string(), n.to_string());
         }
         for (k, v) in &versions {
             meta.insert(format!("version.{k}"), v.clone());

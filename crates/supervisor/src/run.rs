@@ -272,6 +272,17 @@ struct Recording {
     /// When the recorder gets SIGTERM at the end of a complete run if it has not exited by
     /// itself after the final distribution.
     term_at: Option<Instant>,
+    /// When the recorder was restarted, within `pipeline.restart_window_s` (as a worker slot's).
+    restarts: VecDeque<Instant>,
+    /// Restarts over the whole run.
+    restarted: u32,
+    /// The part the next recorder started goes on in, with its restart count.
+    continue_in: Option<(u32, u32)>,
+    /// A restarted recorder the updater has not been told of yet (Control::RECORDER_BACK
+    /// once it has announced itself), and how its predecessor died (put into the recording).
+    back_pending: Option<String>,
+    /// The parts dead recorders left unfinished, being recovered in the background.
+    recovering: Vec<(PathBuf, std::thread::JoinHandle<Result<String, String>>)>,
 }
 
 struct Supervisor {
@@ -425,6 +436,11 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             defaulted: opts.record.is_none(),
             lost: None,
             term_at: None,
+            restarts: VecDeque::new(),
+            restarted: 0,
+            continue_in: None,
+            back_pending: None,
+            recovering: Vec::new(),
         })
     };
     for (id, files) in sweep_abandoned_runs(&control::runs_dir()) {
@@ -536,8 +552,13 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     sup.ports = None;
     let summary = sup.finish(opts.result.as_deref());
     let code = result?;
-    summary?;
-    Ok(code)
+    // A part a dead recorder left that its recovery could not complete.
+    let unfinished = summary?;
+    Ok(if unfinished && code == 0 {
+        EXIT_RECORDING_UNFINISHED
+    } else {
+        code
+    })
 }
 
 impl Supervisor {
@@ -1152,6 +1173,12 @@ impl Supervisor {
                     .arg("--start")
                     .arg(self.start_file());
             }
+            if let Some((part, restart)) = rec.continue_in {
+                cmd.arg("--part")
+                    .arg(part.to_string())
+                    .arg("--restart")
+                    .arg(restart.to_string());
+            }
         }
         if let (Role::Updater, Some(_)) = (role, &self.start) {
             cmd.arg("--start").arg(self.start_file());
@@ -1234,6 +1261,24 @@ impl Supervisor {
         }
     }
 
+    /// A restarted recorder has announced itself: the updater holds back for it again.
+    fn recorder_back(&mut self) -> anyhow::Result<()> {
+        let Some(rec) = self.recording.as_mut() else {
+            return Ok(());
+        };
+        let Some(death) = rec.back_pending.take() else {
+            return Ok(());
+        };
+        let part = record::last_part(&rec.path);
+        self.note(RunNote::WARNING, &death);
+        self.send_control(Control::plain(self.run_id, Control::RECORDER_BACK), true)?;
+        say(&format!(
+            "recorder restarted: recording to {}",
+            part.display()
+        ));
+        Ok(())
+    }
+
     fn send_control(&self, msg: Control, to_updater: bool) -> anyhow::Result<()> {
         let Some(ports) = &self.ports else {
             return Ok(());
@@ -1277,6 +1322,9 @@ impl Supervisor {
             }
             if let Some(p) = self.procs.get_mut(&l.pid) {
                 p.ready = true;
+                if p.role == Role::Recorder {
+                    self.recorder_back()?;
+                }
             } else if l.role == wire::role::WORKER && !self.spawned.contains(&l.pid) {
                 if let Some(holder) = self.slot_holder(l.worker) {
                     // Both would take slot w's work: every rollout of it would run twice (on a
@@ -1654,15 +1702,21 @@ impl Supervisor {
                 record::last_part(&r.path).display()
             ),
             // A split recording: the part being written is the last that exists.
-            Some(r) => match record::recording_parts(&r.path).as_slice() {
-                [one] => format!("recording: {}\n", one.display()),
-                parts => format!(
-                    "recording: {}, part {} of the recording begun in {}\n",
-                    parts[parts.len() - 1].display(),
-                    parts.len(),
-                    r.path.display()
-                ),
-            },
+            Some(r) => {
+                let restarted = match r.restarted {
+                    0 => String::new(),
+                    n => format!(" (the recorder was restarted {n} time(s))"),
+                };
+                match record::recording_parts(&r.path).as_slice() {
+                    [one] => format!("recording: {}{restarted}\n", one.display()),
+                    parts => format!(
+                        "recording: {}, part {} of the recording begun in {}{restarted}\n",
+                        parts[parts.len() - 1].display(),
+                        parts.len(),
+                        r.path.display()
+                    ),
+                }
+            }
             None => "recording: off (--no-record)\n".to_string(),
         };
         for (pid, w) in &joined {
@@ -1777,17 +1831,7 @@ impl Supervisor {
                     return;
                 }
                 let now = Instant::now();
-                // Any window past what a Duration holds is "forever".
-                let window = Duration::try_from_secs_f64(self.pipe.restart_window_s)
-                    .unwrap_or(Duration::MAX);
-                while slot
-                    .restarts
-                    .front()
-                    .is_some_and(|t| now.duration_since(*t) > window)
-                {
-                    slot.restarts.pop_front();
-                }
-                if slot.restarts.len() >= self.pipe.restart_limit as usize {
+                if !may_restart(&mut slot.restarts, &self.pipe, now) {
                     let n = slot.restarts.len();
                     self.fail(format!(
                         "worker-{w} died ({cause}) after {n} restarts within {} s: restart limit (pipeline.restart_limit = {}) exhausted",
@@ -1841,6 +1885,17 @@ impl Supervisor {
                 };
                 // The part being written (the only one a split recording leaves unfinished).
                 let path = record::last_part(&rec.path).display().to_string();
+                if !starting && !status.success() && self.phase == Phase::Running {
+                    match self.restart_recorder(pid, &cause) {
+                        Ok(true) => return,
+                        Ok(false) => {}
+                        Err(e) => say(&format!("WARNING: cannot restart the recorder: {e:#}")),
+                    }
+                }
+                let Some(rec) = self.recording.as_mut() else {
+                    return;
+                };
+                rec.back_pending = None;
                 if !starting {
                     // Whatever its exit status, the updater must stop waiting for its
                     // acknowledgements.
@@ -1859,7 +1914,7 @@ impl Supervisor {
                          run without a recording"
                     ));
                 } else if !status.success() {
-                    // Never restarted: a new recorder would truncate the file.
+                    // Not restarted: while stopping, or pipeline.restart_limit is exhausted.
                     rec.lost = Some(cause.clone());
                     let go_on = if self.phase == Phase::Stopping {
                         ""
@@ -1877,8 +1932,70 @@ impl Supervisor {
         }
     }
 
-    /// Removes everything of the run and prints the summary.
-    fn finish(&mut self, copy_result: Option<&Path>) -> anyhow::Result<()> {
+    /// After the recorder died mid-run: unless `pipeline.restart_limit` restarts within
+    /// `restart_window_s` are used up, removes the dead node's ports (the services have room for
+    /// one recorder), recovers the part it left unfinished in the background, and starts a
+    /// recorder that goes on in the next part. The updater, held by the lag bound meanwhile, is
+    /// told once the new one has announced itself ([`Control::RECORDER_BACK`]). Returns whether
+    /// it restarted.
+    fn restart_recorder(&mut self, pid: u32, cause: &str) -> anyhow::Result<bool> {
+        let Some(rec) = self.recording.as_mut() else {
+            return Ok(false);
+        };
+        let now = Instant::now();
+        if !may_restart(&mut rec.restarts, &self.pipe, now) {
+            say(&format!(
+                "recorder not restarted: {} restarts within {} s (pipeline.restart_limit = {})",
+                rec.restarts.len(),
+                self.pipe.restart_window_s,
+                self.pipe.restart_limit
+            ));
+            return Ok(false);
+        }
+        let dead = record::last_part(&rec.path);
+        let part = record::part_number(&dead) + 1;
+        rec.restarts.push_back(now);
+        rec.restarted += 1;
+        rec.continue_in = Some((part, rec.restarted));
+        let restart = rec.restarted;
+        let next = record::part_path(&record::first_part(&rec.path), part);
+        rec.back_pending = Some(format!(
+            "the recorder (pid {pid}) died ({cause}) and was restarted (restart {restart} of {}); \
+             {} holds the recording up to where it died (recovered by the supervisor)",
+            self.pipe.restart_limit,
+            dead.display()
+        ));
+        if let Some(ports) = &self.ports {
+            pipeline::remove_dead_nodes(&ports._node);
+        }
+        // A recorder that died before it created its part leaves the previous part, finished
+        // or recovered already: recovering it again rewrites it as it is.
+        let input = dead.clone();
+        let recovery = std::thread::Builder::new()
+            .name("recover".into())
+            .spawn(move || {
+                record::recover::recover(&input, &input)
+                    .map(|r| r.describe())
+                    .map_err(|e| e.to_string())
+            })?;
+        if let Some(rec) = self.recording.as_mut() {
+            rec.recovering.push((dead.clone(), recovery));
+        }
+        say(&format!(
+            "WARNING: recorder (pid {pid}) died ({cause}); restart {restart} of {}: the recording \
+             goes on in {}, and {} is recovered in the background; the updates the dead \
+             recorder had not written are not recorded",
+            self.pipe.restart_limit,
+            next.display(),
+            dead.display()
+        ));
+        self.spawn(Role::Recorder, restart)?;
+        Ok(true)
+    }
+
+    /// Removes everything of the run and prints the summary. Returns whether a part that a
+    /// restarted recorder's predecessor left is still unfinished (its recovery failed).
+    fn finish(&mut self, copy_result: Option<&Path>) -> anyhow::Result<bool> {
         let result_path = pipeline::result_path(&self.run_dir);
         let result = RunResult::read(&result_path).ok();
         // A failed copy must not skip the clean-up and the summary: the run is over either
@@ -1958,6 +2075,20 @@ impl Supervisor {
             Some(Outcome::Failed(reason)) => say(&format!("failed: {reason}")),
             None => {}
         }
+        let recoveries: Vec<(PathBuf, Result<String, String>)> = self
+            .recording
+            .as_mut()
+            .map(|r| std::mem::take(&mut r.recovering))
+            .unwrap_or_default()
+            .into_iter()
+            .map(|(part, h)| {
+                let done = h
+                    .join()
+                    .unwrap_or_else(|_| Err("the recovery panicked".to_string()));
+                (part, done)
+            })
+            .collect();
+        let mut unfinished = false;
         if let Some(rec) = self.recording.as_ref().filter(|r| r.path.exists()) {
             let path = record::describe_parts(&rec.path);
             // A resumed run's analysis joins the recording it resumed, for the whole curve.
@@ -1993,9 +2124,45 @@ impl Supervisor {
                     say(&format!("  then analyse it with: {analyse}"));
                 }
             }
+            if rec.restarted > 0 {
+                say(&format!(
+                    "  the recorder died and was restarted {} time(s); each restart began a new \
+                     part, and the updates a dead recorder had not written are missing (`analyze` \
+                     lists them)",
+                    rec.restarted
+                ));
+            }
+            for (part, done) in &recoveries {
+                match done {
+                    Ok(report) => say(&format!("  {report}")),
+                    Err(e) => {
+                        unfinished = true;
+                        let part = part.display();
+                        say(&format!(
+                            "  {part} is NOT finished (its recorder died, and recovering it \
+                             failed: {e}); complete it with: {pi2cma} recover {part}"
+                        ));
+                    }
+                }
+            }
         }
-        copied
+        copied.map(|()| unfinished)
     }
+}
+
+/// Whether a process restarted at `restarts` may be restarted once more at `now`
+/// (`pipeline.restart_limit` within `restart_window_s`); forgets the restarts outside the
+/// window.
+fn may_restart(restarts: &mut VecDeque<Instant>, pipe: &PipelineSection, now: Instant) -> bool {
+    // Any window past what a Duration holds is "forever".
+    let window = Duration::try_from_secs_f64(pipe.restart_window_s).unwrap_or(Duration::MAX);
+    while restarts
+        .front()
+        .is_some_and(|t| now.duration_since(*t) > window)
+    {
+        restarts.pop_front();
+    }
+    restarts.len() < pipe.restart_limit as usize
 }
 
 /// Fails unless a file can be written at `path`: checked before a run starts, since the

@@ -1632,9 +1632,95 @@ fn a_first_update_that_never_comes_is_reported() {
 }
 
 #[test]
-fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_the_file() {
-    let scratch = Scratch::new("rec-kill");
+fn a_killed_recorder_is_restarted_into_a_new_part_and_only_its_unwritten_updates_are_missing() {
+    let scratch = Scratch::new("rec-restart");
     let text = config(&[("updates = 40", "updates = 200"), DELAYED]);
+    let cfg = write_config(&scratch, "restart.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 802, &cfg, &result);
+    let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
+    let path = scratch.recording("A1", 802);
+    let flushed = record::read_recording(&path).unwrap().updates.len();
+    let victim = sigkill_recorder(&status);
+    // The second recorder, killed too once it records: a restart of a restart.
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output("recorder restarted: recording to", end);
+    let part2 = record::part_path(&path, 2);
+    let status = run.wait_status("10 updates in part 2", |s| {
+        s.contains("(the recorder was restarted 1 time(s))")
+            && record::read_recording(&part2).is_ok_and(|r| r.updates.len() >= 10)
+    });
+    let second_victim = sigkill_recorder(&status);
+    // Every part recovered or finished: a complete recording, exit 0.
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert_eq!(RunResult::read(&result).unwrap().updates, 200);
+    let out = run.text();
+    for pid in [victim, second_victim] {
+        assert!(
+            out.contains(&format!("WARNING: recorder (pid {pid}) died")),
+            "{out}"
+        );
+    }
+    assert!(
+        out.contains("restart 2 of 5: the recording goes on in"),
+        "{out}"
+    );
+    assert_eq!(out.matches("[recorder] recording to").count(), 3, "{out}");
+    assert!(out.contains("was restarted 2 time(s)"), "{out}");
+    assert!(!out.contains("NOT finished"), "{out}");
+    let part3 = record::part_path(&path, 3);
+    let parts: Vec<record::Recording> = [&path, &part2, &part3]
+        .iter()
+        .map(|p| record::read_recording(p).unwrap())
+        .collect();
+    for (i, p) in parts.iter().enumerate() {
+        assert!(p.indexed, "part {} not finished", i + 1);
+        assert!(p.truncated.is_none(), "part {}: {:?}", i + 1, p.truncated);
+    }
+    assert!(parts[0].updates.len() >= flushed.max(1));
+    assert_eq!(parts[2].updates.last().unwrap().update, 199);
+    // Each gap is at most what the dead recorder may have left unwritten: the lag bound, the
+    // update in flight, and the one the updater held when it was told of the new recorder.
+    let lag = wire::RECORDER_MAX_LAG;
+    for pair in parts.windows(2) {
+        let (end, begin) = (
+            pair[0].updates.last().unwrap().update + 1,
+            pair[1].updates.first().unwrap().update,
+        );
+        assert!(begin >= end && begin - end <= lag + 2, "{end}..{begin}");
+        assert!(
+            pair[1]
+                .logs
+                .iter()
+                .any(|l| l.event == "warning" && l.message.contains("the recorder was restarted")),
+            "{:?}",
+            pair[1].logs
+        );
+    }
+    // One run, joined across the gaps, in any order given, and every update in it recomputes.
+    let mut shuffled = parts.clone();
+    shuffled.reverse();
+    let runs = record::join_resumed(shuffled);
+    assert_eq!(runs.len(), 1);
+    let (joined, files) = &runs[0];
+    assert_eq!(files, &[path.clone(), part2.clone(), part3.clone()]);
+    let recorded: usize = parts.iter().map(|p| p.updates.len()).sum();
+    assert_eq!(joined.updates.len(), recorded);
+    assert_recomputes(joined);
+    assert_recording_matches_in_process(&text, joined);
+    let info = record::analyze::info(joined);
+    assert!(info.contains("missing"), "{info}");
+    assert_nothing_left(&run);
+}
+
+#[test]
+fn a_killed_recorder_past_the_restart_limit_is_not_restarted_and_recover_completes_the_file() {
+    let scratch = Scratch::new("rec-kill");
+    let text = config(&[
+        ("updates = 40", "updates = 200"),
+        DELAYED,
+        ("max_workers = 16", "max_workers = 16\nrestart_limit = 0"),
+    ]);
     let cfg = write_config(&scratch, "kill.toml", &text);
     let result = scratch.path("result.toml");
     let mut run = Run::start_quiet(&scratch, 800, &cfg, &result);
@@ -1655,7 +1741,11 @@ fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_th
     );
     assert!(out.contains(&format!("pi2cma recover {shown}")), "{out}");
     assert!(out.contains("is NOT finished"), "{out}");
-    // Never restarted: exactly one recorder ran.
+    assert!(
+        out.contains("recorder not restarted: 0 restarts within 60 s"),
+        "{out}"
+    );
+    // Not restarted: exactly one recorder ran.
     assert_eq!(out.matches("[recorder] recording to").count(), 1, "{out}");
     let damaged = record::read_recording(&path).unwrap();
     assert!(!damaged.indexed);
@@ -1672,24 +1762,48 @@ fn a_killed_recorder_is_not_restarted_the_run_completes_and_recover_completes_th
 #[test]
 fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
     // µs rollouts: the updater runs into the recorder's lag bound within milliseconds, so after
-    // the SIGKILL it waits for acknowledgements that never come, until the supervisor reports
-    // the recorder gone (Control::RECORDER_LOST).
-    let scratch = Scratch::new("rec-kill-fast");
-    let updates = 20_000;
-    let text = config(&[("updates = 40", &format!("updates = {updates}"))]);
-    let cfg = write_config(&scratch, "fast.toml", &text);
-    let result = scratch.path("result.toml");
-    let mut run = Run::start_quiet(&scratch, 801, &cfg, &result);
-    let status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
-    sigkill_recorder(&status);
-    run.wait_exit(Duration::from_secs(60), 3);
-    assert_eq!(RunResult::read(&result).unwrap().updates, updates);
-    let out = run.text();
-    assert!(
-        out.contains("recorder attached") && out.contains("recorder detached"),
-        "{out}"
-    );
-    assert_nothing_left(&run);
+    // the SIGKILL it waits for acknowledgements that never come: until the supervisor reports
+    // the recorder gone (Control::RECORDER_LOST) when it is not restarted, or a restarted one
+    // back (Control::RECORDER_BACK).
+    for (id, limit, code) in [(801, 0, 3), (803, 5, 0)] {
+        let scratch = Scratch::new(&format!("rec-kill-fast-{limit}"));
+        let updates = 20_000;
+        let text = config(&[
+            ("updates = 40", &format!("updates = {updates}")),
+            (
+                "max_workers = 16",
+                &format!("max_workers = 16\nrestart_limit = {limit}"),
+            ),
+        ]);
+        let cfg = write_config(&scratch, "fast.toml", &text);
+        let result = scratch.path("result.toml");
+        let mut run = Run::start_quiet(&scratch, id, &cfg, &result);
+        let status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
+        sigkill_recorder(&status);
+        run.wait_exit(Duration::from_secs(60), code);
+        assert_eq!(RunResult::read(&result).unwrap().updates, updates);
+        let out = run.text();
+        if limit == 0 {
+            assert!(
+                out.contains("recorder attached") && out.contains("recorder detached"),
+                "{out}"
+            );
+        } else {
+            // Held by the lag bound until the new recorder was there: no update unrecorded
+            // beyond the dead one's unwritten ones.
+            assert_eq!(out.matches("recorder attached").count(), 2, "{out}");
+            let path = scratch.recording("A1", id);
+            let parts = [path.clone(), record::part_path(&path, 2)]
+                .map(|p| record::read_recording(&p).unwrap());
+            let (end, begin) = (
+                parts[0].updates.last().unwrap().update + 1,
+                parts[1].updates.first().unwrap().update,
+            );
+            assert!(begin - end <= wire::RECORDER_MAX_LAG + 2, "{end}..{begin}");
+            assert_eq!(parts[1].updates.last().unwrap().update, updates - 1);
+        }
+        assert_nothing_left(&run);
+    }
 }
 
 /// Kills the recorder named in a `supervisor status` output with SIGKILL; returns its pid.

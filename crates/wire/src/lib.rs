@@ -67,8 +67,14 @@
 //! (or at the end of its round). After publishing u, the updater rings `wake/recorder` if the
 //! recorder has written everything before u − 1 (it may be asleep) and its last ring is a
 //! millisecond ago; a busy recorder looks for new samples before it sleeps. The
-//! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits, and an updater held for
-//! a second also looks for a dead `recorder` node, so a dead recorder never stalls the run.
+//! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits and is not restarted, and
+//! an updater held for a second also looks for a dead `recorder` node, so a dead recorder never
+//! stalls the run. A recorder that dies mid-run is restarted (within `pipeline.restart_limit`):
+//! the supervisor removes the dead node's ports, starts a recorder that continues the recording
+//! in a new part, and once it has announced itself sends [`Control::RECORDER_BACK`]; the updater,
+//! held meanwhile by the lag bound, counts the lag from the update at hand again. The new
+//! recorder drops what its subscribers held when it announced itself and begins at the first
+//! distribution after, whose costs all follow it.
 //!
 //! A worker that holds its chunk for longer than `pipeline.rollout_timeout_ms` per rollout is
 //! reported by the sampler on `overdue` ([`Overdue`], once per incarnation, ringing
@@ -461,6 +467,9 @@ impl Control {
     pub const START: u32 = 3;
     /// The recorder is gone: stop waiting for its acknowledgements (updater).
     pub const RECORDER_LOST: u32 = 4;
+    /// A restarted recorder is subscribed: hold back for its acknowledgements again, counted
+    /// from the update at hand (updater).
+    pub const RECORDER_BACK: u32 = 5;
 
     /// A message of `kind` without arguments.
     pub fn plain(run_id: u64, kind: u32) -> Self {
