@@ -120,6 +120,55 @@ class TaskFailed(WorkerError):
     names the call, the update and the rollout; `serve` prints the task's traceback before it."""
 
 
+def _take(task, names, applied, target, which):
+    """Sets the settings `which` to their values in `target`, in rounds: those the task refuses
+    are tried again after a round that took any. Returns [(index, exception)] of those refused
+    in the last round (a refused value must leave the task as it was)."""
+    while True:
+        refused = []
+        for i in which:
+            try:
+                task.set(names[i], target[i])
+                applied[i] = target[i]
+            except Exception as e:
+                refused.append((i, e))
+        if not refused or len(refused) == len(which):
+            return refused
+        which = [i for i, _ in refused]
+
+
+def _apply_settings(task, names, applied, refused, update, settings, previous):
+    """The settings of a work item of `update`, on top of those the update before ran with
+    (`previous`), as crates/pipeline/src/worker.rs (Applied::apply) does: the task is brought to
+    `previous` first, then the update's changes are tried together (one refused is tried again
+    once the others are in); one still refused keeps the value of `previous`, for every item of
+    the update (`refused` holds them), so that all its rollouts run with the same settings."""
+    if all(applied[i] == v or (i, v) in refused for i, v in enumerate(settings)):
+        return
+    off = [i for i in range(len(settings)) if applied[i] != previous[i]]
+    for i, error in _take(task, names, applied, previous, off)[:1]:
+        in_force = (
+            "a value in force before this update (the config's, or an earlier change the other "
+            "workers took)"
+            if settings[i] == previous[i]
+            else "the value the update before ran with"
+        )
+        raise TaskFailed(
+            f"update {update}: the task's set({names[i]!r}, {previous[i]!r}) raised "
+            f"{type(error).__name__}: {error} ({in_force}): nothing to fall back to"
+        ) from error
+    changes = [i for i in range(len(settings)) if settings[i] != previous[i]]
+    for i, error in _take(task, names, applied, settings, changes):
+        refused.add((i, settings[i]))
+        print(
+            f"update {update}: the task's set({names[i]!r}, {settings[i]!r}) raised "
+            f"{type(error).__name__}: {error}; its rollouts run with {names[i]} = "
+            f"{previous[i]!r}, as the update before",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
 class ConfigRefused(WorkerError):
     """The task has another shape than the run's config declares: a restart would refuse it
     again. Exits with 78 (crates/wire EXIT_CONFIG_REFUSED), which the supervisor does not
@@ -405,47 +454,10 @@ def _serve(make_task, args):
             update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
             if update != refused_update:
                 refused_update, refused = update, set()
-            for i in range(min(h.settings_len, len(names))):
-                value, fallback = h.settings[i], h.previous_settings[i]
-                # A value refused is not tried again for another item of the same update: every
-                # rollout of an update must run with the same settings, and whether the task
-                # takes a value may depend on the others, which may have changed since.
-                if applied[i] == value or (i, value) in refused:
-                    continue
-                try:
-                    task.set(names[i], value)
-                    applied[i] = value
-                    continue
-                except Exception as e:
-                    error = e
-                # Refused: the rollouts run with what the update before ran with, as every
-                # worker's do (a fresh one's too), and their costs say so; the updater takes the
-                # change as refused (see crates/pipeline/src/worker.rs, apply_settings).
-                if fallback == value:
-                    raise TaskFailed(
-                        f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
-                        f"{type(error).__name__}: {error} (a value in force before this update: the "
-                        f"config's, or an earlier change the other workers took): nothing to fall "
-                        f"back to"
-                    ) from error
-                if applied[i] != fallback:
-                    try:
-                        task.set(names[i], fallback)
-                    except Exception as e:
-                        raise TaskFailed(
-                            f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
-                            f"{type(error).__name__}: {error}, and set({names[i]!r}, {fallback!r}), "
-                            f"the value the update before ran with, raised {type(e).__name__}: {e}"
-                        ) from e
-                    applied[i] = fallback
-                refused.add((i, value))
-                print(
-                    f"update {update}: the task's set({names[i]!r}, {value!r}) raised "
-                    f"{type(error).__name__}: {error}; its rollouts run with {names[i]} = "
-                    f"{fallback!r}, as the update before",
-                    file=sys.stderr,
-                    flush=True,
-                )
+            m = min(h.settings_len, len(names))
+            _apply_settings(
+                task, names, applied, refused, update, list(h.settings[:m]), list(h.previous_settings[:m])
+            )
             item.delete()
             # The wall clock first, as the Rust worker does (see crates/pipeline/src/worker.rs).
             start_ns = time.time_ns()

@@ -265,17 +265,18 @@ impl Applied {
         }
     }
 
-    /// Applies the `settings` of a work item of `update`. A value the task refuses is replaced
-    /// by the one the update before ran with (`previous`), so that every rollout of an update
-    /// runs with the same settings whichever worker runs it, a fresh one included, and the
-    /// updater sees the change refused. A value refused is not tried again for the update's
-    /// other items: whether a task takes a value may depend on the others (the reach task
-    /// refuses target_x = 0.8 with target_y = 0.7, out of reach, and takes it once target_y =
-    /// 0.1 is in), and a retry would run the update's rollouts with different settings.
+    /// Applies the `settings` of a work item of `update`, on top of those the update before
+    /// ran with (`previous`): first the task is brought to `previous` (a fresh worker's is at
+    /// the config's values), then the update's changes are tried, together: a change refused
+    /// is tried again once the others are in, until a round takes none (the reach task refuses
+    /// target_x = 0.8 with target_y = 0.7, out of reach, and takes it once target_y = 0.1 is
+    /// in). A change still refused keeps the value of `previous`, so that every rollout of an
+    /// update runs with the same settings whichever worker runs it, a fresh one included, and
+    /// the updater sees the change refused. The update's other items find it decided.
     ///
-    /// Returns the refusals new in this item: (setting, refused value, why). Fails if there is
-    /// nothing to fall back to (the value was in force before, as at a run's first update) or
-    /// the task refuses that too.
+    /// Returns the refusals new in this item: (setting, refused value, why). Fails if the task
+    /// refuses a value of `previous` (there is nothing to fall back to: the config's own value
+    /// at a run's first update, or one the other workers' tasks took).
     fn apply<T: Task>(
         &mut self,
         task: &mut T,
@@ -283,45 +284,71 @@ impl Applied {
         settings: &[f64],
         previous: &[f64],
     ) -> anyhow::Result<Vec<(usize, f64, tasks::TaskError)>> {
+        let same = |a: f64, b: f64| a.to_bits() == b.to_bits();
         if update != self.update {
             self.update = update;
             self.refused.clear();
         }
-        let mut refusals = Vec::new();
-        for (i, (&value, &fallback)) in settings.iter().zip(previous).enumerate() {
-            if self.values[i].to_bits() == value.to_bits()
-                || self.refused.contains(&(i, value.to_bits()))
-            {
-                continue;
-            }
-            let name = self.names[i];
-            let Err(e) = task.set(name, value) else {
-                self.values[i] = value;
-                continue;
-            };
-            if fallback.to_bits() == value.to_bits() {
-                bail!(
-                    "update {update}: the task refused {name} = {} ({e}), a value in force before \
-                     this update (the config's, or an earlier change the other workers took): \
-                     nothing to fall back to",
-                    tasks::value_text(value)
-                );
-            }
-            if self.values[i].to_bits() != fallback.to_bits() {
-                task.set(name, fallback).map_err(|e2| {
-                    anyhow::anyhow!(
-                        "update {update}: the task refused {name} = {} ({e}) and {name} = {}, \
-                         the value the update before ran with ({e2})",
-                        tasks::value_text(value),
-                        tasks::value_text(fallback)
-                    )
-                })?;
-                self.values[i] = fallback;
-            }
-            self.refused.push((i, value.to_bits()));
-            refusals.push((i, value, e));
+        let decided = settings
+            .iter()
+            .enumerate()
+            .all(|(i, &v)| same(self.values[i], v) || self.refused.contains(&(i, v.to_bits())));
+        if decided {
+            return Ok(Vec::new());
         }
+        let off: Vec<usize> = (0..settings.len())
+            .filter(|&i| !same(self.values[i], previous[i]))
+            .collect();
+        if let Some((i, e)) = self.take(task, previous, off).into_iter().next() {
+            let in_force = if same(settings[i], previous[i]) {
+                "a value in force before this update (the config's, or an earlier change the \
+                 other workers took)"
+            } else {
+                "the value the update before ran with"
+            };
+            bail!(
+                "update {update}: the task refused {} = {} ({e}), {in_force}: nothing to fall \
+                 back to",
+                self.names[i],
+                tasks::value_text(previous[i])
+            );
+        }
+        let changes: Vec<usize> = (0..settings.len())
+            .filter(|&i| !same(settings[i], previous[i]))
+            .collect();
+        let refusals: Vec<(usize, f64, tasks::TaskError)> = self
+            .take(task, settings, changes)
+            .into_iter()
+            .map(|(i, e)| (i, settings[i], e))
+            .collect();
+        self.refused
+            .extend(refusals.iter().map(|(i, v, _)| (*i, v.to_bits())));
         Ok(refusals)
+    }
+
+    /// Sets the settings `which` to their values in `target`, in rounds: those the task refuses
+    /// are tried again after a round that took any. Returns those refused in the last round
+    /// (a refused value leaves the task as it was), with why.
+    fn take<T: Task>(
+        &mut self,
+        task: &mut T,
+        target: &[f64],
+        mut which: Vec<usize>,
+    ) -> Vec<(usize, tasks::TaskError)> {
+        loop {
+            let tried = which.len();
+            let mut refused = Vec::new();
+            for i in which {
+                match task.set(self.names[i], target[i]) {
+                    Ok(()) => self.values[i] = target[i],
+                    Err(e) => refused.push((i, e)),
+                }
+            }
+            if refused.is_empty() || refused.len() == tried {
+                return refused;
+            }
+            which = refused.into_iter().map(|(i, _)| i).collect();
+        }
     }
 }
 
@@ -521,20 +548,53 @@ mod tests {
     }
 
     #[test]
-    fn a_value_refused_stays_refused_for_the_update_though_another_change_would_let_it_in() {
-        // (0.8, 0.7) is out of reach, (0.8, 0.1) is not: x = 0.8 is refused with y as it was,
-        // and not tried again once y = 0.1 is in, or the update's rollouts would differ.
-        let (mut task, mut applied) = fresh();
+    fn an_updates_changes_are_taken_together_and_a_value_refused_stays_refused_for_it() {
+        // (0.8, 0.7) is out of reach, (0.8, 0.1) is not: x = 0.8, refused with y as it was, is
+        // taken once y = 0.1 is in, whichever order the changes come in.
         let before = [0.3, 0.7];
+        let (mut task, mut applied) = fresh();
         applied.apply(&mut task, 4, &before, &before).unwrap();
-        let change = [0.8, 0.1];
+        assert!(applied
+            .apply(&mut task, 5, &[0.8, 0.1], &before)
+            .unwrap()
+            .is_empty());
+        assert_eq!(
+            (task.xy, &applied.values[..]),
+            ([0.8, 0.1], &[0.8, 0.1][..])
+        );
+        // (0.8, 0.65) is out of reach too: x stays refused for every item of the update, and a
+        // fresh worker (restarted mid-update, its task at the config's values) ends the same.
+        let (mut task, mut applied) = fresh();
+        applied.apply(&mut task, 4, &before, &before).unwrap();
+        let change = [0.8, 0.65];
+        let r = applied.apply(&mut task, 5, &change, &before).unwrap();
+        assert_eq!(r.iter().map(|r| (r.0, r.1)).collect::<Vec<_>>(), [(0, 0.8)]);
         for _ in 0..3 {
-            applied.apply(&mut task, 5, &change, &before).unwrap();
-            assert_eq!(applied.values, [0.3, 0.1]);
+            let sets = task.sets;
+            assert!(applied
+                .apply(&mut task, 5, &change, &before)
+                .unwrap()
+                .is_empty());
+            assert_eq!(
+                (task.sets, applied.values.as_slice()),
+                (sets, &[0.3, 0.65][..])
+            );
         }
-        // In a later update it is tried again (and taken).
-        applied.apply(&mut task, 6, &change, &[0.3, 0.1]).unwrap();
-        assert_eq!(applied.values, change);
+        let mut other = Target {
+            xy: [0.9, 0.0],
+            sets: 0,
+        };
+        let mut fresh_applied = Applied::new(&other);
+        let r = fresh_applied
+            .apply(&mut other, 5, &change, &before)
+            .unwrap();
+        assert_eq!((r.len(), other.xy), (1, [0.3, 0.65]));
+        // In a later update, from where this one ended, it is tried again.
+        let r = applied
+            .apply(&mut task, 6, &[0.8, 0.1], &[0.3, 0.65])
+            .unwrap();
+        assert!(r.is_empty());
+        assert_eq!(applied.values, [0.8, 0.1]);
     }
 
     #[test]
@@ -549,7 +609,7 @@ mod tests {
             e.starts_with(
                 "update 0: the task refused y = 5 (task `target`: out of reach), a value in force \
                  before this update"
-            ),
+            ) && e.ends_with("nothing to fall back to"),
             "{e}"
         );
         // The value before refused too.
@@ -559,7 +619,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("and y = 3, the value the update before ran with"),
+            e.contains(
+                "the task refused y = 3 (task `target`: out of reach), the value the update \
+                 before ran with: nothing to fall back to"
+            ),
             "{e}"
         );
     }

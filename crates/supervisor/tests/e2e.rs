@@ -2083,49 +2083,60 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
     assert_nothing_left(&run);
 }
 
-/// Two changes at one update, the first refused with the other setting as it was and taken with
-/// the other as changed (target (0.8, 0.7) is out of the arm's reach, (0.8, 0.1) is not): the
-/// workers tried the refused value again for their next rollout of the update and took it, the
-/// update's rollouts ran with different targets, and the updater stopped the run. A value refused
-/// stays refused for the update.
+/// Two changes at one update are taken together: target (0.8, 0.7) is out of the arm's reach,
+/// (0.8, 0.1) is not, so x = 0.8, refused with y as it was, is taken once y = 0.1 is in (before,
+/// x was refused for good: not what was asked). With (0.8, 0.65), out of reach, x is refused and
+/// stays refused for every rollout of its update (before, the workers tried it again for their
+/// next rollout and took it once y was in, the update's rollouts ran with different targets, and
+/// the updater stopped the run).
 #[test]
-fn a_change_refused_stays_refused_for_every_rollout_of_its_update() {
+fn an_updates_changes_are_taken_together_and_one_refused_stays_refused_for_every_rollout() {
     let scratch = Scratch::new("refused-pair");
-    let schedule = (
-        "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n",
-        "[[schedule]]\nfrom_update = 5\nset = \"target_x\"\nvalue = 0.8\n\n\
-         [[schedule]]\nfrom_update = 5\nset = \"target_y\"\nvalue = 0.1\n",
-    );
+    let schedule = |y: f64| {
+        (
+            "[[schedule]]\nfrom_update = 40\nset = \"target_y\"\nvalue = 0.78\n".to_string(),
+            format!(
+                "[[schedule]]\nfrom_update = 5\nset = \"target_x\"\nvalue = 0.8\n\n\
+                 [[schedule]]\nfrom_update = 5\nset = \"target_y\"\nvalue = {y}\n"
+            ),
+        )
+    };
     type ConfigOf = fn(&[(&str, &str)]) -> String;
     let cases: [(&str, ConfigOf, u64); 2] = [
         ("reach", external_config, 862),
-        ("reach-python", python_config, 863),
+        ("reach-python", python_config, 868),
     ];
+    let changes = |list: &[pipeline::result::RecordedChange]| -> Vec<(u64, String, f64)> {
+        list.iter()
+            .map(|c| (c.from_update, c.name.clone(), c.value))
+            .collect()
+    };
     for (name, config, id) in cases {
-        let text = config(&[schedule, ("updates = 80", "updates = 20")]);
-        let (run, out, r) = run_to_its_end(&scratch, id, &text);
-        let changes = |list: &[pipeline::result::RecordedChange]| -> Vec<(u64, String, f64)> {
-            list.iter()
-                .map(|c| (c.from_update, c.name.clone(), c.value))
-                .collect()
-        };
-        assert_eq!(r.updates, 20, "{name}:\n{out}");
-        assert_eq!(
-            changes(&r.refused_changes),
-            [(5, "target_x".to_string(), 0.8)],
-            "{name}:\n{out}"
-        );
-        assert_eq!(
-            changes(&r.task_changes),
-            [(5, "target_y".to_string(), 0.1)],
-            "{name}:\n{out}"
-        );
-        let rec = record::read_recording(&scratch.recording(name, id)).unwrap();
-        for u in rec.updates.iter().filter(|u| u.update >= 5) {
-            let s: Vec<f64> = u.task_settings.iter().map(|s| s.value).collect();
-            assert_eq!(s, [0.3, 0.1], "{name}: update {}", u.update);
+        for (y, taken, refused, ran) in [
+            (0.1, vec!["target_x", "target_y"], vec![], [0.8, 0.1]),
+            (0.65, vec!["target_y"], vec!["target_x"], [0.3, 0.65]),
+        ] {
+            let id = id + u64::from(y > 0.5);
+            let (from, to) = schedule(y);
+            let text = config(&[(&from, &to), ("updates = 80", "updates = 20")]);
+            let (run, out, r) = run_to_its_end(&scratch, id, &text);
+            let value = |s: &str| if s == "target_x" { 0.8 } else { y };
+            let at_5 = |names: Vec<&str>| -> Vec<(u64, String, f64)> {
+                names
+                    .into_iter()
+                    .map(|n| (5, n.to_string(), value(n)))
+                    .collect()
+            };
+            assert_eq!(r.updates, 20, "{name}:\n{out}");
+            assert_eq!(changes(&r.refused_changes), at_5(refused), "{name}:\n{out}");
+            assert_eq!(changes(&r.task_changes), at_5(taken), "{name}:\n{out}");
+            let rec = record::read_recording(&scratch.recording(name, id)).unwrap();
+            for u in rec.updates.iter().filter(|u| u.update >= 5) {
+                let s: Vec<f64> = u.task_settings.iter().map(|s| s.value).collect();
+                assert_eq!(s, ran, "{name}: update {}", u.update);
+            }
+            assert_nothing_left(&run);
         }
-        assert_nothing_left(&run);
     }
 }
 

@@ -60,6 +60,9 @@ pub trait Task: Send {
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64;
     /// Current values of the settings a task change may set.
     fn settings(&self) -> Vec<(&'static str, f64)>;
+    /// Sets one setting. A value refused (an error) must leave the task as it was: a pipeline
+    /// worker tries an update's changes together, and tries a refused one again once the others
+    /// are in (see `pipeline::worker`).
     fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError>;
 }
 
