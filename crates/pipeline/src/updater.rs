@@ -447,6 +447,25 @@ fn apply(
             change.from_update
         );
     }
+    // A second change of one setting at one update (a runtime `set` over the schedule's, or
+    // two `set`s within an update) overrides the first, which no rollout runs with: listed as
+    // taken, it would be a change the run never made.
+    if let Some(i) = recorded
+        .iter()
+        .position(|c| c.from_update == change.from_update && c.name == change.name)
+    {
+        let overridden = recorded.remove(i);
+        println!(
+            "task change: {} = {} ({}) overrides {} = {} ({}) from update {}",
+            change.name,
+            tasks::value_text(change.value),
+            source,
+            overridden.name,
+            tasks::value_text(overridden.value),
+            overridden.source,
+            change.from_update
+        );
+    }
     recorded.push(RecordedChange {
         from_update: change.from_update,
         name: change.name.clone(),
@@ -750,6 +769,57 @@ mod tests {
             value,
             source: source.into(),
         }
+    }
+
+    #[test]
+    fn a_second_change_of_a_setting_at_one_update_overrides_the_first() {
+        let mut task = reach();
+        let mut recorded = Vec::new();
+        let at = |name: &str, value: f64, from_update: u64| TaskChange {
+            from_update,
+            name: name.into(),
+            value,
+        };
+        apply(
+            &mut task,
+            &at("target_y", 0.5, 40),
+            "schedule",
+            &mut recorded,
+        )
+        .unwrap();
+        apply(
+            &mut task,
+            &at("target_x", 0.2, 40),
+            "schedule",
+            &mut recorded,
+        )
+        .unwrap();
+        apply(
+            &mut task,
+            &at("target_y", 0.6, 40),
+            "runtime",
+            &mut recorded,
+        )
+        .unwrap();
+        apply(
+            &mut task,
+            &at("target_y", 0.7, 41),
+            "runtime",
+            &mut recorded,
+        )
+        .unwrap();
+        let listed: Vec<(u64, &str, f64, &str)> = recorded
+            .iter()
+            .map(|c| (c.from_update, c.name.as_str(), c.value, c.source.as_str()))
+            .collect();
+        assert_eq!(
+            listed,
+            [
+                (40, "target_x", 0.2, "schedule"),
+                (40, "target_y", 0.6, "runtime"),
+                (41, "target_y", 0.7, "runtime")
+            ]
+        );
     }
 
     #[test]
