@@ -1968,18 +1968,26 @@ impl Supervisor {
         if let Some(ports) = &self.ports {
             pipeline::remove_dead_nodes(&ports._node);
         }
-        // A recorder that died before it created its part leaves the previous part, finished
-        // or recovered already: recovering it again rewrites it as it is.
-        let input = dead.clone();
-        let recovery = std::thread::Builder::new()
-            .name("recover".into())
-            .spawn(move || {
-                record::recover::recover(&input, &input)
-                    .map(|r| r.describe())
-                    .map_err(|e| e.to_string())
-            })?;
-        if let Some(rec) = self.recording.as_mut() {
-            rec.recovering.push((dead.clone(), recovery));
+        // A restarted recorder that died before it created its part leaves the part its
+        // predecessor left as the last one, whose recovery is under way or done: a second
+        // recovery at the same time would write the same temporary file (and rename it away
+        // under the first), leaving the part damaged.
+        let recovering = self
+            .recording
+            .as_ref()
+            .is_some_and(|r| r.recovering.iter().any(|(p, _)| *p == dead));
+        if !recovering {
+            let input = dead.clone();
+            let recovery = std::thread::Builder::new()
+                .name("recover".into())
+                .spawn(move || {
+                    record::recover::recover(&input, &input)
+                        .map(|r| r.describe())
+                        .map_err(|e| e.to_string())
+                })?;
+            if let Some(rec) = self.recording.as_mut() {
+                rec.recovering.push((dead.clone(), recovery));
+            }
         }
         say(&format!(
             "WARNING: recorder (pid {pid}) died ({cause}); restart {restart} of {}: the recording \

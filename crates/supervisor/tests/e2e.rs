@@ -1806,6 +1806,65 @@ fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
     }
 }
 
+#[test]
+fn a_restarted_recorder_killed_before_its_part_exists_leaves_the_part_before_recovered_once() {
+    // The restarted recorder dies before it has created its part: the part its predecessor
+    // left is the last one again, and is being recovered in the background already (at full
+    // speed, a part of tens of MB takes a while). Recovered a second time at once, both
+    // recoveries wrote the same temporary file: the part came out damaged, and the summary said
+    // it was not finished (exit 3).
+    let scratch = Scratch::exclusive("rec-kill-early");
+    let updates = 20_000;
+    let text = config(&[("updates = 40", &format!("updates = {updates}"))]);
+    let cfg = write_config(&scratch, "early.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 804, &cfg, &result);
+    let status = run.wait_status("4000 updates", |s| updates_in(s) >= 4000);
+    sigkill_recorder(&status);
+    let second = restarted_recorder(&run, 1, Instant::now() + Duration::from_secs(10));
+    signal(second, "-9");
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert_eq!(RunResult::read(&result).unwrap().updates, updates);
+    let out = run.text();
+    assert!(!out.contains("NOT finished"), "{out}");
+    let path = scratch.recording("A1", 804);
+    let parts: Vec<record::Recording> = record::recording_parts(&path)
+        .iter()
+        .map(|p| record::read_recording(p).unwrap())
+        .collect();
+    for (i, p) in parts.iter().enumerate() {
+        assert!(p.indexed && p.truncated.is_none(), "part {}: {out}", i + 1);
+    }
+    let runs = record::join_resumed(parts);
+    assert_eq!(runs.len(), 1, "{out}");
+    assert_eq!(runs[0].0.updates.last().unwrap().update, updates - 1);
+    assert_nothing_left(&run);
+}
+
+/// The pid of the recorder the supervisor of `run` started as restart `restart`, as soon as it
+/// exists (polled in /proc); fails at `end`.
+fn restarted_recorder(run: &Run, restart: u32, end: Instant) -> u32 {
+    let restart = format!("--restart\0{restart}\0");
+    loop {
+        for e in std::fs::read_dir("/proc").unwrap().flatten() {
+            let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+                continue;
+            };
+            let cmdline = std::fs::read(e.path().join("cmdline")).unwrap_or_default();
+            let cmdline = String::from_utf8_lossy(&cmdline);
+            if cmdline.contains(&run.run_id) && cmdline.contains(&restart) {
+                return pid;
+            }
+        }
+        assert!(
+            Instant::now() < end,
+            "no restarted recorder:\n{}",
+            run.text()
+        );
+        std::thread::sleep(Duration::from_micros(200));
+    }
+}
+
 /// Kills the recorder named in a `supervisor status` output with SIGKILL; returns its pid.
 fn sigkill_recorder(status: &str) -> u32 {
     let pid = pid_of(status, "recorder");
