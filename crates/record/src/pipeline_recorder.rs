@@ -357,11 +357,15 @@ impl WriterState {
                 self.write_refusal(u, ", which the run stopped in,", name, *asked, *ran)?;
             }
         }
-        // A restarted recorder stopped before its first distribution: what it took in still
-        // goes into its part.
-        for (event, name, pid, message) in std::mem::take(&mut self.deferred) {
-            self.writer
-                .write_event(self.current_update, event, &name, pid, &message)?;
+        // A restarted recorder stopped before its first distribution has no part (it is
+        // created with its `/run`): what it took in goes to its output only.
+        if !self.writer.has_part() {
+            for (event, name, pid, message) in std::mem::take(&mut self.deferred) {
+                eprintln!("not recorded ({event:?} {name}, pid {pid}): {message}");
+            }
+            eprintln!("no part written: the run ended before the first update after the restart");
+            self.writer.finish()?;
+            return Ok(written);
         }
         self.writer.write_event(
             self.current_update,

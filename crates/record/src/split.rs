@@ -188,6 +188,9 @@ pub struct RunFiles {
     /// Task changes written while `full`: they come before the next update, so they belong to
     /// the part that begins with it.
     pending_changes: Vec<(u64, String, f64)>,
+    /// A restarted recorder's part ([`RunFiles::continue_in_part`]) is created by
+    /// [`RunFiles::write_start`], not before.
+    create_at_start: bool,
 }
 
 impl RunFiles {
@@ -214,12 +217,16 @@ impl RunFiles {
             run: None,
             full: false,
             pending_changes: Vec::new(),
+            create_at_start: false,
         })
     }
 
     /// Goes on with the recording whose first part is `first` in part `part` (≥ 2), which must
     /// not exist yet: the parts before it stay as they are (a restarted recorder's predecessor
-    /// left them; the supervisor recovers the unfinished one).
+    /// left them; the supervisor recovers the unfinished one). The part is created with its
+    /// `/run` ([`RunFiles::write_start`]): a recorder that ends or dies before then leaves no
+    /// part without one, which neither `--resume` nor the joined analysis could read, and whose
+    /// empty file no recovery completes (the next restarted recorder takes the same part).
     pub fn continue_in_part(first: &Path, part: u32) -> Result<Self, RecordError> {
         if part < 2 {
             return Err(RecordError::invalid(
@@ -235,13 +242,14 @@ impl RunFiles {
             ));
         }
         Ok(Self {
-            writer: Some(RunWriter::create(&path)?),
+            writer: None,
             first: first.to_path_buf(),
             part,
             split_bytes: None,
             run: None,
             full: false,
             pending_changes: Vec::new(),
+            create_at_start: true,
         })
     }
 
@@ -274,6 +282,16 @@ impl RunFiles {
             resumed_from: start.resumed_from.map(str::to_string),
             run_id: start.run_id,
         });
+        if std::mem::take(&mut self.create_at_start) {
+            let path = self.file();
+            if path.exists() {
+                return Err(RecordError::invalid(
+                    path,
+                    "is there already: a restarted recorder begins a new part",
+                ));
+            }
+            self.writer = Some(RunWriter::create(&path)?);
+        }
         match (self.part, start.part) {
             // A restarted recorder's part names the one its predecessor left.
             (n @ 2.., None) => {
@@ -382,6 +400,12 @@ impl RunFiles {
         self.writer()?.flush()
     }
 
+    /// Whether there is a part being written: not for a restarted recorder's part before its
+    /// `/run` ([`RunFiles::continue_in_part`]).
+    pub fn has_part(&self) -> bool {
+        !self.create_at_start
+    }
+
     /// Finishes the part being written; the earlier ones were finished when they filled.
     pub fn finish(mut self) -> Result<(), RecordError> {
         match self.writer.take() {
@@ -411,9 +435,12 @@ mod tests {
         assert_eq!(part_number(&part_path(&first, 3)), 3);
         assert_eq!(part_path_or_first(&first, 1), first);
         assert!(RunFiles::continue_in_part(&first, 1).is_err());
+        // Ended before its `/run`: no part without one is left.
         let files = RunFiles::continue_in_part(&first, 2).unwrap();
+        assert!(!files.has_part());
         files.finish().unwrap();
-        assert!(part_path(&first, 2).is_file() && !first.exists());
+        assert!(!part_path(&first, 2).exists() && !first.exists());
+        std::fs::write(part_path(&first, 2), b"").unwrap();
         let again = RunFiles::continue_in_part(&first, 2)
             .err()
             .unwrap()

@@ -1841,6 +1841,62 @@ fn a_restarted_recorder_killed_before_its_part_exists_leaves_the_part_before_rec
     assert_nothing_left(&run);
 }
 
+#[test]
+fn a_restarted_recorder_that_ends_before_its_first_update_leaves_no_part_behind() {
+    // Half a second per update: a restarted recorder killed as soon as it has announced itself,
+    // or stopped with the run then, has not seen a distribution yet. It used to leave a part
+    // without a `/run`: empty when killed (its recovery failed: "NOT finished", exit 3, and the
+    // parts no longer joined), or with only its log when stopped (`--resume` refused the
+    // recording: "no /run message").
+    let scratch = Scratch::new("rec-kill-unstarted");
+    let text = config(&[
+        ("updates = 40", "updates = 200"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 100.0",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "unstarted.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 805, &cfg, &result);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    sigkill_recorder(&status);
+    let restarted = |n: usize| {
+        let end = Instant::now() + Duration::from_secs(30);
+        while run
+            .text()
+            .matches("recorder restarted: recording to")
+            .count()
+            < n
+        {
+            assert!(Instant::now() < end, "no restart {n}:\n{}", run.text());
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    };
+    restarted(1);
+    signal(
+        restarted_recorder(&run, 1, Instant::now() + Duration::from_secs(5)),
+        "-9",
+    );
+    restarted(2);
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(!out.contains("NOT finished"), "{out}");
+    let path = scratch.recording("A1", 805);
+    let parts: Vec<record::Recording> = record::recording_parts(&path)
+        .iter()
+        .map(|p| record::read_recording(p).unwrap())
+        .collect();
+    for (i, p) in parts.iter().enumerate() {
+        assert!(p.indexed && p.run_info().is_some(), "part {}: {out}", i + 1);
+    }
+    assert_eq!(record::join_resumed(parts).len(), 1, "{out}");
+    let resume = record::resume::resume_point(&path);
+    assert!(resume.is_ok(), "{:?}\n{out}", resume.err());
+    assert_nothing_left(&run);
+}
+
 /// The pid of the recorder the supervisor of `run` started as restart `restart`, as soon as it
 /// exists (polled in /proc); fails at `end`.
 fn restarted_recorder(run: &Run, restart: u32, end: Instant) -> u32 {
