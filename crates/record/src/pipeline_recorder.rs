@@ -121,10 +121,11 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     state.restart = cli.restart;
     if cli.restart.is_some() {
         // Joining a run under way: a distribution already taken in may have had costs
-        // published before the costs subscriber existed. Every distribution published from
-        // here on has all its costs after it.
-        while iox(dist_sub.receive(), "receive distribution")?.is_some() {}
-        while iox(costs_sub.receive(), "receive costs")?.is_some() {}
+        // published before the costs subscriber existed.
+        drop_backlog(
+            &mut || Ok(iox(costs_sub.receive(), "receive costs")?.is_some()),
+            &mut || Ok(iox(dist_sub.receive(), "receive distribution")?.is_some()),
+        )?;
     }
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, cli.restart.unwrap_or(0))?;
     let out = match cli.part {
@@ -246,6 +247,22 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         out.display(),
         cpu * 1e6 / written.max(1) as f64
     );
+    Ok(())
+}
+
+/// Drops what a restarted recorder's subscribers hold (each `receive_*` takes one message,
+/// false when there is none), costs before distributions: a distribution left then was
+/// published after the costs were drained, and so are all its costs. Drained the other way
+/// round, a distribution published between the two drains stays while the costs its workers
+/// sent at once go: that update never completes, and the recorder holds the run back for good.
+/// (Costs left of a distribution that went are dropped at the first distribution,
+/// [`crate::assemble::Assembler::distribution`].)
+fn drop_backlog(
+    receive_cost: &mut dyn FnMut() -> anyhow::Result<bool>,
+    receive_distribution: &mut dyn FnMut() -> anyhow::Result<bool>,
+) -> anyhow::Result<()> {
+    while receive_cost()? {}
+    while receive_distribution()? {}
     Ok(())
 }
 
@@ -722,6 +739,54 @@ fn process_cpu_seconds() -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::cell::RefCell;
+    use std::collections::VecDeque;
+
+    /// Whatever moment between the two drains the updater publishes a distribution and a
+    /// worker its first cost at, the first distribution left has all its costs left.
+    #[test]
+    fn a_restarted_recorder_keeps_no_distribution_without_its_costs() {
+        // (distribution update, costs' updates) the subscribers hold; `publish_after` is the
+        // number of empty receives after which update 6 and one of its costs arrive.
+        for publish_after in 0..3 {
+            let dists = RefCell::new(VecDeque::from([5u64]));
+            let costs = RefCell::new(VecDeque::from([5u64, 5]));
+            let empty = RefCell::new(0);
+            let arrive = || {
+                let mut n = empty.borrow_mut();
+                *n += 1;
+                if *n == publish_after + 1 {
+                    dists.borrow_mut().push_back(6);
+                    costs.borrow_mut().push_back(6);
+                }
+            };
+            drop_backlog(
+                &mut || {
+                    let got = costs.borrow_mut().pop_front().is_some();
+                    if !got {
+                        arrive();
+                    }
+                    Ok(got)
+                },
+                &mut || {
+                    let got = dists.borrow_mut().pop_front().is_some();
+                    if !got {
+                        arrive();
+                    }
+                    Ok(got)
+                },
+            )
+            .unwrap();
+            // The rest of update 6's costs come later: they are there for a distribution left.
+            let left = dists.borrow().front().copied();
+            if let Some(u) = left {
+                assert!(
+                    costs.borrow().contains(&u),
+                    "update {u} kept without its first cost ({publish_after})"
+                );
+            }
+        }
+    }
 
     #[test]
     fn a_rollout_is_recorded_when_its_worker_ran_it() {
