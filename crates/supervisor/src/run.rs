@@ -1269,7 +1269,11 @@ impl Supervisor {
         let Some(death) = rec.back_pending.take() else {
             return Ok(());
         };
-        let part = record::last_part(&rec.path);
+        // Not the last part there is: the new one is created with its first update.
+        let part = match rec.continue_in {
+            Some((n, _)) => record::part_path(&record::first_part(&rec.path), n),
+            None => record::last_part(&rec.path),
+        };
         self.note(RunNote::WARNING, &death);
         self.send_control(Control::plain(self.run_id, Control::RECORDER_BACK), true)?;
         say(&format!(

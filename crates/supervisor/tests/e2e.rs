@@ -1883,6 +1883,11 @@ fn a_restarted_recorder_that_ends_before_its_first_update_leaves_no_part_behind(
     run.wait_exit(Duration::from_secs(60), 0);
     let out = run.text();
     assert!(!out.contains("NOT finished"), "{out}");
+    let shown = format!(
+        "recorder restarted: recording to runs/A1-{}.part-2.mcap",
+        run_id(805)
+    );
+    assert_eq!(out.matches(&shown).count(), 2, "{out}");
     let path = scratch.recording("A1", 805);
     let parts: Vec<record::Recording> = record::recording_parts(&path)
         .iter()
