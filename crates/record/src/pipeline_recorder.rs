@@ -491,7 +491,8 @@ impl WriterState {
                     ran_with,
                 ) {
                     Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
-                    Err(e) => self.writer.write_event(
+                    // Before a restarted recorder's first distribution, it has no part yet.
+                    Err(e) => self.log_at(
                         h.update,
                         Event::Error,
                         &format!("worker-{}", h.worker),
@@ -577,13 +578,24 @@ impl WriterState {
     /// An event on /log at the update at hand. A restarted recorder keeps what comes before
     /// its first distribution for the update it begins at, after its `/run`.
     fn log(&mut self, event: Event, name: &str, pid: u32, message: &str) -> anyhow::Result<()> {
+        self.log_at(self.current_update, event, name, pid, message)
+    }
+
+    /// An event on /log at `update` (deferred as [`Self::log`] does).
+    fn log_at(
+        &mut self,
+        update: u64,
+        event: Event,
+        name: &str,
+        pid: u32,
+        message: &str,
+    ) -> anyhow::Result<()> {
         if self.restart.is_some() && !self.started {
             self.deferred
                 .push((event, name.to_string(), pid, message.to_string()));
             return Ok(());
         }
-        self.writer
-            .write_event(self.current_update, event, name, pid, message)?;
+        self.writer.write_event(update, event, name, pid, message)?;
         Ok(())
     }
 

@@ -1707,9 +1707,18 @@ impl Supervisor {
             ),
             // A split recording: the part being written is the last that exists.
             Some(r) => {
-                let restarted = match r.restarted {
-                    0 => String::new(),
-                    n => format!(" (the recorder was restarted {n} time(s))"),
+                let restarted = match (r.restarted, r.continue_in) {
+                    (0, _) => String::new(),
+                    // Its part is created with the first update it records.
+                    (n, Some((part, _)))
+                        if !record::part_path(&record::first_part(&r.path), part).exists() =>
+                    {
+                        format!(
+                            " (the recorder was restarted {n} time(s); it goes on in part {part} \
+                             from the next update)"
+                        )
+                    }
+                    (n, _) => format!(" (the recorder was restarted {n} time(s))"),
                 };
                 match record::recording_parts(&r.path).as_slice() {
                     [one] => format!("recording: {}{restarted}\n", one.display()),
@@ -1993,13 +2002,17 @@ impl Supervisor {
                 rec.recovering.push((dead.clone(), recovery));
             }
         }
+        let recovery = if recovering {
+            format!("{} is being recovered already", dead.display())
+        } else {
+            format!("{} is recovered in the background", dead.display())
+        };
         say(&format!(
             "WARNING: recorder (pid {pid}) died ({cause}); restart {restart} of {}: the recording \
-             goes on in {}, and {} is recovered in the background; the updates the dead \
-             recorder had not written are not recorded",
+             goes on in {}, and {recovery}; the updates the dead recorder had not written are \
+             not recorded",
             self.pipe.restart_limit,
             next.display(),
-            dead.display()
         ));
         self.spawn(Role::Recorder, restart)?;
         Ok(true)
