@@ -148,8 +148,8 @@ def _apply_settings(task, names, applied, refused, update, settings, previous):
     off = [i for i in range(len(settings)) if applied[i] != previous[i]]
     for i, error in _take(task, names, applied, previous, off)[:1]:
         in_force = (
-            "a value in force before this update (the config's, or an earlier change the other "
-            "workers took)"
+            "a value in force before this update: the config's, or an earlier change the other "
+            "workers took"
             if settings[i] == previous[i]
             else "the value the update before ran with"
         )

@@ -1048,9 +1048,14 @@ fn continual_run_takes_runtime_task_changes_and_stops_on_request() {
         .iter()
         .filter(|c| c.source == "runtime")
         .collect();
-    assert_eq!(runtime.len(), 2, "{:?}", r.task_changes);
+    // A change replaced at its update is no change the run made: the result lists the other.
+    let mut expected = vec![(0.2, said[0]), (0.25, said[1])];
+    if said[0] == said[1] {
+        expected.remove(0);
+    }
+    assert_eq!(runtime.len(), expected.len(), "{:?}", r.task_changes);
     let mut replay = text.clone();
-    for (change, (value, from)) in runtime.iter().zip([(0.2, said[0]), (0.25, said[1])]) {
+    for (change, (value, from)) in runtime.iter().zip(expected) {
         assert_eq!((change.name.as_str(), change.value), ("viapoint", value));
         assert!(change.from_update >= 3 && change.from_update <= r.updates);
         assert_eq!(change.from_update, from, "{said:?}");
