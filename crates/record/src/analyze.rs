@@ -828,6 +828,21 @@ struct Curve {
     lambda: Vec<f64>,
 }
 
+/// The index ranges of `x` (update numbers, ascending) without a missing update inside.
+fn contiguous(x: &[f64]) -> Vec<std::ops::Range<usize>> {
+    let mut ranges = Vec::new();
+    let mut start = 0;
+    for i in 1..=x.len() {
+        if i == x.len() || x[i] - x[i - 1] > 1.0 {
+            if start < i {
+                ranges.push(start..i);
+            }
+            start = i;
+        }
+    }
+    ranges
+}
+
 /// Cost panel (lines + bands) above a λ panel on a log axis; dashed lines at task changes.
 fn draw_curves(
     area: &DrawingArea<SVGBackend<'_>, Shift>,
@@ -868,34 +883,35 @@ fn draw_curves(
         .map_err(|x| e(&x))?;
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
-        if let Some(b) = &c.band {
-            let mut pts: Vec<(f64, f64)> =
-                c.x.iter()
-                    .zip(&c.y)
+        // Updates a recording lacks (a restarted recorder's gap) break the line, rather than
+        // being drawn over as if they had been there.
+        for (n, r) in contiguous(&c.x).into_iter().enumerate() {
+            let (x, y) = (&c.x[r.clone()], &c.y[r.clone()]);
+            if let Some(b) = &c.band {
+                let b = &b[r];
+                let mut pts: Vec<(f64, f64)> = x
+                    .iter()
+                    .zip(y)
                     .zip(b)
                     .map(|((x, y), b)| (*x, y + b))
                     .collect();
-            pts.extend(
-                c.x.iter()
-                    .zip(&c.y)
-                    .zip(b)
-                    .rev()
-                    .map(|((x, y), b)| (*x, y - b)),
-            );
-            chart
-                .draw_series(std::iter::once(Polygon::new(pts, color.mix(0.2).filled())))
+                pts.extend(x.iter().zip(y).zip(b).rev().map(|((x, y), b)| (*x, y - b)));
+                chart
+                    .draw_series(std::iter::once(Polygon::new(pts, color.mix(0.2).filled())))
+                    .map_err(|x| e(&x))?;
+            }
+            let line = chart
+                .draw_series(LineSeries::new(
+                    x.iter().copied().zip(y.iter().copied()),
+                    color.stroke_width(2),
+                ))
                 .map_err(|x| e(&x))?;
+            if n == 0 {
+                line.label(c.label.clone()).legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                });
+            }
         }
-        chart
-            .draw_series(LineSeries::new(
-                c.x.iter().copied().zip(c.y.iter().copied()),
-                color.stroke_width(2),
-            ))
-            .map_err(|x| e(&x))?
-            .label(c.label.clone())
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-            });
     }
     for &u in changes {
         let x = u as f64;
@@ -927,15 +943,18 @@ fn draw_curves(
         .map_err(|x| e(&x))?;
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
-        chart
-            .draw_series(LineSeries::new(
-                c.x.iter()
-                    .copied()
-                    .zip(c.lambda.iter().copied())
-                    .filter(|(_, l)| *l > 0.0),
-                color.stroke_width(2),
-            ))
-            .map_err(|x| e(&x))?;
+        for r in contiguous(&c.x[..c.lambda.len().min(c.x.len())]) {
+            chart
+                .draw_series(LineSeries::new(
+                    c.x[r.clone()]
+                        .iter()
+                        .copied()
+                        .zip(c.lambda[r].iter().copied())
+                        .filter(|(_, l)| *l > 0.0),
+                    color.stroke_width(2),
+                ))
+                .map_err(|x| e(&x))?;
+        }
     }
     area.present().map_err(|x| e(&x))?;
     Ok(())
@@ -1888,6 +1907,14 @@ mod tests {
         for bad in ["nan", "-1", "inf", "1", "x"] {
             assert!(parse_tolerance(bad).unwrap_err().starts_with(bad), "{bad}");
         }
+    }
+
+    #[test]
+    fn curves_break_where_updates_are_missing() {
+        assert_eq!(contiguous(&[]), Vec::<std::ops::Range<usize>>::new());
+        let whole = contiguous(&[0.0, 1.0, 2.0]);
+        assert_eq!((whole.len(), whole[0].clone()), (1, 0..3));
+        assert_eq!(contiguous(&[0.0, 1.0, 4.0, 5.0, 9.0]), [0..2, 2..4, 4..5]);
     }
 
     #[test]
