@@ -256,8 +256,19 @@ impl InProcess {
         }
         // The settings of the first update: the task's, with the changes due at it (applied in
         // the loop, after on_start, so that observers see the start before any change).
+        // At a resumed run's first update, those its recording does not override (see
+        // `Start::scheduled_at_start`).
+        let first_update = self.optimizer.update_index();
+        let first_due: Vec<TaskChange> = match &self.start {
+            Some(start) if start.update == first_update => start
+                .scheduled_at_start(&schedule)
+                .into_iter()
+                .cloned()
+                .collect(),
+            _ => schedule.at(first_update).cloned().collect(),
+        };
         let mut first = self.task.settings();
-        for change in schedule.at(self.optimizer.update_index()) {
+        for change in &first_due {
             if let Some(s) = first.iter_mut().find(|(n, _)| *n == change.name) {
                 s.1 = change.value;
             }
@@ -271,7 +282,12 @@ impl InProcess {
             && !stop()
         {
             let u = self.optimizer.update_index();
-            for change in schedule.at(u) {
+            let due: Vec<&TaskChange> = if u == first_update {
+                first_due.iter().collect()
+            } else {
+                schedule.at(u).collect()
+            };
+            for change in due {
                 self.task.set(&change.name, change.value)?;
                 observer.on_task_change(u, change);
             }

@@ -12,7 +12,7 @@ use std::path::Path;
 use nalgebra::{DMatrix, DVector};
 use pi2cma::Distribution;
 use serde::{Deserialize, Serialize};
-use tasks::{Task, TaskError, TaskSchedule};
+use tasks::{Task, TaskChange, TaskError, TaskSchedule};
 
 /// The state a run resumes from.
 #[derive(Debug, Clone, PartialEq)]
@@ -87,10 +87,37 @@ impl Start {
         for (name, value) in &self.settings {
             task.set(name, *value)?;
         }
-        for c in schedule.at(self.update) {
+        for c in self.scheduled_at_start(schedule) {
             task.set(&c.name, c.value)?;
         }
         Ok(())
+    }
+
+    /// The schedule's changes at `self.update` that the recording does not override. A change
+    /// recorded for that update (the run stopped right after publishing its distribution) is
+    /// what the update was to run with: the schedule's change, or a `supervisor set` over it at
+    /// the same update, which overrode it. Applied again on top, the schedule's would undo the
+    /// set, and the resumed run would go on with a value the run it continues had replaced.
+    pub fn scheduled_at_start<'a>(&self, schedule: &'a TaskSchedule) -> Vec<&'a TaskChange> {
+        let bits = |list: &[(String, f64)], name: &str| {
+            list.iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, v)| v.to_bits())
+        };
+        schedule
+            .at(self.update)
+            .filter(|c| {
+                // A setting `ran_with` does not name (an older start file's: empty) ran with
+                // its value in `settings`: no change recorded.
+                let (recorded, ran) =
+                    (bits(&self.settings, &c.name), bits(&self.ran_with, &c.name));
+                let overridden = recorded.is_some()
+                    && ran.is_some()
+                    && recorded != ran
+                    && recorded != Some(c.value.to_bits());
+                !overridden
+            })
+            .collect()
     }
 
     /// Writes the state for [`Start::read`] (TOML, values as bits).
@@ -228,5 +255,34 @@ mod tests {
         let e = Start::read(&path).unwrap_err().to_string();
         assert!(e.contains("extra"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_recorded_change_that_overrode_the_schedules_at_the_first_update_is_not_undone() {
+        let at = |name: &str, value: f64| TaskChange {
+            from_update: 40,
+            name: name.into(),
+            value,
+        };
+        let schedule = TaskSchedule::new(vec![at("a", 0.6), at("b", 2.0), at("c", 5.0)]);
+        // Update 39 ran with a = 0.7, b = 1, c = 4; the distribution of update 40 carried a set
+        // over the schedule's a (0.5), the schedule's b, and c as before (the recording has no
+        // change of c: the distribution was not published, or a set undid the schedule's).
+        let start = Start {
+            update: 40,
+            distribution: Distribution {
+                mean: DVector::zeros(1),
+                covariance: DMatrix::identity(1, 1),
+            },
+            settings: vec![("a".into(), 0.5), ("b".into(), 2.0), ("c".into(), 4.0)],
+            ran_with: vec![("a".into(), 0.7), ("b".into(), 1.0), ("c".into(), 4.0)],
+            origin: "runs/a.mcap".into(),
+        };
+        let due: Vec<(&str, f64)> = start
+            .scheduled_at_start(&schedule)
+            .iter()
+            .map(|c| (c.name.as_str(), c.value))
+            .collect();
+        assert_eq!(due, [("b", 2.0), ("c", 5.0)]);
     }
 }

@@ -3110,3 +3110,88 @@ fn a_resume_that_is_not_the_recorded_run_is_refused() {
     // The refused resumes left the recording as it was.
     assert_eq!(record::read_recording(&first).unwrap().updates.len(), 5);
 }
+
+/// A `supervisor set` over the schedule's change of the same setting at the same update
+/// overrides it, and the recording of a run stopped in that update records the runtime value as
+/// the change ahead. `--resume` must go on with it: it went on with the schedule's, which it
+/// applied again on top of the recorded settings.
+#[test]
+fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one() {
+    let scratch = Scratch::new("override-resume");
+    let text = external_config(&[
+        (
+            "from_update = 40\nset = \"target_y\"\nvalue = 0.78",
+            "from_update = 3\nset = \"target_y\"\nvalue = 0.6",
+        ),
+        ("updates = 80", "updates = 6"),
+        (
+            "/reach-worker\"]",
+            "/reach-worker\", \"--rollout-ms\", \"300\"]",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "override.toml", &text);
+    let result = scratch.path("override.result.toml");
+    let id = 870;
+    let mut run = Run::start(
+        &scratch,
+        id,
+        &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
+    );
+    run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let from = takes_effect_from(&run.ctl_ok(&["set", "target_y", "0.5"]));
+    assert_eq!(from, 3, "update 2 takes 1.5 s");
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output(
+        "task change: target_y = 0.5 (runtime) overrides target_y = 0.6 (schedule) from update 3",
+        end,
+    );
+    std::thread::sleep(Duration::from_millis(400));
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    let out = run.text();
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 3, "{out}");
+    let listed: Vec<_> = r
+        .task_changes
+        .iter()
+        .map(|c| (c.from_update, c.name.as_str(), c.value, c.source.as_str()))
+        .collect();
+    assert_eq!(listed, [(3, "target_y", 0.5, "runtime")], "{out}");
+    let recording = scratch.recording("reach", id);
+    let point = record::resume::resume_point(&recording).unwrap();
+    assert_eq!(
+        point.start.settings,
+        [("target_x".to_string(), 0.3), ("target_y".to_string(), 0.5)]
+    );
+    assert_nothing_left(&run);
+
+    let second = scratch.path("resumed.mcap");
+    let resumed_result = scratch.path("resumed.result.toml");
+    let mut resumed = Run::start(
+        &scratch,
+        id + 1,
+        &[
+            cfg.to_str().unwrap(),
+            "--resume",
+            recording.to_str().unwrap(),
+            "--record",
+            second.to_str().unwrap(),
+            "--result",
+            resumed_result.to_str().unwrap(),
+        ],
+    );
+    resumed.wait_exit(Duration::from_secs(60), 0);
+    let out = resumed.text();
+    let rec = record::read_recording(&second).unwrap();
+    for u in &rec.updates {
+        let s: Vec<f64> = u.task_settings.iter().map(|s| s.value).collect();
+        assert_eq!(s, [0.3, 0.5], "update {}:\n{out}", u.update);
+    }
+    let r = RunResult::read(&resumed_result).unwrap();
+    assert!(
+        r.task_changes.iter().all(|c| c.source == "resume"),
+        "{:?}\n{out}",
+        r.task_changes
+    );
+    assert_nothing_left(&resumed);
+}
