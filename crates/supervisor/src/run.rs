@@ -1629,6 +1629,7 @@ impl Supervisor {
         } else {
             ""
         };
+        let schedule = self.cfg.schedule();
         let answered = &mut self.answered_sets;
         self.pending_sets.retain(|p| {
             let reply = match from {
@@ -1639,13 +1640,24 @@ impl Supervisor {
                     ends_before.unwrap_or(u).saturating_sub(1)
                 ),
                 Some(u) if p.seq == taken => {
-                    // Changes of one setting due from one update are applied in order: only the
-                    // last is in force for that update, though each is recorded.
+                    // Changes of one setting due from one update are applied in order, the
+                    // schedule's first: only the last is in force for that update, and listed
+                    // (the updater prints the override).
                     let replaced = answered
                         .iter()
                         .rev()
                         .find(|(name, from, _)| *name == p.name && *from == u)
-                        .map(|(_, _, what)| {
+                        .map(|(_, _, what)| what.clone())
+                        .or_else(|| {
+                            schedule.at(u).filter(|c| c.name == p.name).last().map(|c| {
+                                format!(
+                                    "{} = {} (schedule)",
+                                    c.name,
+                                    tasks::value_text(c.value)
+                                )
+                            })
+                        })
+                        .map(|what| {
                             format!(", replacing {what}, which was due from the same update")
                         })
                         .unwrap_or_default();

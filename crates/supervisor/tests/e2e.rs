@@ -3138,8 +3138,13 @@ fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one()
         &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
     );
     run.wait_status("2 updates", |s| updates_in(s) >= 2);
-    let from = takes_effect_from(&run.ctl_ok(&["set", "target_y", "0.5"]));
-    assert_eq!(from, 3, "update 2 takes 1.5 s");
+    let reply = run.ctl_ok(&["set", "target_y", "0.5"]);
+    assert_eq!(takes_effect_from(&reply), 3, "update 2 takes 1.5 s");
+    // The reply names the scheduled change it replaces, as the updater's output does.
+    assert!(
+        reply.contains("replacing target_y = 0.6 (schedule), which was due from the same update"),
+        "{reply}"
+    );
     let end = Instant::now() + Duration::from_secs(30);
     run.wait_output(
         "task change: target_y = 0.5 (runtime) overrides target_y = 0.6 (schedule) from update 3",
