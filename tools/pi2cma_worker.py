@@ -21,6 +21,7 @@ import ctypes
 import inspect
 import os
 import signal
+import struct
 import sys
 import time
 import tomllib
@@ -120,6 +121,13 @@ class TaskFailed(WorkerError):
     names the call, the update and the rollout; `serve` prints the task's traceback before it."""
 
 
+def _same(a, b):
+    """Whether two setting values are the same bits, as the Rust worker and the updater compare
+    them (with `==`, -0.0 and 0.0 are equal: a change from one to the other would be taken by a
+    Rust worker and not by this one)."""
+    return a is not None and b is not None and struct.pack("<d", a) == struct.pack("<d", b)
+
+
 def _take(task, names, applied, target, which):
     """Sets the settings `which` to their values in `target`, in rounds: those the task refuses
     are tried again after a round that took any. Returns [(index, exception)] of those refused
@@ -143,23 +151,26 @@ def _apply_settings(task, names, applied, refused, update, settings, previous):
     `previous` first, then the update's changes are tried together (one refused is tried again
     once the others are in); one still refused keeps the value of `previous`, for every item of
     the update (`refused` holds them), so that all its rollouts run with the same settings."""
-    if all(applied[i] == v or (i, v) in refused for i, v in enumerate(settings)):
+    decided = all(
+        _same(applied[i], v) or (i, struct.pack("<d", v)) in refused for i, v in enumerate(settings)
+    )
+    if decided:
         return
-    off = [i for i in range(len(settings)) if applied[i] != previous[i]]
+    off = [i for i in range(len(settings)) if not _same(applied[i], previous[i])]
     for i, error in _take(task, names, applied, previous, off)[:1]:
         in_force = (
             "a value in force before this update: the config's, or an earlier change the other "
             "workers took"
-            if settings[i] == previous[i]
+            if _same(settings[i], previous[i])
             else "the value the update before ran with"
         )
         raise TaskFailed(
             f"update {update}: the task's set({names[i]!r}, {previous[i]!r}) raised "
             f"{type(error).__name__}: {error} ({in_force}): nothing to fall back to"
         ) from error
-    changes = [i for i in range(len(settings)) if settings[i] != previous[i]]
+    changes = [i for i in range(len(settings)) if not _same(settings[i], previous[i])]
     for i, error in _take(task, names, applied, settings, changes):
-        refused.add((i, settings[i]))
+        refused.add((i, struct.pack("<d", settings[i])))
         print(
             f"update {update}: the task's set({names[i]!r}, {settings[i]!r}) raised "
             f"{type(error).__name__}: {error}; its rollouts run with {names[i]} = "
