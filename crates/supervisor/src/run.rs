@@ -1911,10 +1911,19 @@ impl Supervisor {
                 // The part being written (the only one a split recording leaves unfinished).
                 let path = record::last_part(&rec.path).display().to_string();
                 if !starting && !status.success() && self.phase == Phase::Running {
-                    match self.restart_recorder(pid, &cause) {
-                        Ok(true) => return,
-                        Ok(false) => {}
-                        Err(e) => say(&format!("WARNING: cannot restart the recorder: {e:#}")),
+                    if !recorder_restartable(status, p.ready) {
+                        say(&format!(
+                            "recorder not restarted: it stopped at an error of its own ({cause}), \
+                             which a new one would meet as well (a full disk, an unwritable \
+                             file); once that is mended, stop the run and `--resume` it from \
+                             the recording to record again"
+                        ));
+                    } else {
+                        match self.restart_recorder(pid, &cause) {
+                            Ok(true) => return,
+                            Ok(false) => {}
+                            Err(e) => say(&format!("WARNING: cannot restart the recorder: {e:#}")),
+                        }
                     }
                 }
                 let Some(rec) = self.recording.as_mut() else {
@@ -2185,6 +2194,15 @@ impl Supervisor {
         }
         copied.map(|()| unfinished)
     }
+}
+
+/// Whether a recorder that died mid-run is worth restarting: unless, having announced itself,
+/// it exited at an error of its own (exit status 1, after printing it), such as a full disk or an
+/// I/O error, which its successor would meet too. Killed (SIGKILL, the OOM killer), crashed or
+/// panicked, it is; and so is one that failed before it announced itself (a restarted one that
+/// met its predecessor's ports not yet removed).
+fn recorder_restartable(status: ExitStatus, announced: bool) -> bool {
+    !(announced && status.code() == Some(1))
 }
 
 /// Whether a process restarted at `restarts` may be restarted once more at `now`
@@ -2552,6 +2570,17 @@ mod tests {
             default_recording("a/b c", 1),
             PathBuf::from("runs/a_b_c-0000000000000001.mcap")
         );
+    }
+
+    #[test]
+    fn a_recorder_is_restarted_unless_it_stopped_at_an_error_of_its_own() {
+        use std::os::unix::process::ExitStatusExt as _;
+        let killed = ExitStatus::from_raw(libc::SIGKILL);
+        let exited = |code: i32| ExitStatus::from_raw(code << 8);
+        assert!(recorder_restartable(killed, true));
+        assert!(recorder_restartable(exited(101), true)); // a panic
+        assert!(!recorder_restartable(exited(1), true));
+        assert!(recorder_restartable(exited(1), false));
     }
 
     #[test]
