@@ -15,6 +15,7 @@ pub enum Command {
     Scale(usize),
     Set(String, f64),
     Stop,
+    Record,
 }
 
 impl Command {
@@ -23,6 +24,7 @@ impl Command {
         match parts.as_slice() {
             ["status"] => Ok(Self::Status),
             ["stop"] => Ok(Self::Stop),
+            ["record"] => Ok(Self::Record),
             ["scale", n] => n
                 .parse()
                 .map(Self::Scale)

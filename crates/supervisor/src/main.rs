@@ -36,6 +36,12 @@ enum Cmd {
         #[arg(long)]
         run: Option<String>,
     },
+    /// Starts a running run's recorder again after it died and was not restarted (once a full
+    /// disk has room again): the recording goes on in a new part.
+    Record {
+        #[arg(long)]
+        run: Option<String>,
+    },
     /// Stops a running run (exit code 0, with its summary).
     Stop {
         #[arg(long)]
@@ -99,6 +105,7 @@ fn main() -> ExitCode {
         Cmd::Scale { workers, run } => remote(run, format!("scale {workers}")),
         Cmd::Set { name, value, run } => remote(run, format!("set {name} {value:?}")),
         Cmd::Stop { run } => remote(run, "stop".into()),
+        Cmd::Record { run } => remote(run, "record".into()),
         Cmd::Updater { args } => pipeline::run_main("updater", || pipeline::updater::main(&args)),
         Cmd::Sampler { process } => {
             pipeline::run_main("sampler", || pipeline::sampler::main(&process))

@@ -1553,7 +1553,42 @@ impl Supervisor {
                 Ok(format!("scaling from {was} to {n} workers"))
             }
             Cmd::Set(..) => Err("internal: `set` is answered by `set_task`".into()),
+            Cmd::Record => self.record_again(),
         }
+    }
+
+    /// `supervisor record`: a recorder again, after the run's died and was not restarted (it
+    /// stopped at an error of its own, such as a full disk, or the restart limit was used up).
+    fn record_again(&mut self) -> Result<String, String> {
+        if self.phase != Phase::Running {
+            return Err("the run is not running (starting or stopping)".into());
+        }
+        let Some(rec) = self.recording.as_ref() else {
+            return Err("this run has no recording (--no-record)".into());
+        };
+        if let Some(pid) = self.role_pid(Role::Recorder) {
+            return Err(format!("the recorder is running (pid {pid})"));
+        }
+        let cause = rec.lost.clone().unwrap_or_else(|| "it exited".into());
+        let (next, restart, recovery) = self
+            .continue_recording(|dead| {
+                format!(
+                    "the recording started again (`supervisor record`) after the recorder died \
+                     ({cause}); {} holds it up to where it died (recovered by the supervisor)",
+                    dead.display()
+                )
+            })
+            .map_err(|e| format!("cannot start the recorder: {e:#}"))?;
+        if let Some(rec) = self.recording.as_mut() {
+            rec.lost = None;
+        }
+        let text = format!(
+            "recorder started again (restart {restart}): the recording goes on in {}, and \
+             {recovery}; the updates since the recorder died are not recorded",
+            next.display()
+        );
+        say(&text);
+        Ok(text)
     }
 
     /// The task settings a change sent now joins: the updater's last report (before the first,
@@ -1714,7 +1749,8 @@ impl Supervisor {
         );
         s += &match &self.recording {
             Some(r) if r.lost.is_some() => format!(
-                "recording: {} (recorder died; recover the file after the run)\n",
+                "recording: {} (recorder died; `supervisor record` starts it again in a new part, \
+                 or recover the file after the run)\n",
                 record::last_part(&r.path).display()
             ),
             // A split recording: the part being written is the last that exists.
@@ -1953,7 +1989,8 @@ impl Supervisor {
                     let go_on = if self.phase == Phase::Stopping {
                         ""
                     } else {
-                        "; the run continues without recording"
+                        "; the run continues without recording (`supervisor record` starts it \
+                         again, into a new part)"
                     };
                     let (pi2cma, how_to_build) = pi2cma_program();
                     say(&format!(
@@ -1986,19 +2023,45 @@ impl Supervisor {
             ));
             return Ok(false);
         }
+        rec.restarts.push_back(now);
+        let limit = self.pipe.restart_limit;
+        let restart = rec.restarted + 1;
+        let (next, restart, recovery) = self.continue_recording(|dead| {
+            format!(
+                "the recorder (pid {pid}) died ({cause}) and was restarted (restart {restart} \
+                 of {limit}); {} holds the recording up to where it died (recovered by the \
+                 supervisor)",
+                dead.display()
+            )
+        })?;
+        say(&format!(
+            "WARNING: recorder (pid {pid}) died ({cause}); restart {restart} of {limit}: the \
+             recording goes on in {}, and {recovery}; the updates the dead recorder had not \
+             written are not recorded",
+            next.display(),
+        ));
+        Ok(true)
+    }
+
+    /// Starts a recorder that goes on with the recording in its next part, after the one that
+    /// wrote the last part died: removes the dead node's ports (the services have room for one
+    /// recorder) and recovers that part in the background. `note(dead part)` is put into the new
+    /// part once the recorder has announced itself ([`Self::recorder_back`]). Returns the new
+    /// part, the restart count and what becomes of the dead part.
+    fn continue_recording(
+        &mut self,
+        note: impl FnOnce(&Path) -> String,
+    ) -> anyhow::Result<(PathBuf, u32, String)> {
+        let Some(rec) = self.recording.as_mut() else {
+            bail!("this run has no recording");
+        };
         let dead = record::last_part(&rec.path);
         let part = record::part_number(&dead) + 1;
-        rec.restarts.push_back(now);
         rec.restarted += 1;
         rec.continue_in = Some((part, rec.restarted));
         let restart = rec.restarted;
         let next = record::part_path(&record::first_part(&rec.path), part);
-        rec.back_pending = Some(format!(
-            "the recorder (pid {pid}) died ({cause}) and was restarted (restart {restart} of {}); \
-             {} holds the recording up to where it died (recovered by the supervisor)",
-            self.pipe.restart_limit,
-            dead.display()
-        ));
+        rec.back_pending = Some(note(&dead));
         if let Some(ports) = &self.ports {
             pipeline::remove_dead_nodes(&ports._node);
         }
@@ -2028,15 +2091,8 @@ impl Supervisor {
         } else {
             format!("{} is recovered in the background", dead.display())
         };
-        say(&format!(
-            "WARNING: recorder (pid {pid}) died ({cause}); restart {restart} of {}: the recording \
-             goes on in {}, and {recovery}; the updates the dead recorder had not written are \
-             not recorded",
-            self.pipe.restart_limit,
-            next.display(),
-        ));
         self.spawn(Role::Recorder, restart)?;
-        Ok(true)
+        Ok((next, restart, recovery))
     }
 
     /// Removes everything of the run and prints the summary. Returns whether a part that a

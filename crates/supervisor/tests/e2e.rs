@@ -1764,6 +1764,52 @@ fn a_killed_recorder_past_the_restart_limit_is_not_restarted_and_recover_complet
     assert_nothing_left(&run);
 }
 
+/// A recorder not restarted (restart_limit = 0 here; a full disk in use) is started again by
+/// `supervisor record`: the recording goes on in a new part, the dead one is recovered, and the
+/// run ends with a complete recording (exit 0).
+#[test]
+fn supervisor_record_starts_a_recorder_that_was_not_restarted_again() {
+    let scratch = Scratch::new("rec-again");
+    let text = config(&[
+        ("updates = 40", "updates = 300"),
+        DELAYED,
+        ("max_workers = 16", "max_workers = 16\nrestart_limit = 0"),
+    ]);
+    let cfg = write_config(&scratch, "again.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 807, &cfg, &result);
+    let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
+    let (ok, reply) = run.ctl(&["record"]);
+    assert!(!ok && reply.contains("the recorder is running"), "{reply}");
+    sigkill_recorder(&status);
+    run.wait_status("the recorder gone", |s| {
+        s.contains("`supervisor record` starts it again")
+    });
+    let reply = run.ctl_ok(&["record"]);
+    assert!(
+        reply.contains("recorder started again (restart 1)"),
+        "{reply}"
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    let path = scratch.recording("A1", 807);
+    let parts =
+        [path.clone(), record::part_path(&path, 2)].map(|p| record::read_recording(&p).unwrap());
+    assert!(parts.iter().all(|p| p.indexed && p.truncated.is_none()));
+    assert_eq!(parts[1].updates.last().unwrap().update, 299);
+    let runs = record::join_resumed(parts.to_vec());
+    assert_eq!(runs.len(), 1);
+    assert_recomputes(&runs[0].0);
+    assert!(
+        parts[1]
+            .logs
+            .iter()
+            .any(|l| l.message.contains("`supervisor record`")),
+        "{:?}",
+        parts[1].logs
+    );
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
     // µs rollouts: the updater runs into the recorder's lag bound within milliseconds, so after
