@@ -1951,8 +1951,7 @@ impl Supervisor {
                         say(&format!(
                             "recorder not restarted: it stopped at an error of its own ({cause}), \
                              which a new one would meet as well (a full disk, an unwritable \
-                             file); once that is mended, stop the run and `--resume` it from \
-                             the recording to record again"
+                             file); once that is mended, `supervisor record` starts it again"
                         ));
                     } else {
                         match self.restart_recorder(pid, &cause) {
