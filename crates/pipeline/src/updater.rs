@@ -124,11 +124,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     }
     // Those of a resumed run's first update that a `supervisor set` overrode (see
     // `Start::scheduled_at_start`) were not taken.
-    let scheduled_first: Vec<&TaskChange> = match &start {
-        Some(s) => s.scheduled_at_start(&schedule),
-        None => schedule.at(first_update).collect(),
-    };
-    for c in scheduled_first {
+    for c in session::scheduled_at(&schedule, start.as_ref(), first_update) {
         recorded.push(RecordedChange {
             from_update: first_update,
             name: c.name.clone(),

@@ -590,7 +590,7 @@ impl WriterState {
         pid: u32,
         message: &str,
     ) -> anyhow::Result<()> {
-        if self.restart.is_some() && !self.started {
+        if !self.writer.has_part() {
             self.deferred
                 .push((event, name.to_string(), pid, message.to_string()));
             return Ok(());

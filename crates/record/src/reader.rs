@@ -49,17 +49,21 @@ impl Recording {
         self.run.first()
     }
 
+    /// A value of the MCAP metadata record `pi2cma.run`.
+    pub fn run_metadata(&self, key: &str) -> Option<&str> {
+        self.metadata
+            .get(topics::METADATA)
+            .and_then(|m| m.get(key))
+            .map(String::as_str)
+    }
+
     /// The run name: from `/run`, else from the metadata, else the file name.
     pub fn name(&self) -> String {
         if let Some(r) = self.run_info() {
             return r.name.clone();
         }
-        if let Some(n) = self
-            .metadata
-            .get(topics::METADATA)
-            .and_then(|m| m.get("name"))
-        {
-            return n.clone();
+        if let Some(n) = self.run_metadata("name") {
+            return n.to_string();
         }
         self.path
             .file_stem()
@@ -346,21 +350,13 @@ impl Recording {
     /// updates between them, which the dead recorder had not written, are missing from the
     /// joined run (the info summary lists them).
     pub fn is_continued_after_restart_by(&self, next: &Recording) -> bool {
-        let meta = |r: &Recording| {
-            r.metadata
-                .get(topics::METADATA)
-                .cloned()
-                .unwrap_or_default()
-        };
-        let (mine, theirs) = (meta(self), meta(next));
-        let file_name = |p: &Path| p.file_name().map(|n| n.to_os_string());
-        let previous_is_mine = theirs
-            .get("previous_part")
-            .and_then(|p| file_name(Path::new(p)))
-            .is_some_and(|p| self.files.last().and_then(|f| file_name(f)) == Some(p));
-        let same_run = theirs.contains_key("recorder_restart")
-            && theirs.contains_key("run_id")
-            && theirs.get("run_id") == mine.get("run_id")
+        let meta = Recording::run_metadata;
+        let previous_is_mine = meta(next, "previous_part")
+            .and_then(|p| Path::new(p).file_name())
+            .is_some_and(|p| self.files.last().and_then(|f| f.file_name()) == Some(p));
+        let same_run = meta(next, "recorder_restart").is_some()
+            && meta(next, "run_id").is_some()
+            && meta(next, "run_id") == meta(self, "run_id")
             && previous_is_mine;
         let (Some(mine), Some(theirs)) = (self.run_info(), next.run_info()) else {
             return false;

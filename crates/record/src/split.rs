@@ -30,32 +30,23 @@ pub fn part_path_or_first(first: &Path, n: u32) -> PathBuf {
     }
 }
 
+/// The stem and number of a part after the first: `<stem>.part-<n>.mcap`, n ≥ 2.
+fn part_of(path: &Path) -> Option<(String, u32)> {
+    let name = path.file_name()?.to_string_lossy().into_owned();
+    let (stem, n) = name.strip_suffix(".mcap")?.rsplit_once(".part-")?;
+    let n = n.parse::<u32>().ok().filter(|&n| n >= 2)?;
+    Some((stem.to_string(), n))
+}
+
 /// The number of the part `path` is (1 for a first part).
 pub fn part_number(path: &Path) -> u32 {
-    let name = path
-        .file_name()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    name.strip_suffix(".mcap")
-        .and_then(|s| s.rsplit_once(".part-"))
-        .and_then(|(_, n)| n.parse::<u32>().ok())
-        .filter(|&n| n >= 2)
-        .unwrap_or(1)
+    part_of(path).map_or(1, |(_, n)| n)
 }
 
 /// The first part of the recording `path` belongs to (`path` itself unless it is a part).
 pub fn first_part(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let first = name
-        .strip_suffix(".mcap")
-        .and_then(|s| s.rsplit_once(".part-"))
-        .filter(|(_, n)| n.parse::<u32>().is_ok_and(|n| n >= 2))
-        .map(|(stem, _)| format!("{stem}.mcap"));
-    match first {
-        Some(f) => path.with_file_name(f),
+    match part_of(path) {
+        Some((stem, _)) => path.with_file_name(format!("{stem}.mcap")),
         None => path.to_path_buf(),
     }
 }

@@ -15,7 +15,7 @@ pub use config::{
     MAX_ELITENESS, MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
 };
 
-pub use start::{Start, StartFileError};
+pub use start::{scheduled_at, Start, StartFileError};
 
 use pi2cma::{
     CostBatch, CostError, Distribution, Optimizer, ParameterBatch, ParameterError, UpdateRule,
@@ -258,17 +258,9 @@ impl InProcess {
         // the loop, after on_start, so that observers see the start before any change).
         // At a resumed run's first update, those its recording does not override (see
         // `Start::scheduled_at_start`).
-        let first_update = self.optimizer.update_index();
-        let first_due: Vec<TaskChange> = match &self.start {
-            Some(start) if start.update == first_update => start
-                .scheduled_at_start(&schedule)
-                .into_iter()
-                .cloned()
-                .collect(),
-            _ => schedule.at(first_update).cloned().collect(),
-        };
         let mut first = self.task.settings();
-        for change in &first_due {
+        let first_update = self.optimizer.update_index();
+        for change in scheduled_at(&schedule, self.start.as_ref(), first_update) {
             if let Some(s) = first.iter_mut().find(|(n, _)| *n == change.name) {
                 s.1 = change.value;
             }
@@ -282,12 +274,7 @@ impl InProcess {
             && !stop()
         {
             let u = self.optimizer.update_index();
-            let due: Vec<&TaskChange> = if u == first_update {
-                first_due.iter().collect()
-            } else {
-                schedule.at(u).collect()
-            };
-            for change in due {
+            for change in scheduled_at(&schedule, self.start.as_ref(), u) {
                 self.task.set(&change.name, change.value)?;
                 observer.on_task_change(u, change);
             }

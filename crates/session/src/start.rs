@@ -14,6 +14,19 @@ use pi2cma::Distribution;
 use serde::{Deserialize, Serialize};
 use tasks::{Task, TaskChange, TaskError, TaskSchedule};
 
+/// The schedule's changes due at update `u` of a run that resumes from `start`, if any: at the
+/// update it resumes at, those its recording does not override ([`Start::scheduled_at_start`]).
+pub fn scheduled_at<'a>(
+    schedule: &'a TaskSchedule,
+    start: Option<&Start>,
+    u: u64,
+) -> Vec<&'a TaskChange> {
+    match start {
+        Some(s) if s.update == u => s.scheduled_at_start(schedule),
+        _ => schedule.at(u).collect(),
+    }
+}
+
 /// The state a run resumes from.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Start {

@@ -276,13 +276,22 @@ struct Recording {
     restarts: VecDeque<Instant>,
     /// Restarts over the whole run.
     restarted: u32,
-    /// The part the next recorder started goes on in, with its restart count.
-    continue_in: Option<(u32, u32)>,
+    /// The part the recorder started last after a death goes on in (its restart count is
+    /// `restarted`).
+    continue_in: Option<u32>,
     /// A restarted recorder the updater has not been told of yet (Control::RECORDER_BACK
     /// once it has announced itself), and how its predecessor died (put into the recording).
     back_pending: Option<String>,
     /// The parts dead recorders left unfinished, being recovered in the background.
     recovering: Vec<(PathBuf, std::thread::JoinHandle<Result<String, String>>)>,
+}
+
+impl Recording {
+    /// The part the recorder started last after a death goes on in.
+    fn continued_part(&self) -> Option<PathBuf> {
+        self.continue_in
+            .map(|n| record::part_path(&record::first_part(&self.path), n))
+    }
 }
 
 struct Supervisor {
@@ -1173,11 +1182,11 @@ impl Supervisor {
                     .arg("--start")
                     .arg(self.start_file());
             }
-            if let Some((part, restart)) = rec.continue_in {
+            if let Some(part) = rec.continue_in {
                 cmd.arg("--part")
                     .arg(part.to_string())
                     .arg("--restart")
-                    .arg(restart.to_string());
+                    .arg(rec.restarted.to_string());
             }
         }
         if let (Role::Updater, Some(_)) = (role, &self.start) {
@@ -1270,10 +1279,9 @@ impl Supervisor {
             return Ok(());
         };
         // Not the last part there is: the new one is created with its first update.
-        let part = match rec.continue_in {
-            Some((n, _)) => record::part_path(&record::first_part(&rec.path), n),
-            None => record::last_part(&rec.path),
-        };
+        let part = rec
+            .continued_part()
+            .unwrap_or_else(|| record::last_part(&rec.path));
         self.note(RunNote::WARNING, &death);
         self.send_control(Control::plain(self.run_id, Control::RECORDER_BACK), true)?;
         say(&format!(
@@ -1758,9 +1766,7 @@ impl Supervisor {
                 let restarted = match (r.restarted, r.continue_in) {
                     (0, _) => String::new(),
                     // Its part is created with the first update it records.
-                    (n, Some((part, _)))
-                        if !record::part_path(&record::first_part(&r.path), part).exists() =>
-                    {
+                    (n, Some(part)) if r.continued_part().is_some_and(|p| !p.exists()) => {
                         format!(
                             " (the recorder was restarted {n} time(s); it goes on in part {part} \
                              from the next update)"
@@ -2057,7 +2063,7 @@ impl Supervisor {
         let dead = record::last_part(&rec.path);
         let part = record::part_number(&dead) + 1;
         rec.restarted += 1;
-        rec.continue_in = Some((part, rec.restarted));
+        rec.continue_in = Some(part);
         let restart = rec.restarted;
         let next = record::part_path(&record::first_part(&rec.path), part);
         rec.back_pending = Some(note(&dead));
