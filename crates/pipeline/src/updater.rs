@@ -362,6 +362,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     &mut recorded,
                 )?;
             }
+            let names: Vec<&str> = task.settings().iter().map(|(n, _)| *n).collect();
+            if let Some(before) = &previous {
+                drop_unchanged(&mut recorded, next, &names, before);
+            }
             to_publish = Some(0);
             // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show
             // their progress too).
@@ -475,6 +479,33 @@ fn apply(
         source: source.into(),
     });
     Ok(())
+}
+
+/// Drops the changes listed for update `u` that leave their setting at the value update
+/// `u` − 1 ran with (`before`, in the order of `names`): a `set` to the value in force, or one
+/// that overrode a change at `u` back to it. Update `u` runs as `u` − 1 did, so the run makes
+/// no change there, and the recording, which sees what the rollouts ran with, shows none.
+fn drop_unchanged(recorded: &mut Vec<RecordedChange>, u: u64, names: &[&str], before: &[f64]) {
+    recorded.retain(|c| {
+        let unchanged = c.from_update == u
+            && names
+                .iter()
+                .position(|n| *n == c.name)
+                .and_then(|i| before.get(i))
+                .is_some_and(|b| b.to_bits() == c.value.to_bits());
+        if unchanged {
+            println!(
+                "task change: {} = {} ({}) from update {} leaves it as update {} ran with it: \
+                 no change",
+                c.name,
+                tasks::value_text(c.value),
+                c.source,
+                u,
+                u.saturating_sub(1)
+            );
+        }
+        !unchanged
+    });
 }
 
 /// The settings the rollouts of an update ran with ([`wire::CostHeader::ran_with`]), as its

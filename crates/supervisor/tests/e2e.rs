@@ -3246,3 +3246,56 @@ fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one()
     );
     assert_nothing_left(&resumed);
 }
+
+/// A `set` to the value in force, and one that overrides a scheduled change back to it, leave
+/// the run as it was: the result file lists no change, as the recording shows none.
+#[test]
+fn a_set_to_the_value_in_force_is_no_task_change() {
+    let scratch = Scratch::new("set-in-force");
+    let text = external_config(&[
+        (
+            "from_update = 40\nset = \"target_y\"\nvalue = 0.78",
+            "from_update = 3\nset = \"target_y\"\nvalue = 0.6",
+        ),
+        ("updates = 80", "updates = 5"),
+        (
+            "/reach-worker\"]",
+            "/reach-worker\", \"--rollout-ms\", \"300\"]",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "in-force.toml", &text);
+    let result = scratch.path("in-force.result.toml");
+    let id = 880;
+    let mut run = Run::start(
+        &scratch,
+        id,
+        &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
+    );
+    run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    assert_eq!(
+        takes_effect_from(&run.ctl_ok(&["set", "target_x", "0.3"])),
+        3
+    );
+    assert_eq!(
+        takes_effect_from(&run.ctl_ok(&["set", "target_y", "0.7"])),
+        3
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    for needle in [
+        "task change: target_x = 0.3 (runtime) from update 3 leaves it as update 2 ran with it",
+        "task change: target_y = 0.7 (runtime) from update 3 leaves it as update 2 ran with it",
+    ] {
+        assert!(out.contains(needle), "{needle}\n{out}");
+    }
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!(r.updates, 5, "{out}");
+    assert!(r.task_changes.is_empty(), "{:?}\n{out}", r.task_changes);
+    let rec = record::read_recording(&scratch.recording("reach", id)).unwrap();
+    assert!(rec.task_changes.is_empty(), "{:?}", rec.task_changes);
+    for u in &rec.updates {
+        let s: Vec<f64> = u.task_settings.iter().map(|s| s.value).collect();
+        assert_eq!(s, [0.3, 0.7], "update {}:\n{out}", u.update);
+    }
+    assert_nothing_left(&run);
+}
