@@ -266,9 +266,9 @@ impl<W: Write + Seek> RunWriter<W> {
 
     /// `/update` with its step costs (`cost_per_step`, left empty in `msg`) appended as one
     /// packed field, copied row by row from the batch. Most of a T-ball update's 88 kB are
-    /// step costs: building a K × N `Vec` for prost, which writes a packed double one at a
-    /// time, took 34 µs of the 38 this takes 5 (the recorder's CPU is what recording costs a
-    /// busy machine). Protobuf decoders take fields in any order.
+    /// step costs: a K × N `Vec` handed to prost, which writes a packed double one at a time,
+    /// took 34 µs per update, this 5 (the recorder's CPU is what recording costs a busy
+    /// machine). Protobuf decoders take fields in any order.
     fn put_with_step_costs(
         &mut self,
         log_time: u64,
