@@ -21,6 +21,7 @@ if [ "${1:-}" = "--release" ]; then
   flags=(--release)
 fi
 cargo build --quiet "${flags[@]}" -p record --bins
+# The supervisor's process binaries, the recorder among them.
 cargo build --quiet "${flags[@]}" -p supervisor --bins
 cargo build --quiet "${flags[@]}" -p pi2cma-cli --bins
 bin="$target/$profile"

@@ -85,13 +85,16 @@ fn main() {
 /// supervisor`). Throughput is the updater's own measure (result file `elapsed_s`).
 fn pipeline_cases(dir: &Path, filter: &[String]) {
     use std::process::{Command, Stdio};
-    let bin = Path::new(env!("CARGO_BIN_EXE_recorder"))
-        .parent()
-        .unwrap()
-        .to_path_buf();
-    if !bin.join("supervisor").is_file() {
+    // The bench runs from target/<profile>/deps; the binaries are one level up.
+    let exe = std::env::current_exe().unwrap();
+    let bin = exe.parent().and_then(Path::parent).unwrap().to_path_buf();
+    if !["supervisor", "recorder"]
+        .iter()
+        .all(|b| bin.join(b).is_file())
+    {
         println!(
-            "\npipeline: skipped, no supervisor binary in {}",
+            "\npipeline: skipped, the supervisor crate's binaries are not in {} (`cargo build \
+             --release -p supervisor` first)",
             bin.display()
         );
         return;

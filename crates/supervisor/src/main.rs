@@ -59,7 +59,7 @@ enum Cmd {
         #[command(flatten)]
         process: pipeline::ProcessArgs,
     },
-    /// The MCAP recorder (what crate `record`'s `recorder` binary runs).
+    /// The MCAP recorder (what the `recorder` binary runs).
     #[command(hide = true)]
     Recorder {
         #[command(flatten)]

@@ -129,7 +129,7 @@ const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
 /// How children are started: the `updater`, `sampler` and `rollout-worker` binaries of a
 /// directory, or — when they are not next to the supervisor, as after `cargo run`, which builds
 /// only the binary it runs — the supervisor's own executable, which hosts all four roles. The
-/// recorder (crate `record`'s `recorder` binary) is taken from the directory when it is there,
+/// recorder (the `recorder` binary) is taken from the directory when it is there,
 /// else hosted by the supervisor's executable too. An external task's workers are the user's
 /// program (`task.external.worker`).
 #[derive(Debug, Clone)]

@@ -1,5 +1,6 @@
 //! The pipeline's recorder process; the code is [`record::pipeline_recorder`] (the `supervisor`
-//! binary hosts the same role).
+//! binary hosts the same role). It is built with the supervisor's other process binaries, so
+//! that the supervisor never starts a stale one beside fresh ones.
 use clap::Parser;
 
 /// Records the run's updates, rollouts, task changes and health events to MCAP.

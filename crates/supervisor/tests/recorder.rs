@@ -3,9 +3,8 @@
 //! leaves a file that `recover` completes with every update it had flushed; a recorder stopped
 //! (SIGSTOP) at full speed holds the updater back instead of losing updates.
 //!
-//! Needs the supervisor crate's binaries next to this crate's (`cargo test --workspace` or
-//! `cargo build -p supervisor` first). Without them the tests fail under CI (`CI` set) and are
-//! skipped with a message otherwise.
+//! The recorder's tests live beside its binary: `cargo test -p supervisor` builds every binary
+//! they start, so none of them can be a stale one.
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
@@ -23,26 +22,11 @@ use pipeline_checks::{assert_recorded, assert_recovered, signal, KillOnDrop};
 use record::read_recording;
 use record::recover::recover;
 
-fn bin_dir() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_BIN_EXE_recorder"))
-        .parent()?
-        .to_path_buf();
-    let all = ["supervisor", "updater", "sampler", "rollout-worker"]
-        .iter()
-        .all(|b| dir.join(b).is_file());
-    if all {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "the supervisor's binaries are missing from {}",
-        dir.display()
-    );
-    eprintln!(
-        "SKIPPED: the supervisor's binaries are not in {} (run `cargo build -p supervisor`)",
-        dir.display()
-    );
-    None
+fn bin_dir() -> PathBuf {
+    Path::new(env!("CARGO_BIN_EXE_recorder"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 struct Run {
@@ -129,7 +113,7 @@ fn wait_bounded(child: &mut Child, secs: u64) -> std::process::ExitStatus {
 
 #[test]
 fn a_pipeline_run_is_recorded_and_every_update_recomputes() {
-    let Some(bin) = bin_dir() else { return };
+    let bin = bin_dir();
     // 1 ms rollouts keep the run slow enough for an unoptimised recorder to keep up.
     let run = setup("full", 40, 1.0);
     let out = run.dir.join("run.mcap");
@@ -160,7 +144,7 @@ fn a_pipeline_run_is_recorded_and_every_update_recomputes() {
 
 #[test]
 fn a_killed_pipeline_recorder_is_recovered_with_every_flushed_update() {
-    let Some(bin) = bin_dir() else { return };
+    let bin = bin_dir();
     let run = setup("kill", 200, 1.0);
     let out = run.dir.join("run.mcap");
     let mut rec = KillOnDrop(start_recorder(&bin, &run, &out));
@@ -203,7 +187,7 @@ fn progress(run: &Run) -> u64 {
 
 #[test]
 fn a_stopped_recorder_holds_the_updater_back_and_loses_nothing() {
-    let Some(bin) = bin_dir() else { return };
+    let bin = bin_dir();
     // Full speed (µs rollouts, thousands of updates per second): without back-pressure the
     // 1.5 s stop below would be thousands of updates, far beyond the recorder's buffers.
     let updates = 3000;
