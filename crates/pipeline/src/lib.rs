@@ -95,6 +95,11 @@ impl Context {
         remove_dead_nodes(&self.node)
     }
 
+    /// This run's nodes: the dead ones, as [`Context::dead_nodes`], and the live ones.
+    pub fn scan_nodes(&self) -> NodeScan {
+        scan_nodes(&self.node)
+    }
+
     /// A notifier ringing the doorbell `wake/<owner>` of this run.
     pub fn notifier(&self, owner: &str) -> anyhow::Result<Notifier<Service>> {
         let bell = wire::doorbell(&self.node, self.run_id, owner, &self.limits)?;
@@ -347,17 +352,45 @@ pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::proc
 /// whose stale iceoryx2 resources (ports, which count against the services' limits) are removed
 /// on the way: before a dead process is replaced, its ports must go.
 pub fn remove_dead_nodes(node: &Node<Service>) -> Vec<String> {
-    let mut names = Vec::new();
-    let _ = Node::<Service>::list(node.config(), |state| {
-        if let NodeState::Dead(view) = state {
-            if let Some(d) = view.details().as_ref() {
-                names.push(d.name().as_str().to_string());
+    scan_nodes(node).dead
+}
+
+/// The nodes under a config, by name ([`scan_nodes`]).
+#[derive(Debug, Clone, Default)]
+pub struct NodeScan {
+    /// Processes killed without cleaning up; their stale resources have been removed.
+    pub dead: Vec<String>,
+    /// The live nodes; `None` when that cannot be told (the nodes could not be listed, or one
+    /// of them is being created or removed, or belongs to another user).
+    pub alive: Option<Vec<String>>,
+}
+
+/// The dead nodes under `node`'s config, whose stale iceoryx2 resources are removed on the way
+/// (as [`remove_dead_nodes`]), and the live ones. A node that is in neither list has been
+/// removed by its process: one that ended in order (SIGINT, SIGTERM).
+pub fn scan_nodes(node: &Node<Service>) -> NodeScan {
+    let mut dead = Vec::new();
+    let mut alive = Some(Vec::new());
+    let listed = Node::<Service>::list(node.config(), |state| {
+        match state {
+            NodeState::Dead(view) => {
+                if let Some(d) = view.details().as_ref() {
+                    dead.push(d.name().as_str().to_string());
+                }
+                let _ = view.try_remove_stale_resources();
             }
-            let _ = view.try_remove_stale_resources();
+            NodeState::Alive(view) => match (view.details().as_ref(), alive.as_mut()) {
+                (Some(d), Some(names)) => names.push(d.name().as_str().to_string()),
+                _ => alive = None,
+            },
+            NodeState::Inaccessible(_) | NodeState::Undefined(_) => alive = None,
         }
         CallbackProgression::Continue
     });
-    names
+    if listed.is_err() {
+        alive = None;
+    }
+    NodeScan { dead, alive }
 }
 
 #[cfg(test)]

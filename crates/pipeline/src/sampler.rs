@@ -92,11 +92,25 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         }
         if last_scan.elapsed() >= DEAD_SCAN {
             last_scan = Instant::now();
+            let nodes = ctx.scan_nodes();
             lost.extend(
-                ctx.dead_nodes()
+                nodes
+                    .dead
                     .iter()
                     .filter_map(|n| wire::parse_worker_node_name(n)),
             );
+            // A worker that ended in order in the middle of its chunk (one started by hand and
+            // stopped with Ctrl-C or SIGTERM) has removed its node: it is not dead, and nobody
+            // reports a worker the supervisor did not start, so its chunk was waited for
+            // forever. Its node was alive when its Ready arrived.
+            if let Some(alive) = nodes.alive {
+                lost.extend(
+                    workers
+                        .iter()
+                        .map(|(&w, port)| (w, port.incarnation))
+                        .filter(|&(w, i)| !alive.contains(&wire::worker_node_name(w, i))),
+                );
+            }
         }
         for (worker, incarnation) in lost {
             if workers

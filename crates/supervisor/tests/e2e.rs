@@ -726,6 +726,46 @@ fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     assert_nothing_left(&run);
 }
 
+/// A worker started by hand and stopped by its user (Ctrl-C, SIGTERM) in the middle of its chunk
+/// ends in order: it removes its node, so there is no dead node to find, and nobody reports a
+/// worker the supervisor did not start. Before, the sampler waited for the rest of its chunk
+/// forever and the run hung, while the supervisor said the sampler had handed its rollouts on.
+#[test]
+fn an_unsupervised_worker_stopped_in_its_chunk_loses_its_rollouts_to_the_others() {
+    let scratch = Scratch::new("foreign-term");
+    let text = config(&[
+        ("updates = 40", "updates = 60"),
+        DELAYED,
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "foreign.toml", &text);
+    // The joining worker's own config: the run's, with rollouts slow enough that the signal
+    // surely finds it in the middle of its chunk (8 rollouts of 0.5 s).
+    let slow = write_config(
+        &scratch,
+        "slow.toml",
+        &text.replace("rollout_delay_ms = 2.0", "rollout_delay_ms = 500.0"),
+    );
+    let result = scratch.path("result.toml");
+    let mut run = start_traced(&scratch, 270, &cfg, &result);
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let mut foreign = KillOnDrop(join_as_worker_5(&run, &slow));
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output("-> w5:", end);
+    signal(foreign.0.id(), "-TERM");
+    foreign.0.wait().unwrap();
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    let lost = out
+        .lines()
+        .find(|l| l.contains("lost w5.0, holding "))
+        .unwrap_or_else(|| panic!("w5 never lost:\n{out}"));
+    assert!(!lost.ends_with("holding 0"), "{lost}");
+    assert_eq!(RunResult::read(&result).unwrap().updates, 60);
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 /// A worker that joined the run by itself and hangs cannot be killed by the supervisor; its
 /// rollouts go to the others once it is overdue, and the run ends with the same bits.
 #[test]
