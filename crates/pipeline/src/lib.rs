@@ -114,6 +114,9 @@ pub fn result_path(run_dir: &Path) -> PathBuf {
     run_dir.join("result.toml")
 }
 
+// The config refuses an external task with more settings than the wire headers carry.
+const _: () = assert!(session::MAX_EXTERNAL_SETTINGS == wire::MAX_SETTINGS);
+
 /// K, P, N and the worker limit of a config: the numbers every service is sized from.
 pub fn limits(config: &RunConfig) -> anyhow::Result<Limits> {
     let task = config.build_task()?;

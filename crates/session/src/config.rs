@@ -266,6 +266,9 @@ pub const MAX_DMP_WORK: f64 = 1e8;
 const DMP_WORK_PER_SECOND: f64 = 3e7;
 /// The most memory the run may need ([`RunConfig::memory_need`]).
 pub const MEMORY_LIMIT_BYTES: u64 = 4 << 30;
+/// The most settings an external task may declare: the pipeline's wire headers carry this many
+/// (`wire::MAX_SETTINGS`; crate `pipeline` checks that the two agree).
+pub const MAX_EXTERNAL_SETTINGS: usize = 8;
 /// The largest eliteness h (see the error message).
 pub const MAX_ELITENESS: f64 = 100.0;
 /// The range of every variance λ (λ_init, λ_min unless 0, λ_max unless inf).
@@ -1144,6 +1147,16 @@ impl RunConfig {
                 ));
             }
         }
+        if e.settings.len() > MAX_EXTERNAL_SETTINGS {
+            return Err(self.invalid(
+                "task.external.settings",
+                format!("({} settings)", e.settings.len()),
+                &format!(
+                    "at most {MAX_EXTERNAL_SETTINGS}: the pipeline's work items and costs carry \
+                     that many"
+                ),
+            ));
+        }
         if self.external_basis_activations()?.is_none()
             && self.optimizer.temporal_averaging == Some(TemporalName::BasisActivation)
         {
@@ -1709,6 +1722,11 @@ mod tests {
                 "worker = [\"../target/release/examples/reach-worker\"]",
                 "worker = []",
                 "task.external.worker = []",
+            ),
+            (
+                "target_y = 0.70",
+                "target_y = 0.70\na = 1.0\nb = 1.0\nc = 1.0\nd = 1.0\ne = 1.0\nf = 1.0\ng = 1.0",
+                "task.external.settings = (9 settings): at most 8",
             ),
         ] {
             assert!(text.contains(from), "{from}");
