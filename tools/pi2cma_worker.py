@@ -14,6 +14,13 @@ in `[task.external] worker`; the supervisor starts, restarts and scales it like 
 raises refuses that change: the rollouts run with the value the update before ran with, their
 costs say so, and the run goes on without the change (a value already in force before, such as
 the config's at the first update, leaves nothing to fall back to, and the worker stops).
+
+Stopping: SIGTERM or SIGINT (the supervisor's stop, Ctrl-C, a scale-down) ends the worker at
+once, with exit code 0, also in the middle of a rollout that takes seconds: there the signal
+raises `Stopped` (a BaseException, as KeyboardInterrupt is) inside the task's `rollout`, so its
+`finally` blocks and context managers run (close your simulator there), and the rollout is
+abandoned: its cost is never sent, and the sampler hands it to another worker (a scale-down) or
+the update stays unfinished (a stop). Between rollouts the signal only ends the loop.
 """
 
 import argparse
@@ -180,6 +187,13 @@ def _apply_settings(task, names, applied, refused, update, settings, previous):
         )
 
 
+class Stopped(BaseException):
+    """Raised inside the task's `rollout` when SIGTERM or SIGINT arrives while it runs (the
+    supervisor's stop, Ctrl-C, a scale-down), as Python raises KeyboardInterrupt: the task's
+    `finally` blocks and context managers run, and the rollout is abandoned, its cost never
+    sent. A BaseException, so that the task's `except Exception` does not catch it."""
+
+
 class ConfigRefused(WorkerError):
     """The task has another shape than the run's config declares: a restart would refuse it
     again. Exits with 78 (crates/wire EXIT_CONFIG_REFUSED), which the supervisor does not
@@ -261,8 +275,9 @@ def serve(make_task, argv=None):
     what the config declares: `parameters`, `steps`, `settings`, `basis_activations`, ...), or
     with `make_task()` unless its first parameter must be given or is named `shape` (see
     `_takes_an_argument`), and
-    runs rollouts until SIGTERM/SIGINT or the end of the run (its run directory gone). Exits the process: 0 when stopped, 1 on an error, 78
-    when the task does not match the config."""
+    runs rollouts until SIGTERM/SIGINT (in a rollout too: see `Stopped`) or the end of the run
+    (its run directory gone). Exits the process: 0 when stopped, 1 on an error, 78 when the task
+    does not match the config."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", required=True)
     p.add_argument("--run-dir", required=True)
@@ -346,8 +361,18 @@ def _short(value):
 
 def _serve(make_task, args):
     stop = []
+    # While the task's rollout runs, a stop signal raises Stopped in it (once: a second signal
+    # does not interrupt the task's cleanup); elsewhere it only ends the loop.
+    in_rollout, interrupted = [False], [False]
+
+    def on_signal(signum, _frame):
+        stop.append(signum)
+        if in_rollout[0]:
+            in_rollout[0], interrupted[0] = False, True
+            raise Stopped(signal.Signals(signum).name)
+
     for s in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(s, lambda *_: stop.append(True))
+        signal.signal(s, on_signal)
     shape = Shape(args.config)
     if not 0 <= args.worker < shape.max_workers:
         raise WorkerError(f"worker slot {args.worker} is beyond pipeline.max_workers = {shape.max_workers}")
@@ -474,10 +499,30 @@ def _serve(make_task, args):
             start_ns = time.time_ns()
             start = time.monotonic_ns()
             where = f"update {update}, rollout {rollout}"
+            result = None
             try:
-                result = task.rollout(theta)
+                in_rollout[0] = True
+                try:
+                    if stop:  # a signal after the loop's check: not a rollout begun
+                        break
+                    result = task.rollout(theta)
+                finally:
+                    in_rollout[0] = False
+            except Stopped:
+                pass
             except Exception as e:
-                raise TaskFailed(f"{where}: the task's rollout raised {type(e).__name__}: {e}") from e
+                # The task turned Stopped into an error of its own: still a stop.
+                if not interrupted[0]:
+                    raise TaskFailed(f"{where}: the task's rollout raised {type(e).__name__}: {e}") from e
+            if interrupted[0]:
+                # Stopped mid-rollout (even if the task caught Stopped and returned): what it
+                # returned is not this rollout's cost, so nothing is sent. The sampler hands the
+                # chunk's rollouts to another worker once this one is gone.
+                print(
+                    f"{where}: stopped by a signal during the rollout; abandoned, its cost not sent",
+                    flush=True,
+                )
+                break
             per_step, terminal = _costs_of(result, n, where)
             # Written straight into the loaned shared memory, as the Rust worker does.
             sample = costs.loan_slice_uninit(n)

@@ -2904,6 +2904,201 @@ pi2cma_worker.serve(Broken)
     }
 }
 
+/// Files `<what>-<worker>-<pid>` the slow test worker leaves in `dir`: (worker, pid).
+fn marks(dir: &Path, what: &str) -> Vec<(String, u32)> {
+    let mut found: Vec<(String, u32)> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let rest = name.strip_prefix(&format!("{what}-"))?;
+            let (w, pid) = rest.split_once('-')?;
+            Some((w.to_string(), pid.parse().ok()?))
+        })
+        .collect();
+    found.sort();
+    found
+}
+
+/// Waits (bounded) until a worker of the slow test worker is in its long rollout; returns
+/// (worker, pid).
+fn wait_rolling(run: &Run, dir: &Path) -> (String, u32) {
+    let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        if let Some(m) = marks(dir, "rolling").into_iter().next() {
+            return m;
+        }
+        assert!(
+            Instant::now() < end,
+            "no worker began its slow rollout:\n{}",
+            run.text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A Python worker whose rollout takes a minute (a simulator's step loop, here sleeps of 10 ms)
+/// is stopped in it at once by the supervisor's SIGTERM: its `finally` runs, the rollout is
+/// abandoned (no cost of it reaches the updater) and it exits 0. Scaled down, it is gone at once
+/// and another worker runs its rollouts: the run ends as the same run without the slow rollout,
+/// bit for bit. Stopped (`supervisor stop`), the group ends well within
+/// `shutdown_timeout_ms`, and the result and the recording hold only complete updates, those of
+/// the run without the slow rollout.
+#[test]
+fn a_python_worker_stopped_in_a_long_rollout_abandons_it_and_exits_at_once() {
+    use std::os::unix::fs::PermissionsExt;
+    let scratch = Scratch::new("python-slow");
+    let tools =
+        std::path::absolute(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools")).unwrap();
+    let (slow, dir) = (scratch.path("slow"), scratch.path("marks"));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The workers `slow` names run a one-minute rollout from their 11th rollout on (update 2 or
+    // so), and say when it begins and when its `finally` ran.
+    let script = scratch.path("slow.py");
+    std::fs::write(
+        &script,
+        format!(
+            r#"#!/usr/bin/env python3
+import os, sys, time
+sys.path.insert(0, {tools:?})
+import pi2cma_worker, reach_worker
+WORKER = sys.argv[sys.argv.index("--worker") + 1]
+class Slow(reach_worker.Reach):
+    def rollout(self, theta):
+        self.n = getattr(self, "n", 0) + 1
+        costs, terminal = super().rollout(theta)
+        slow = os.path.exists({slow:?}) and WORKER in open({slow:?}).read().split()
+        if self.n > 10 and slow:
+            mark = os.path.join({dir:?}, "%s-" + WORKER + "-" + str(os.getpid()))
+            try:
+                open(mark % "rolling", "w").close()
+                end = time.monotonic() + 60
+                while time.monotonic() < end:
+                    time.sleep(0.01)
+            finally:
+                open(mark % "cleaned", "w").close()
+        return costs, terminal
+pi2cma_worker.serve(Slow)
+"#
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let config = |edits: &[(&str, &str)]| {
+        external_config_from(
+            "external-reach-python.toml",
+            "../tools/reach_worker.py",
+            &script,
+            edits,
+        )
+    };
+    let bound = Duration::from_secs(5);
+
+    // Scaled down in its slow rollout: worker-1 is gone at once, having cleaned up, and worker-0
+    // runs the rollouts it held (the update could not finish without them).
+    std::fs::write(&slow, "1").unwrap();
+    let text = config(&[]);
+    let cfg = write_config(&scratch, "scale.toml", &text);
+    let result = scratch.path("scale.result.toml");
+    let mut run = Run::start_quiet(&scratch, 835, &cfg, &result);
+    let (w, pid) = wait_rolling(&run, &dir);
+    assert_eq!(w, "1");
+    assert_eq!(pid_of(&run.ctl_ok(&["status"]), "worker-1"), pid);
+    // Well in it: the run waits for the rollouts worker-1 holds.
+    std::thread::sleep(Duration::from_millis(300));
+    let stalled = updates_in(&run.ctl_ok(&["status"]));
+    std::thread::sleep(Duration::from_millis(300));
+    assert_eq!(updates_in(&run.ctl_ok(&["status"])), stalled);
+    let t0 = Instant::now();
+    run.ctl_ok(&["scale", "--workers", "1"]);
+    while supervisor::process_alive(pid) {
+        assert!(
+            t0.elapsed() < bound,
+            "worker-1 (pid {pid}) still in its rollout {:?} after the scale-down:\n{}",
+            t0.elapsed(),
+            run.text()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert_eq!(marks(&dir, "cleaned"), vec![(w, pid)]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(
+        out.contains("stopped by a signal during the rollout; abandoned, its cost not sent"),
+        "{out}"
+    );
+    let r = RunResult::read(&result).unwrap();
+    assert!(r.updates == 80 && stalled < 80, "{stalled}");
+    let rec = record::read_recording(&scratch.recording("reach-python", 835)).unwrap();
+    assert_recorded(&rec, 80);
+    let scaled = rec.logs.iter().any(|l| {
+        l.event == "scale"
+            && l.name == "worker-1"
+            && l.message
+                .contains("stopped by a scale-down (exit status: 0)")
+    });
+    assert!(scaled, "{:#?}", rec.logs);
+    // Nothing of the abandoned rollout reached the updater: the run without it gives the same
+    // bits.
+    std::fs::remove_file(&slow).unwrap();
+    let (reference, _, plain) = run_to_its_end(&scratch, 836, &text);
+    assert_eq!(r.mean_bits, plain.mean_bits);
+    assert_eq!(r.covariance_bits, plain.covariance_bits);
+    assert_nothing_left(&run);
+    assert_nothing_left(&reference);
+
+    // Stopped in the slow rollout: the group ends well within shutdown_timeout_ms, exit 0 as
+    // for any stop, every slow rollout cleaned up, none killed.
+    for f in std::fs::read_dir(&dir).unwrap().flatten() {
+        std::fs::remove_file(f.path()).unwrap();
+    }
+    std::fs::write(&slow, "0 1").unwrap();
+    let text = config(&[("workers = 2", "workers = 2\nshutdown_timeout_ms = 15000")]);
+    let cfg = write_config(&scratch, "stop.toml", &text);
+    let result = scratch.path("stop.result.toml");
+    let mut run = Run::start_quiet(&scratch, 837, &cfg, &result);
+    let first = wait_rolling(&run, &dir);
+    std::thread::sleep(Duration::from_millis(300));
+    let t0 = Instant::now();
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(t0.elapsed() < bound, "{:?}:\n{}", t0.elapsed(), run.text());
+    let out = run.text();
+    assert!(!out.contains("did not stop within"), "{out}");
+    // Every slow rollout begun ran its `finally` (a worker may have begun one as the stop came).
+    let (rolling, cleaned) = (marks(&dir, "rolling"), marks(&dir, "cleaned"));
+    assert!(
+        rolling.contains(&first) && rolling.iter().all(|m| cleaned.contains(m)),
+        "{rolling:?} {cleaned:?}"
+    );
+    let r = RunResult::read(&result).unwrap();
+    assert!(!r.complete && r.updates < 80, "{}", r.updates);
+    let rec = record::read_recording(&scratch.recording("reach-python", 837)).unwrap();
+    assert_recorded(&rec, r.updates);
+    assert!(
+        rec.rollouts.iter().all(|x| x.update < r.updates),
+        "rollouts of the unfinished update {} recorded",
+        r.updates
+    );
+    for (w, _) in rolling {
+        let stopped = rec.logs.iter().any(|l| {
+            l.event == "exit"
+                && l.name == format!("worker-{w}")
+                && l.message.contains("stopped with the run (exit status: 0)")
+        });
+        assert!(stopped, "worker-{w}: {:#?}", rec.logs);
+    }
+    // The updates made are those of the run without the slow rollout, bit for bit.
+    std::fs::remove_file(&slow).unwrap();
+    let updates = format!("updates = {}", r.updates);
+    let (reference, _, plain) =
+        run_to_its_end(&scratch, 838, &config(&[("updates = 80", &updates)]));
+    assert_eq!(r.mean_bits, plain.mean_bits);
+    assert_eq!(r.covariance_bits, plain.covariance_bits);
+    assert_nothing_left(&run);
+    assert_nothing_left(&reference);
+}
+
 /// The run of a robot that loses power: the whole group is SIGKILLed mid-run, after a runtime
 /// task change, leaving an unfinished recording. The pipeline resumes from that file, as it is,
 /// and reaches the bits of an uninterrupted run with the same change; so does the in-process
