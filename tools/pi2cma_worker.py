@@ -278,7 +278,8 @@ def serve(make_task, argv=None):
     runs rollouts until SIGTERM/SIGINT (in a rollout too: see `Stopped`) or the end of the run
     (its run directory gone). Exits the process: 0 when stopped, 1 on an error, 78 when the task
     does not match the config."""
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    # The docstring's first paragraph (its first line ends mid-sentence).
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--config", required=True)
     p.add_argument("--run-dir", required=True)
     p.add_argument("--run-id", required=True, type=lambda s: int(s, 16))
