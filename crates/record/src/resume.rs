@@ -72,10 +72,7 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
     // Streamed: the recording of a long continual run may not fit in memory.
     let rec = read_ends(path)?;
     let Some(last) = rec.last_update.as_ref() else {
-        return Err(RecordError::invalid(
-            path,
-            "has no recorded update to resume from",
-        ));
+        return resume_at_start(path, rec);
     };
     let bad = |what: String| RecordError::Update {
         file: path.to_path_buf(),
@@ -133,6 +130,58 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
             .map(|r| r.basis_activations.clone())
             .unwrap_or_default(),
         config_toml,
+        truncated: rec.truncated,
+    })
+}
+
+/// The state a recording without updates begins with: its `/run`, the distribution of its
+/// first update. A part begun by a restarted recorder has no update when the run stopped before
+/// it wrote one, and is still where the run had got to (the updates between it and the part
+/// before were not recorded). A recording of a run's update 0 has nothing to resume: the run
+/// starts anew.
+fn resume_at_start(path: &Path, rec: crate::reader::Ends) -> Result<ResumePoint, RecordError> {
+    let nothing = || RecordError::invalid(path, "has no recorded update to resume from");
+    let run = rec.run.ok_or_else(nothing)?;
+    if run.update == 0 {
+        return Err(nothing());
+    }
+    let bad = |what: String| RecordError::Update {
+        file: path.to_path_buf(),
+        update: run.update,
+        what: format!("/run: {what}"),
+    };
+    let initial = run
+        .initial
+        .as_ref()
+        .ok_or_else(|| bad("no `initial` distribution".into()))?;
+    let distribution =
+        distribution_from_proto(initial).map_err(|w| bad(format!("initial: {w}")))?;
+    let hyperparameters = hyperparameters_from_proto(
+        run.hyperparameters
+            .as_ref()
+            .ok_or_else(|| bad("no hyperparameters".into()))?,
+    )
+    .map_err(bad)?;
+    Ok(ResumePoint {
+        start: Start {
+            update: run.update,
+            distribution,
+            settings: run
+                .task_settings
+                .iter()
+                .map(|s| (s.name.clone(), s.value))
+                .collect(),
+            // What update `run.update` − 1 ran with was not recorded: its rollouts fall back to
+            // the settings in force.
+            ran_with: Vec::new(),
+            origin: path.display().to_string(),
+        },
+        seed: run.seed,
+        hyperparameters,
+        dim: run.dim as usize,
+        steps: run.steps as usize,
+        config_toml: Some(run.config_toml.clone()).filter(|t| !t.is_empty()),
+        basis_activations: run.basis_activations,
         truncated: rec.truncated,
     })
 }
@@ -443,6 +492,55 @@ mod tests {
         assert_eq!(point.start.update, 25);
         // Not the 0.1 of the schedule's change at 20, which update 24 ran with.
         assert_eq!(point.start.settings, [("viapoint".to_string(), 0.9)]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A part a restarted recorder began just before the run stopped: its `/run` only.
+    #[test]
+    fn a_recording_without_updates_resumes_where_its_run_message_begins() {
+        let dir = std::env::temp_dir().join(format!("resume-run-only-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg = config(&[]);
+        let hp = cfg.hyperparameters();
+        let initial = pi2cma::Distribution {
+            mean: nalgebra::DVector::from_vec(vec![0.5, -2.0]),
+            covariance: nalgebra::DMatrix::from_row_slice(2, 2, &[3.0, 0.25, 0.25, 1.5]),
+        };
+        let text = crate::config_to_toml(&cfg);
+        let write = |update: u64| {
+            let path = dir.join(format!("at-{update}.mcap"));
+            let mut w = crate::RunWriter::create(&path).unwrap();
+            w.write_start(&crate::RunStart {
+                name: "A1",
+                seed: 1,
+                update,
+                steps: 101,
+                hyperparameters: &hp,
+                initial: &initial,
+                basis_activations: None,
+                config_toml: &text,
+                executor: "pipeline",
+                task_settings: &[("viapoint", 0.1)],
+                resumed_from: None,
+                part: None,
+                run_id: Some(7),
+                recorder_restart: Some(1),
+            })
+            .unwrap();
+            w.finish().unwrap();
+            path
+        };
+        let point = resume_point(&write(12)).unwrap();
+        assert_eq!(point.start.update, 12);
+        assert_eq!(point.start.distribution, initial);
+        assert_eq!(point.start.settings, [("viapoint".to_string(), 0.1)]);
+        assert!(point.start.ran_with.is_empty());
+        assert_eq!((point.seed, point.dim, point.steps), (1, 2, 101));
+        assert_eq!(point.hyperparameters, hp);
+        point.check(&cfg).unwrap();
+        // Update 0 of a run: nothing to resume.
+        let e = resume_point(&write(0)).unwrap_err().to_string();
+        assert!(e.contains("has no recorded update to resume from"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
