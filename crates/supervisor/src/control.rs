@@ -147,6 +147,13 @@ fn describe_runs(dirs: &[PathBuf]) -> String {
 /// given, else the only active run.
 fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
     let base = runs_dir();
+    // `supervisor run --run-id 2222` runs as 0000000000002222: the id as it was given names it
+    // too.
+    let padded = run
+        .and_then(|id| pipeline::parse_run_id(id).ok())
+        .map(|id| format!("{id:016x}"))
+        .filter(|id| base.join(id).exists());
+    let run = padded.as_deref().or(run);
     if let Some(prefix) = run.filter(|id| !base.join(id).exists()) {
         let matching: Vec<PathBuf> = active_runs(&base)
             .into_iter()

@@ -3534,3 +3534,34 @@ fn a_set_to_the_value_in_force_is_no_task_change() {
     }
     assert_nothing_left(&run);
 }
+
+/// `--run` takes the id as `supervisor run --run-id` was given it (`2222` for the run
+/// 0000000000002222), as well as the start of the whole id.
+#[test]
+fn a_run_is_found_by_its_id_without_leading_zeros() {
+    let scratch = Scratch::new("short-id");
+    let text = config(&[(
+        "viapoint_weight = 1000.0",
+        "viapoint_weight = 1000.0\nrollout_delay_ms = 50.0",
+    )]);
+    let cfg = write_config(&scratch, "short.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 881, &cfg, &result);
+    run.wait_status("1 update", |s| updates_in(s) >= 1);
+    let short = run.run_id.trim_start_matches('0').to_string();
+    assert!(short.len() < 16, "{}", run.run_id);
+    for id in [short.as_str(), &run.run_id[..8]] {
+        let out = Command::new(SUPERVISOR)
+            .args(["status", "--run", id])
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "--run {id}: {text}");
+        assert!(text.contains(&run.run_id), "--run {id}: {text}");
+    }
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(30), 0);
+    assert_nothing_left(&run);
+}
