@@ -31,6 +31,7 @@ enum Cmd {
     },
     /// Sets a task setting of a running run from its next update on (e.g. `set viapoint 0.1`).
     Set {
+        #[arg(value_parser = setting_name)]
         name: String,
         value: f64,
         #[arg(long)]
@@ -71,6 +72,17 @@ enum Cmd {
         #[command(flatten)]
         worker: pipeline::worker::WorkerArgs,
     },
+}
+
+/// A setting's name as `set` sends it: one word of the control line.
+fn setting_name(s: &str) -> Result<String, String> {
+    if s.is_empty() || s.chars().any(char::is_whitespace) {
+        return Err(format!(
+            "`{s}` is no setting's name: names are single words (`supervisor status` lists the \
+             run's settings)"
+        ));
+    }
+    Ok(s.to_string())
 }
 
 fn main() -> ExitCode {

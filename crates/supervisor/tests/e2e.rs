@@ -3565,3 +3565,23 @@ fn a_run_is_found_by_its_id_without_leading_zeros() {
     run.wait_exit(Duration::from_secs(30), 0);
     assert_nothing_left(&run);
 }
+
+/// A name the control line cannot carry is refused by name before any run is asked (it was
+/// sent, and the run replied `unknown command \`set  1.0\``).
+#[test]
+fn set_refuses_a_setting_name_that_is_not_one_word() {
+    let scratch = Scratch::new("set-bad-name");
+    for name in ["", "a b", "target_y\n"] {
+        let out = Command::new(SUPERVISOR)
+            .args(["set", name, "1"])
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{name:?}: {text}");
+        assert!(
+            text.contains(&format!("`{name}` is no setting's name")),
+            "{name:?}: {text}"
+        );
+    }
+}
