@@ -1998,11 +1998,19 @@ impl Supervisor {
                          again, into a new part)"
                     };
                     let (pi2cma, how_to_build) = pi2cma_program();
-                    say(&format!(
-                        "WARNING: recorder (pid {pid}) died ({cause}){go_on}. {path} holds every \
-                         update flushed so far but is not finished: `{pi2cma} recover {path}` (or \
-                         `mcap-tool recover {path}`) completes it{how_to_build}"
-                    ));
+                    if Path::new(&path).exists() {
+                        say(&format!(
+                            "WARNING: recorder (pid {pid}) died ({cause}){go_on}. {path} holds \
+                             every update flushed so far but is not finished: `{pi2cma} recover \
+                             {path}` (or `mcap-tool recover {path}`) completes it{how_to_build}"
+                        ));
+                    } else {
+                        // Stopped as the run failed to start, before it created its file.
+                        say(&format!(
+                            "WARNING: recorder (pid {pid}) died ({cause}){go_on}, before it \
+                             created {path}: nothing was recorded"
+                        ));
+                    }
                 }
             }
         }

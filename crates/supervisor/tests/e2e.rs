@@ -3585,3 +3585,35 @@ fn set_refuses_a_setting_name_that_is_not_one_word() {
         );
     }
 }
+
+/// A run that fails to start stops its recorder: the warning tells `recover` only of a file
+/// the recorder created (it pointed to a file that did not exist).
+#[test]
+fn a_recorder_stopped_before_it_created_its_file_is_not_said_to_leave_one() {
+    let scratch = Scratch::new("rec-no-file");
+    let text = config(&[("[pipeline]", "[pipeline]\nstartup_timeout_ms = 1")]);
+    let cfg = write_config(&scratch, "no-file.toml", &text);
+    let out_file = scratch.path("no-file.mcap");
+    let mut run = Run::start(
+        &scratch,
+        882,
+        &[
+            cfg.to_str().unwrap(),
+            "--record",
+            out_file.to_str().unwrap(),
+        ],
+    );
+    run.wait_exit(Duration::from_secs(30), 1);
+    let out = run.text();
+    assert!(
+        out.contains("did not become ready within 1 ms (pipeline.startup_timeout_ms)"),
+        "{out}"
+    );
+    if out_file.exists() {
+        assert!(out.contains("recover"), "{out}");
+    } else {
+        assert!(!out.contains("recover"), "{out}");
+        assert!(out.contains("nothing was recorded"), "{out}");
+    }
+    assert_nothing_left(&run);
+}
