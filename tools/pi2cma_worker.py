@@ -34,7 +34,18 @@ import time
 import tomllib
 import traceback
 
-import iceoryx2 as iox2
+EXIT_CONFIG_REFUSED = 78
+
+try:
+    import iceoryx2 as iox2
+except ImportError as e:
+    # A restart would meet the same: exit with the code the supervisor does not restart.
+    print(
+        f"pi2cma_worker: cannot import iceoryx2 ({e}); install the tools' requirements: "
+        "pip install -r tools/requirements.txt",
+        file=sys.stderr,
+    )
+    sys.exit(EXIT_CONFIG_REFUSED)
 
 MAX_SETTINGS = 8
 WAKE = iox2.EventId.new(1)
@@ -198,9 +209,6 @@ class ConfigRefused(WorkerError):
     """The task has another shape than the run's config declares: a restart would refuse it
     again. Exits with 78 (crates/wire EXIT_CONFIG_REFUSED), which the supervisor does not
     restart."""
-
-
-EXIT_CONFIG_REFUSED = 78
 
 
 class Shape:

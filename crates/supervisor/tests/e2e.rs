@@ -3617,3 +3617,35 @@ fn a_recorder_stopped_before_it_created_its_file_is_not_said_to_leave_one() {
     }
     assert_nothing_left(&run);
 }
+
+/// A Python worker without iceoryx2 (the tools' requirements not installed) says so and is not
+/// restarted: every restart would meet the same (it was restarted up to the limit).
+#[test]
+fn a_python_worker_without_iceoryx2_is_not_restarted() {
+    let scratch = Scratch::new("python-no-iox2");
+    // An `iceoryx2` module first on the path that cannot be imported, as a missing one.
+    let fake = scratch.path("fake-site");
+    std::fs::create_dir_all(&fake).unwrap();
+    std::fs::write(
+        fake.join("iceoryx2.py"),
+        "raise ModuleNotFoundError(\"No module named 'iceoryx2'\")\n",
+    )
+    .unwrap();
+    let cfg = write_config(&scratch, "no-iox2.toml", &python_config(&[]));
+    let fake = fake.to_str().unwrap();
+    let mut run = Run::start_with_env(
+        &scratch,
+        883,
+        &[cfg.to_str().unwrap(), "--quiet"],
+        &[("PYTHONPATH", fake)],
+    );
+    run.wait_exit(Duration::from_secs(60), 1);
+    let out = run.text();
+    assert!(
+        out.contains("pi2cma_worker: cannot import iceoryx2 (No module named 'iceoryx2'); install"),
+        "{out}"
+    );
+    assert!(out.contains("not restarted"), "{out}");
+    assert!(!out.contains("restart 1 of"), "{out}");
+    assert_nothing_left(&run);
+}
