@@ -1124,11 +1124,25 @@ impl Supervisor {
             // Slots that joined workers hold are skipped: a second worker there would run the
             // same rollouts.
             while self.slots.len() < self.target_workers && (w as usize) < self.pipe.max_workers {
-                if self.joined_in(w).is_none() {
-                    if let std::collections::btree_map::Entry::Vacant(e) = self.slots.entry(w) {
-                        e.insert(Slot::default());
-                        self.spawn(Role::Worker(w), 0)?;
-                    }
+                if self.joined_in(w).is_none() && !self.slots.contains_key(&w) {
+                    // A worker a scale-down stopped may still be finishing its rollout in this
+                    // slot: the new one comes after it, or the sampler would take the new one's
+                    // announcement for the old one's and its loss for the new one's.
+                    let incarnation = self
+                        .procs
+                        .values()
+                        .filter(|p| p.role == Role::Worker(w))
+                        .map(|p| p.incarnation + 1)
+                        .max()
+                        .unwrap_or(0);
+                    self.slots.insert(
+                        w,
+                        Slot {
+                            incarnation,
+                            ..Slot::default()
+                        },
+                    );
+                    self.spawn(Role::Worker(w), incarnation)?;
                 }
                 w += 1;
             }
@@ -1870,7 +1884,9 @@ impl Supervisor {
         };
         match p.role {
             Role::Worker(w) => {
-                let reason = if !self.slots.contains_key(&w) {
+                // Its slot may have been given to a new worker after a scale-down stopped it.
+                let own_slot = self.slots.get(&w).is_some_and(|s| s.pid == Some(pid));
+                let reason = if !own_slot {
                     wire::lost::SCALED_DOWN
                 } else if p.stopping || self.phase == Phase::Stopping {
                     wire::lost::STOPPED
@@ -1884,7 +1900,7 @@ impl Supervisor {
                 let how = status.to_string();
                 let lost = Control::worker_lost(self.run_id, w, p.incarnation, pid, reason, &how);
                 let _ = self.send_control(lost, false);
-                let Some(slot) = self.slots.get_mut(&w) else {
+                let Some(slot) = self.slots.get_mut(&w).filter(|_| own_slot) else {
                     return; // scaled away
                 };
                 slot.pid = None;

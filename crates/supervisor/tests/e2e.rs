@@ -865,6 +865,55 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     assert_nothing_left(&run);
 }
 
+/// Scaled down and straight back up while the stopped workers are still in a rollout: the new
+/// workers in their slots must get work (the sampler took the new one's announcement for its
+/// stopping predecessor's, and the predecessor's loss for the new one's, so the run went on with
+/// two workers while `status` showed four).
+#[test]
+fn scaling_down_and_straight_back_up_gives_the_new_workers_work() {
+    let scratch = Scratch::new("rescale");
+    let text = config(&[
+        ("updates = 40", "updates = 30"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 100.0",
+        ),
+        ("workers = 3", "workers = 4"),
+    ]);
+    let cfg = write_config(&scratch, "rescale.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 950, &cfg, &result);
+    let s = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let old = [pid_of(&s, "worker-2"), pid_of(&s, "worker-3")];
+    run.ctl_ok(&["scale", "--workers", "2"]);
+    run.ctl_ok(&["scale", "--workers", "4"]);
+    let s = run.wait_status("4 new workers", |s| {
+        s.contains("workers: 4 running") && old.iter().all(|p| !s.contains(&format!("pid {p} ")))
+    });
+    let rescaled = updates_in(&s);
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert_bit_identical(&text, &result);
+    let rec = record::read_recording(&scratch.recording("A1", 950)).unwrap();
+    assert_recorded(&rec, 30);
+    // From two updates after the scale-up on, every update's rollouts ran on all four workers.
+    for u in rescaled + 2..30 {
+        let workers: std::collections::BTreeSet<&str> = rec
+            .rollouts
+            .iter()
+            .filter(|r| r.update == u)
+            .map(|r| r.worker.as_str())
+            .collect();
+        assert_eq!(workers.len(), 4, "update {u} ran on {workers:?}");
+    }
+    for w in ["worker-2", "worker-3"] {
+        let stopped = rec.logs.iter().any(|l| {
+            l.event == "scale" && l.name == w && l.message.contains("stopped by a scale-down")
+        });
+        assert!(stopped, "{w}: {:#?}", rec.logs);
+    }
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
     let scratch = Scratch::new("sigint");
