@@ -126,46 +126,6 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 idle.retain(|i| *i != worker);
             }
         }
-        // Workers that hold their chunk too long (checked at least every wait_loop TICK).
-        if let Some(per_rollout) = rollout_timeout {
-            for (&worker, w) in workers.iter_mut() {
-                let Some(a) = &w.assignment else { continue };
-                let held = a.since.elapsed();
-                // A timeout past what a Duration holds never expires.
-                let limit = per_rollout
-                    .checked_mul(a.rollouts.len() as u32)
-                    .unwrap_or(Duration::MAX);
-                if held <= limit {
-                    continue;
-                }
-                let report = wire::Overdue {
-                    run_id: ctx.run_id,
-                    update: a.update,
-                    chunk: a.chunk,
-                    held_ms: held.as_millis() as u64,
-                    worker,
-                    incarnation: w.incarnation,
-                    rollouts: a.rollouts.len() as u32,
-                    _reserved: 0,
-                };
-                iox(overdue.send_copy(report), "send overdue")?;
-                // The supervisor gone too is no reason to fail; it sees the report when it can.
-                let _ = supervisor_bell.notify_with_custom_event_id(wire::WAKE);
-                if trace {
-                    eprintln!(
-                        "{} overdue w{worker}.{} chunk {}",
-                        us(),
-                        w.incarnation,
-                        a.chunk
-                    );
-                }
-                // Its rollouts go to the others now, whether or not the supervisor can kill it
-                // (a worker it did not start): should it answer after all, the updater keeps
-                // whichever result of a rollout comes first, and they are the same.
-                w.overdue_chunk = Some(a.chunk);
-                requeue(w.assignment.take(), &current, &mut pending);
-            }
-        }
         // The newest distribution starts a new update.
         let mut newest = None;
         while let Some(sample) = iox(dist.receive(), "receive distribution")? {
@@ -257,6 +217,48 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     idle.retain(|i| *i != r.worker);
                     idle.push_back(r.worker);
                 }
+            }
+        }
+        // Workers that hold their chunk too long (checked at least every wait_loop TICK). Only
+        // after their Ready messages are read: a sampler that was not scheduled for a while (or
+        // stopped) would otherwise find the chunks its workers finished meanwhile overdue.
+        if let Some(per_rollout) = rollout_timeout {
+            for (&worker, w) in workers.iter_mut() {
+                let Some(a) = &w.assignment else { continue };
+                let held = a.since.elapsed();
+                // A timeout past what a Duration holds never expires.
+                let limit = per_rollout
+                    .checked_mul(a.rollouts.len() as u32)
+                    .unwrap_or(Duration::MAX);
+                if held <= limit {
+                    continue;
+                }
+                let report = wire::Overdue {
+                    run_id: ctx.run_id,
+                    update: a.update,
+                    chunk: a.chunk,
+                    held_ms: held.as_millis() as u64,
+                    worker,
+                    incarnation: w.incarnation,
+                    rollouts: a.rollouts.len() as u32,
+                    _reserved: 0,
+                };
+                iox(overdue.send_copy(report), "send overdue")?;
+                // The supervisor gone too is no reason to fail; it sees the report when it can.
+                let _ = supervisor_bell.notify_with_custom_event_id(wire::WAKE);
+                if trace {
+                    eprintln!(
+                        "{} overdue w{worker}.{} chunk {}",
+                        us(),
+                        w.incarnation,
+                        a.chunk
+                    );
+                }
+                // Its rollouts go to the others now, whether or not the supervisor can kill it
+                // (a worker it did not start): should it answer after all, the updater keeps
+                // whichever result of a rollout comes first, and they are the same.
+                w.overdue_chunk = Some(a.chunk);
+                requeue(w.assignment.take(), &current, &mut pending);
             }
         }
         // Hand out work.

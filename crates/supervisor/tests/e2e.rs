@@ -571,6 +571,41 @@ fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
     assert_nothing_left(&run);
 }
 
+/// A sampler that is not scheduled for longer than `rollout_timeout_ms` (stopped here; a
+/// paused VM or a debugger does the same) must not take the chunks its workers finished
+/// meanwhile for hung ones: it checked the timeout before it read their Ready messages, and
+/// the supervisor killed healthy workers (with `restart_limit = 0` that failed the run).
+#[test]
+fn a_sampler_that_was_stopped_does_not_take_finished_chunks_for_hung_workers() {
+    let scratch = Scratch::new("sampler-stop");
+    let text = config(&[
+        ("updates = 40", "updates = 20"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 100.0",
+        ),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 600\nrestart_limit = 0",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "sampler-stop.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 951, &cfg, &result);
+    let s = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let sampler = pid_of(&s, "sampler");
+    // Longer than a whole chunk's limit (5 rollouts of 600 ms): the workers finish theirs
+    // meanwhile and wait.
+    signal(sampler, "-STOP");
+    std::thread::sleep(Duration::from_secs(4));
+    signal(sampler, "-CONT");
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(!out.contains("hung"), "{out}");
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn exhausted_restart_limit_stops_the_run_with_the_reason() {
     let scratch = Scratch::new("limit");
