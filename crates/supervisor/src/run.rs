@@ -1446,20 +1446,24 @@ impl Supervisor {
             "hung: held {} rollout(s) of update {} for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} per rollout",
             o.rollouts, o.update, o.held_ms
         );
-        let Some(slot) = self.slots.get(&o.worker) else {
-            // A worker that joined the run by itself: the sampler has handed its rollouts on.
-            say(&format!(
-                "worker-{} (incarnation {}, not started by this supervisor) {why}; its rollouts went to the other workers",
-                o.worker, o.incarnation
-            ));
-            return;
+        // Ours also when a scale-down has taken its slot away: asked to stop, a hung worker
+        // does not, and would stay, holding its rollouts, until the run ends.
+        let ours = self
+            .procs
+            .iter_mut()
+            .find(|(_, p)| p.role == Role::Worker(o.worker) && p.incarnation == o.incarnation);
+        let Some((&pid, p)) = ours else {
+            if self.joined_in(o.worker).is_some() && !self.slots.contains_key(&o.worker) {
+                // A worker that joined the run by itself: the sampler has handed its rollouts on.
+                say(&format!(
+                    "worker-{} (incarnation {}, not started by this supervisor) {why}; its rollouts went to the other workers",
+                    o.worker, o.incarnation
+                ));
+            }
+            return; // already gone
         };
-        let Some(pid) = slot.pid else { return };
-        let Some(p) = self.procs.get_mut(&pid) else {
-            return;
-        };
-        if p.incarnation != o.incarnation || p.stopping || p.hung.is_some() {
-            return; // already gone, going, or being killed
+        if (p.stopping && self.phase == Phase::Stopping) || p.hung.is_some() {
+            return; // going (the shutdown's timeout bounds it), or being killed
         }
         say(&format!(
             "worker-{} (pid {pid}) {why}; killing it",
@@ -1886,12 +1890,12 @@ impl Supervisor {
             Role::Worker(w) => {
                 // Its slot may have been given to a new worker after a scale-down stopped it.
                 let own_slot = self.slots.get(&w).is_some_and(|s| s.pid == Some(pid));
-                let reason = if !own_slot {
+                let reason = if p.hung.is_some() {
+                    wire::lost::HUNG
+                } else if !own_slot {
                     wire::lost::SCALED_DOWN
                 } else if p.stopping || self.phase == Phase::Stopping {
                     wire::lost::STOPPED
-                } else if p.hung.is_some() {
-                    wire::lost::HUNG
                 } else if status.success() {
                     wire::lost::EXITED
                 } else {

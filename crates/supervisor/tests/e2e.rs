@@ -606,6 +606,44 @@ fn a_sampler_that_was_stopped_does_not_take_finished_chunks_for_hung_workers() {
     assert_nothing_left(&run);
 }
 
+/// A worker that hangs and is then scaled away is still the supervisor's: over
+/// `rollout_timeout_ms` it is killed (it was taken for one that joined from outside, "not
+/// started by this supervisor", and left holding its process until the run ended).
+#[test]
+fn a_hung_worker_that_was_scaled_down_is_still_killed() {
+    let scratch = Scratch::new("hung-scaled");
+    let text = config(&[
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 100.0",
+        ),
+        ("workers = 3", "workers = 4"),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 600",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "hung-scaled.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 952, &cfg, &result);
+    let s = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let victim = pid_of(&s, "worker-3");
+    signal(victim, "-STOP");
+    run.ctl_ok(&["scale", "--workers", "3"]);
+    let s = run.wait_status("worker-3 gone", |s| !s.contains("worker-3 pid"));
+    assert!(updates_in(&s) < 40, "{s}");
+    assert!(!supervisor::process_alive(victim));
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(
+        out.contains(&format!("worker-3 (pid {victim}) hung")),
+        "{out}"
+    );
+    assert!(!out.contains("not started by this supervisor"), "{out}");
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn exhausted_restart_limit_stops_the_run_with_the_reason() {
     let scratch = Scratch::new("limit");
