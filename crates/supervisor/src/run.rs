@@ -1927,9 +1927,8 @@ impl Supervisor {
                     return;
                 }
                 slot.restarts.push_back(now);
-                let backoff =
-                    Duration::from_millis(100) * 2u32.pow((slot.restarts.len() as u32 - 1).min(6));
-                slot.restart_at = Some(now + backoff.min(Duration::from_secs(5)));
+                let backoff = restart_backoff(slot.restarts.len());
+                slot.restart_at = Some(now + backoff);
                 self.total_restarts += 1;
                 say(&format!(
                     "worker-{w} (pid {pid}) died ({cause}); its rollouts go to the others; restart {} of {} in {} ms",
@@ -2292,6 +2291,13 @@ impl Supervisor {
 /// met its predecessor's ports not yet removed).
 fn recorder_restartable(status: ExitStatus, announced: bool) -> bool {
     !(announced && status.code() == Some(1))
+}
+
+/// How long a worker waits for its `n`th restart within the window (n ≥ 1): 100 ms, 200 ms,
+/// 400 ms … at most 5 s.
+fn restart_backoff(n: usize) -> Duration {
+    let doublings = (n.max(1) - 1).min(6) as u32;
+    (Duration::from_millis(100) * 2u32.pow(doublings)).min(Duration::from_secs(5))
 }
 
 /// Whether a process restarted at `restarts` may be restarted once more at `now`
@@ -2659,6 +2665,12 @@ mod tests {
             default_recording("a/b c", 1),
             PathBuf::from("runs/a_b_c-0000000000000001.mcap")
         );
+    }
+
+    #[test]
+    fn a_workers_restart_backoff_doubles_up_to_5_s() {
+        let ms: Vec<u128> = (1..=9).map(|n| restart_backoff(n).as_millis()).collect();
+        assert_eq!(ms, [100, 200, 400, 800, 1600, 3200, 5000, 5000, 5000]);
     }
 
     #[test]

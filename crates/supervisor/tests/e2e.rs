@@ -644,6 +644,44 @@ fn a_hung_worker_that_was_scaled_down_is_still_killed() {
     assert_nothing_left(&run);
 }
 
+/// The backoff a restart is announced with is the one it waits: at most 5 s (the 7th restart
+/// said "in 6400 ms" and came after 5 s).
+#[test]
+fn a_restart_says_the_backoff_it_waits_at_most_5_s() {
+    let scratch = Scratch::new("backoff");
+    let text = config(&[
+        UNBOUNDED,
+        DELAYED,
+        ("max_workers = 16", "max_workers = 16\nrestart_limit = 10"),
+    ]);
+    let cfg = write_config(&scratch, "backoff.toml", &text);
+    let mut run = Run::start(
+        &scratch,
+        953,
+        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+    );
+    let mut s = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    for n in 1..=7 {
+        let victim = pid_of(&s, "worker-0");
+        signal(victim, "-9");
+        let said = format!("restart {n} of 10 in ");
+        run.wait_output(&said, Instant::now() + Duration::from_secs(10));
+        if n < 7 {
+            s = run.wait_status("worker-0 restarted", |s| {
+                s.contains("worker-0 pid") && !s.contains(&format!("pid {victim} "))
+            });
+        }
+    }
+    assert!(
+        run.text().contains("restart 7 of 10 in 5000 ms"),
+        "{}",
+        run.text()
+    );
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(30), 0);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn exhausted_restart_limit_stops_the_run_with_the_reason() {
     let scratch = Scratch::new("limit");
