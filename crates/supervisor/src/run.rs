@@ -216,6 +216,8 @@ struct Proc {
     stopping: bool,
     /// SIGKILLed after it was asked to stop and did not within `shutdown_timeout_ms`.
     sigkilled: bool,
+    /// A worker a scale-down asked to stop: killed if it has not by then.
+    stop_by: Option<Instant>,
     /// Killed because it held its chunk too long (`pipeline.rollout_timeout_ms`): why.
     hung: Option<String>,
     last_line: Arc<Mutex<String>>,
@@ -762,6 +764,12 @@ impl Supervisor {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
         }
         d.extend(self.pending_sets.iter().map(|p| p.until));
+        d.extend(
+            self.procs
+                .values()
+                .filter(|p| !p.sigkilled)
+                .filter_map(|p| p.stop_by),
+        );
         d
     }
 
@@ -779,6 +787,26 @@ impl Supervisor {
         self.begin_stop();
     }
 
+    /// A worker that a scale-down asked to stop and that has not within `shutdown_timeout_ms`
+    /// (stuck, or in a rollout longer than that) is killed, as at the run's stop: it held its
+    /// slot's rollouts, and the update waited for it while the others idled. The sampler hands
+    /// its rollouts to the others once it is gone.
+    fn kill_scaled_down_overdue(&mut self, now: Instant) {
+        for (pid, p) in &mut self.procs {
+            if p.sigkilled || !p.stop_by.is_some_and(|t| now >= t) {
+                continue;
+            }
+            say(&format!(
+                "{} (pid {pid}), scaled down, did not stop within {} ms (pipeline.shutdown_timeout_ms); killing it: its \
+                 rollouts go to the other workers",
+                p.role.name(),
+                self.pipe.shutdown_timeout_ms
+            ));
+            signal_group(*pid, libc::SIGKILL);
+            p.sigkilled = true;
+        }
+    }
+
     fn begin_stop(&mut self) {
         if self.phase == Phase::Stopping {
             return;
@@ -793,6 +821,7 @@ impl Supervisor {
 
     fn check_deadlines(&mut self) {
         let now = Instant::now();
+        self.kill_scaled_down_overdue(now);
         let Some(deadline) = self.phase_deadline else {
             return;
         };
@@ -1165,6 +1194,9 @@ impl Supervisor {
                 if let Some(pid) = slot.pid {
                     if let Some(p) = self.procs.get_mut(&pid) {
                         p.stopping = true;
+                        p.stop_by = Some(
+                            Instant::now() + Duration::from_millis(self.pipe.shutdown_timeout_ms),
+                        );
                         signal_group(pid, libc::SIGTERM);
                     }
                 }
@@ -1263,6 +1295,7 @@ impl Supervisor {
                 ready: false,
                 stopping: false,
                 sigkilled: false,
+                stop_by: None,
                 hung: None,
                 last_line,
             },

@@ -3809,3 +3809,43 @@ fn a_python_worker_without_iceoryx2_is_not_restarted() {
     assert!(!out.contains("restart 1 of"), "{out}");
     assert_nothing_left(&run);
 }
+
+/// A worker a scale-down asks to stop and that does not (stuck here; on a robot, an episode
+/// longer than the timeout) is killed after `shutdown_timeout_ms`, without a rollout timeout:
+/// it held its rollouts and the run waited for it forever.
+#[test]
+fn a_scaled_down_worker_that_does_not_stop_is_killed_after_the_shutdown_timeout() {
+    let scratch = Scratch::new("scaled-stuck");
+    let text = config(&[
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 100.0",
+        ),
+        ("workers = 3", "workers = 4"),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nshutdown_timeout_ms = 1000",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "scaled-stuck.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 954, &cfg, &result);
+    let s = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let victim = pid_of(&s, "worker-3");
+    signal(victim, "-STOP");
+    run.ctl_ok(&["scale", "--workers", "3"]);
+    run.wait_output(
+        &format!(
+            "worker-3 (pid {victim}), scaled down, did not stop within 1000 ms \
+             (pipeline.shutdown_timeout_ms); killing it"
+        ),
+        Instant::now() + Duration::from_secs(20),
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(!supervisor::process_alive(victim));
+    // Killed when due, not at the next thing the supervisor woke for (the stall warning, 10 s).
+    let out = run.text();
+    assert!(!out.contains("no update for"), "{out}");
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
