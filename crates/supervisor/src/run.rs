@@ -793,7 +793,7 @@ impl Supervisor {
     /// its rollouts to the others once it is gone.
     fn kill_scaled_down_overdue(&mut self, now: Instant) {
         for (pid, p) in &mut self.procs {
-            if p.sigkilled || !p.stop_by.is_some_and(|t| now >= t) {
+            if p.sigkilled || p.stop_by.is_none_or(|t| now < t) {
                 continue;
             }
             say(&format!(
