@@ -490,10 +490,16 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         }
     }
     if run_dir.exists() {
+        let id = wire::run_id_hex(run_id);
+        // What killed runs left behind is gone by now (`sweep_abandoned_runs`): a directory
+        // whose supervisor answers is a live run, which removing it would break.
+        if control::serving(&run_dir) {
+            bail!("run {id} is active (`supervisor status --run {id}`): choose another --run-id");
+        }
         bail!(
-            "run directory {} exists: run {} is active or was killed (remove the directory)",
-            run_dir.display(),
-            wire::run_id_hex(run_id)
+            "run directory {} exists, but no supervisor answers on it: if no run {id} is going \
+             on, remove the directory",
+            run_dir.display()
         );
     }
     // Only now, so that a run refused above leaves no directory behind.

@@ -1329,7 +1329,8 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     let mut run = Run::start(&scratch, 508, &["--record", nested.to_str().unwrap()]);
     assert!(!run.wait(Duration::from_secs(10)).success());
     assert!(
-        run.text().contains("is active or was killed"),
+        run.text()
+            .contains("exists, but no supervisor answers on it"),
         "{}",
         run.text()
     );
@@ -3846,6 +3847,46 @@ fn a_scaled_down_worker_that_does_not_stop_is_killed_after_the_shutdown_timeout(
     // Killed when due, not at the next thing the supervisor woke for (the stall warning, 10 s).
     let out = run.text();
     assert!(!out.contains("no update for"), "{out}");
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
+/// A second run with a live run's id is refused as that: the directory belongs to a run going
+/// on (the message said "is active or was killed (remove the directory)", which would break it).
+#[test]
+fn a_second_run_with_a_live_runs_id_is_refused_without_harming_it() {
+    let scratch = Scratch::new("same-id");
+    let text = config(&[(
+        "viapoint_weight = 1000.0",
+        "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+    )]);
+    let cfg = write_config(&scratch, "same-id.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 884, &cfg, &result);
+    run.wait_status("1 update", |s| updates_in(s) >= 1);
+    let second = scratch.path("second.toml");
+    // Its own recording file would be the live run's: refused first, and not what is tested.
+    let mut again = Run::start(
+        &scratch,
+        884,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--no-record",
+            "--result",
+            second.to_str().unwrap(),
+        ],
+    );
+    assert!(!again.wait(Duration::from_secs(20)).success());
+    let id = run_id(884);
+    assert!(
+        again.text().contains(&format!(
+            "run {id} is active (`supervisor status --run {id}`)"
+        )),
+        "{}",
+        again.text()
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
 }
