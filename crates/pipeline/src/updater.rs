@@ -81,6 +81,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let mut slow: Vec<(u64, Duration)> = Vec::new();
     let mut last_eval = f64::NAN;
     let mut recorded: Vec<RecordedChange> = Vec::new();
+    // The task's settings, in the order of its `settings()` values.
+    let setting_names: Vec<&'static str> = task.settings().iter().map(|(n, _)| *n).collect();
     let mut refused_changes: Vec<RecordedChange> = Vec::new();
     // The settings published for the current update, and those its rollouts ran with (the
     // first rollout's, with its worker and number): they differ where the workers' task refused
@@ -362,9 +364,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     &mut recorded,
                 )?;
             }
-            let names: Vec<&str> = task.settings().iter().map(|(n, _)| *n).collect();
             if let Some(before) = &previous {
-                drop_unchanged(&mut recorded, next, &names, before);
+                drop_unchanged(&mut recorded, next, &setting_names, before);
             }
             to_publish = Some(0);
             // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show

@@ -12,7 +12,7 @@ use session::{RunConfig, Start, TaskSection};
 
 use crate::recompute::same_bits;
 use crate::{
-    distribution_from_proto, first_part, hyperparameters_from_proto, last_part, read_ends,
+    distribution_from_proto, first_part, hyperparameters_from_proto, last_part, proto, read_ends,
     RecordError,
 };
 
@@ -71,67 +71,94 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
     }
     // Streamed: the recording of a long continual run may not fit in memory.
     let rec = read_ends(path)?;
-    let Some(last) = rec.last_update.as_ref() else {
-        return resume_at_start(path, rec);
+    let from = match &rec.last_update {
+        Some(last) => after_update(last, &rec.changes_after),
+        None => at_start(path, rec.run.as_ref())?,
     };
     let bad = |what: String| RecordError::Update {
         file: path.to_path_buf(),
-        update: last.update,
-        what,
+        update: from.update,
+        what: format!("{}{what}", from.place),
     };
-    let after = last
-        .after
-        .as_ref()
-        .ok_or_else(|| bad("no `after` distribution".into()))?;
-    let distribution = distribution_from_proto(after).map_err(|w| bad(format!("after: {w}")))?;
+    let distribution = distribution_from_proto(
+        from.distribution
+            .ok_or_else(|| bad(format!("no `{}` distribution", from.distribution_name)))?,
+    )
+    .map_err(|w| bad(format!("{}: {w}", from.distribution_name)))?;
     let hyperparameters = hyperparameters_from_proto(
-        last.hyperparameters
-            .as_ref()
+        from.hyperparameters
             .ok_or_else(|| bad("no hyperparameters".into()))?,
     )
     .map_err(bad)?;
-    let config_toml = rec
-        .run
-        .as_ref()
-        .map(|r| r.config_toml.clone())
-        .filter(|t| !t.is_empty());
-    let ran_with: Vec<(String, f64)> = last
-        .task_settings
-        .iter()
-        .map(|s| (s.name.clone(), s.value))
-        .collect();
-    let mut settings = ran_with.clone();
-    // Changes recorded for the update after the last (the run stopped right after them) are
-    // what that update runs with: the distribution it samples from already carried them.
-    for c in rec
-        .changes_after
-        .iter()
-        .filter(|c| c.update == last.update + 1)
-    {
-        if let Some(s) = settings.iter_mut().find(|(n, _)| *n == c.name) {
-            s.1 = c.value;
-        }
-    }
     Ok(ResumePoint {
         start: Start {
-            update: last.update + 1,
+            update: from.start,
             distribution,
-            settings,
-            ran_with,
+            settings: from.settings,
+            ran_with: from.ran_with,
             origin: path.display().to_string(),
         },
-        seed: last.seed,
+        seed: from.seed,
         hyperparameters,
-        dim: last.dim as usize,
-        steps: last.steps as usize,
+        dim: from.dim as usize,
+        steps: from.steps as usize,
         basis_activations: rec
             .run
             .as_ref()
             .map(|r| r.basis_activations.clone())
             .unwrap_or_default(),
-        config_toml,
-        truncated: rec.truncated,
+        config_toml: rec
+            .run
+            .as_ref()
+            .map(|r| r.config_toml.clone())
+            .filter(|t| !t.is_empty()),
+        truncated: rec.truncated.clone(),
     })
+}
+
+/// Where a recording's run goes on from, as its messages hold it (decoded by
+/// [`resume_point`]).
+struct Recorded<'a> {
+    /// The update of the message the state is read from.
+    update: u64,
+    /// Where in that message, for errors ("" for `/update`).
+    place: &'static str,
+    distribution_name: &'static str,
+    distribution: Option<&'a proto::Distribution>,
+    hyperparameters: Option<&'a proto::Hyperparameters>,
+    /// The update to run first.
+    start: u64,
+    seed: u64,
+    dim: u32,
+    steps: u32,
+    settings: Vec<(String, f64)>,
+    ran_with: Vec<(String, f64)>,
+}
+
+/// The state after the last recorded update: its `after` distribution.
+fn after_update<'a>(last: &'a proto::Update, changes_after: &[proto::TaskChange]) -> Recorded<'a> {
+    let ran_with = by_name(&last.task_settings);
+    let mut settings = ran_with.clone();
+    // Changes recorded for the update after the last (the run stopped right after them) are
+    // what that update runs with: the distribution it samples from already carried them.
+    for c in changes_after.iter().filter(|c| c.update == last.update + 1) {
+        if let Some(s) = settings.iter_mut().find(|(n, _)| *n == c.name) {
+            s.1 = c.value;
+        }
+    }
+    Recorded {
+        update: last.update,
+        place: "",
+        distribution_name: "after",
+        distribution: last.after.as_ref(),
+        hyperparameters: last.hyperparameters.as_ref(),
+        start: last.update + 1,
+        seed: last.seed,
+        dim: last.dim,
+        steps: last.steps,
+        settings,
+        ran_with,
+    }
 }
 
 /// The state a recording without updates begins with: its `/run`, the distribution of its
@@ -139,51 +166,29 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
 /// it wrote one, and is still where the run had got to (the updates between it and the part
 /// before were not recorded). A recording of a run's update 0 has nothing to resume: the run
 /// starts anew.
-fn resume_at_start(path: &Path, rec: crate::reader::Ends) -> Result<ResumePoint, RecordError> {
-    let nothing = || RecordError::invalid(path, "has no recorded update to resume from");
-    let run = rec.run.ok_or_else(nothing)?;
-    if run.update == 0 {
-        return Err(nothing());
-    }
-    let bad = |what: String| RecordError::Update {
-        file: path.to_path_buf(),
+fn at_start<'a>(path: &Path, run: Option<&'a proto::RunInfo>) -> Result<Recorded<'a>, RecordError> {
+    let run = run
+        .filter(|r| r.update > 0)
+        .ok_or_else(|| RecordError::invalid(path, "has no recorded update to resume from"))?;
+    Ok(Recorded {
         update: run.update,
-        what: format!("/run: {what}"),
-    };
-    let initial = run
-        .initial
-        .as_ref()
-        .ok_or_else(|| bad("no `initial` distribution".into()))?;
-    let distribution =
-        distribution_from_proto(initial).map_err(|w| bad(format!("initial: {w}")))?;
-    let hyperparameters = hyperparameters_from_proto(
-        run.hyperparameters
-            .as_ref()
-            .ok_or_else(|| bad("no hyperparameters".into()))?,
-    )
-    .map_err(bad)?;
-    Ok(ResumePoint {
-        start: Start {
-            update: run.update,
-            distribution,
-            settings: run
-                .task_settings
-                .iter()
-                .map(|s| (s.name.clone(), s.value))
-                .collect(),
-            // What update `run.update` − 1 ran with was not recorded: its rollouts fall back to
-            // the settings in force.
-            ran_with: Vec::new(),
-            origin: path.display().to_string(),
-        },
+        place: "/run: ",
+        distribution_name: "initial",
+        distribution: run.initial.as_ref(),
+        hyperparameters: run.hyperparameters.as_ref(),
+        start: run.update,
         seed: run.seed,
-        hyperparameters,
-        dim: run.dim as usize,
-        steps: run.steps as usize,
-        config_toml: Some(run.config_toml.clone()).filter(|t| !t.is_empty()),
-        basis_activations: run.basis_activations,
-        truncated: rec.truncated,
+        dim: run.dim,
+        steps: run.steps,
+        settings: by_name(&run.task_settings),
+        // What update `run.update` − 1 ran with was not recorded: its rollouts fall back to
+        // the settings in force.
+        ran_with: Vec::new(),
     })
+}
+
+fn by_name(settings: &[proto::Setting]) -> Vec<(String, f64)> {
+    settings.iter().map(|s| (s.name.clone(), s.value)).collect()
 }
 
 /// A task section as far as it decides a rollout's cost, in `Debug` form.

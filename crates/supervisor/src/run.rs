@@ -803,8 +803,8 @@ impl Supervisor {
                 continue;
             }
             say(&format!(
-                "{} (pid {pid}), scaled down, did not stop within {} ms (pipeline.shutdown_timeout_ms); killing it: its \
-                 rollouts go to the other workers",
+                "{} (pid {pid}), scaled down, did not stop within {} ms \
+                 (pipeline.shutdown_timeout_ms); killing it: its rollouts go to the other workers",
                 p.role.name(),
                 self.pipe.shutdown_timeout_ms
             ));
@@ -2131,7 +2131,7 @@ impl Supervisor {
         rec.restarted += 1;
         rec.continue_in = Some(part);
         let restart = rec.restarted;
-        let next = record::part_path(&record::first_part(&rec.path), part);
+        let next = rec.continued_part().expect("continue_in is set");
         rec.back_pending = Some(note(&dead));
         if let Some(ports) = &self.ports {
             pipeline::remove_dead_nodes(&ports._node);
