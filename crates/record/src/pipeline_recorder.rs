@@ -288,6 +288,51 @@ struct WriterState {
     restart: Option<u32>,
     /// Events a restarted recorder took in before its first distribution ([`Self::log`]).
     deferred: Vec<(Event, String, u32, String)>,
+    slots: WorkerSlots,
+}
+
+/// Why a worker incarnation was started, as far as the recorder can tell ([`WorkerSlots`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Started {
+    /// The first worker seen in its slot.
+    First,
+    /// In place of one that crashed, exited or hung.
+    Restart,
+    /// By a scale-up, into a slot a scale-down emptied or is still emptying.
+    Scale,
+}
+
+/// The worker incarnations announced and lost per slot. An incarnation above 0 is not by itself
+/// a restart: a scale-up refills a slot whose worker a scale-down is still stopping (it finishes
+/// its rollout first) with the next incarnation, and that is a scale.
+#[derive(Debug, Default)]
+struct WorkerSlots {
+    /// slot → (incarnations announced and not lost, the reason of the slot's last loss).
+    slots: std::collections::HashMap<u32, (Vec<u32>, Option<u32>)>,
+}
+
+impl WorkerSlots {
+    fn announced(&mut self, worker: u32, incarnation: u32) -> Started {
+        let (live, last_loss) = self.slots.entry(worker).or_default();
+        let started = if live.iter().any(|&i| i < incarnation)
+            || *last_loss == Some(wire::lost::SCALED_DOWN)
+        {
+            Started::Scale
+        } else if incarnation > 0 {
+            // Also when the loss was never seen (a restarted recorder joins a run under way).
+            Started::Restart
+        } else {
+            Started::First
+        };
+        live.push(incarnation);
+        started
+    }
+
+    fn lost(&mut self, worker: u32, incarnation: u32, reason: u32) {
+        let (live, last_loss) = self.slots.entry(worker).or_default();
+        live.retain(|&i| i != incarnation);
+        *last_loss = Some(reason);
+    }
 }
 
 impl WriterState {
@@ -345,6 +390,7 @@ impl WriterState {
             resumed_from,
             restart: None,
             deferred: Vec::new(),
+            slots: WorkerSlots::default(),
         })
     }
 
@@ -503,6 +549,7 @@ impl WriterState {
             }
             Msg::Control(c) => match c.kind {
                 Control::WORKER_LOST => {
+                    self.slots.lost(c.worker, c.incarnation, c.reason);
                     let (event, what) = match c.reason {
                         wire::lost::SCALED_DOWN => (Event::Scale, "stopped by a scale-down"),
                         wire::lost::STOPPED => (Event::Exit, "stopped with the run"),
@@ -552,10 +599,17 @@ impl WriterState {
                 if l.pid == pid {
                     return Ok(());
                 }
-                let (event, what) = if l.incarnation > 0 {
+                let (event, what) = if l.role == wire::role::WORKER {
+                    match self.slots.announced(l.worker, l.incarnation) {
+                        Started::Restart => (Event::Restart, "restarted"),
+                        Started::Scale => (Event::Scale, "joined the running run"),
+                        Started::First if self.written > 0 => {
+                            (Event::Scale, "joined the running run")
+                        }
+                        Started::First => (Event::Start, "ready"),
+                    }
+                } else if l.incarnation > 0 {
                     (Event::Restart, "restarted")
-                } else if l.role == wire::role::WORKER && self.written > 0 {
-                    (Event::Scale, "joined the running run")
                 } else {
                     (Event::Start, "ready")
                 };
@@ -798,6 +852,28 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_slot_refilled_by_a_scale_up_is_a_scale_not_a_restart() {
+        let mut slots = WorkerSlots::default();
+        assert_eq!(slots.announced(2, 0), Started::First);
+        // Scaled down and straight back up: incarnation 1 announces while 0 finishes its
+        // rollout, and 0's loss comes after.
+        assert_eq!(slots.announced(2, 1), Started::Scale);
+        slots.lost(2, 0, wire::lost::SCALED_DOWN);
+        // Scaled down, stopped, then back up.
+        slots.lost(2, 1, wire::lost::SCALED_DOWN);
+        assert_eq!(slots.announced(2, 2), Started::Scale);
+        // A crash, then its replacement.
+        slots.lost(2, 2, wire::lost::CRASHED);
+        assert_eq!(slots.announced(2, 3), Started::Restart);
+        slots.lost(2, 3, wire::lost::HUNG);
+        assert_eq!(slots.announced(2, 4), Started::Restart);
+        // A restarted recorder may see an incarnation above 0 with no history in its slot: it
+        // cannot tell, and says restart, as before the slots were tracked.
+        assert_eq!(slots.announced(5, 3), Started::Restart);
+        assert_eq!(slots.announced(0, 0), Started::First);
     }
 
     #[test]

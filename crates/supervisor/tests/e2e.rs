@@ -1021,7 +1021,15 @@ fn scaling_down_and_straight_back_up_gives_the_new_workers_work() {
             l.event == "scale" && l.name == w && l.message.contains("stopped by a scale-down")
         });
         assert!(stopped, "{w}: {:#?}", rec.logs);
+        // Their successors came with the scale-up, not in place of a lost worker: the recording
+        // said `restart` (a warning) for them, by their incarnation.
+        let joined = rec.logs.iter().any(|l| {
+            l.event == "scale" && l.name == w && l.message.contains("joined the running run")
+        });
+        assert!(joined, "{w}: {:#?}", rec.logs);
     }
+    let restarts: Vec<_> = rec.logs.iter().filter(|l| l.event == "restart").collect();
+    assert!(restarts.is_empty(), "{restarts:#?}");
     assert_nothing_left(&run);
 }
 
