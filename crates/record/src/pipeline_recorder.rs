@@ -241,11 +241,15 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     };
     let written = state.finish(signal)?;
     let cpu = process_cpu_seconds();
+    // Per update only when there were updates: the CPU of a start and stop is not a rate.
+    let cost = match written {
+        0 => format!("{:.1} ms of CPU", cpu * 1e3),
+        n => format!("{:.1} µs of CPU per update", cpu * 1e6 / n as f64),
+    };
     eprintln!(
-        "recorded {written} updates to {} ({:.1} µs of CPU per update; {rounds} rounds, {holds} \
-         of them asked for by a held updater)",
+        "recorded {written} updates to {} ({cost}; {rounds} rounds, {holds} of them asked for \
+         by a held updater)",
         out.display(),
-        cpu * 1e6 / written.max(1) as f64
     );
     Ok(())
 }
