@@ -80,7 +80,7 @@ enum Command {
         /// recordings there are refused.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Also record every session to OUT/mcap/<run>-seed<seed>.mcap.
+        /// Also record every session to `OUT/mcap/<run>-seed<seed>.mcap`.
         #[arg(long)]
         record: bool,
     },

@@ -1278,7 +1278,7 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
 }
 
 /// Per worker: (update, rollout duration in ms). Rollouts without their own timing (the
-/// in-process runner) get the update's wall time divided by K, under "<worker> (update time / K)".
+/// in-process runner) get the update's wall time divided by K, under "`<worker>` (update time / K)".
 pub fn worker_times(rec: &Recording) -> BTreeMap<String, Vec<(u64, f64)>> {
     let batch: BTreeMap<u64, (u64, u64, u32)> = rec
         .updates
@@ -1577,7 +1577,7 @@ fn group_sessions<'a>(
         .collect()
 }
 
-/// Over the sessions of an experiment (grouped as [`group_sessions`] says): the mean eval-cost
+/// Over the sessions of an experiment (grouped as `group_sessions` says): the mean eval-cost
 /// curve ± std over sessions and mean λ per update (`mean_curves.svg`, `mean_curves.csv`) over
 /// the updates every session of the group has, and the re-convergence table
 /// (`reconvergence.csv`; also returned as Markdown).

@@ -511,7 +511,7 @@ impl RunConfig {
     /// Checks every range and cross-field rule; call again after changing fields in code.
     ///
     /// Nothing large is built before the sizes it depends on are known to be sane: P and N come
-    /// from the task section's fields ([`TaskShape`]), the memory the run needs is estimated from
+    /// from the task section's fields (`TaskShape`), the memory the run needs is estimated from
     /// K, P and N ([`RunConfig::memory_need`]), and only then is the task built.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let o = &self.optimizer;

@@ -51,7 +51,7 @@ pub struct RunOptions {
     /// Print no progress lines.
     #[arg(long)]
     pub quiet: bool,
-    /// Write the run's MCAP recording here (default: runs/<run name>-<run id>.mcap in the
+    /// Write the run's MCAP recording here (default: `runs/<run name>-<run id>.mcap` in the
     /// current directory).
     #[arg(long, value_name = "FILE")]
     pub record: Option<PathBuf>,

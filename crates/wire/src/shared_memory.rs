@@ -77,10 +77,10 @@ impl Limits {
     ///   - `costs`: those of the updates the recorder may lag behind plus one, K each, plus
     ///     re-executions after crashes (max_workers + 4) and each worker's loans (without a
     ///     recorder, the updater's own bound of 2K + max_workers + 4 plus the loans); shared
-    ///     among the workers' segments, each counted with [`UNEVEN_SHARES`] times its share;
+    ///     among the workers' segments, each counted with `UNEVEN_SHARES` times its share;
     ///   - `work/<w>`: the K rollouts of an update plus each worker's loans and borrows,
     ///     shared likewise;
-    ///   - the small messages, [`SMALL_IN_USE`] each;
+    ///   - the small messages, `SMALL_IN_USE` each;
     ///
     ///   plus the pool's free list, 4 bytes per chunk, written in full at creation;
     /// - per publisher–subscriber pair, a connection: two queues of `buffer + 2` indices and a

@@ -135,7 +135,7 @@ fn scaling(dir: &Path, updates: u64) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// CPU time of a process (all threads) in ns, from /proc/<pid>/schedstat.
+/// CPU time of a process (all threads) in ns, from `/proc/<pid>/schedstat`.
 fn cpu_ns(pid: u32) -> Option<u64> {
     let mut total = 0;
     for t in std::fs::read_dir(format!("/proc/{pid}/task"))
