@@ -435,6 +435,71 @@ fn a1_is_bit_identical_to_in_process_with_1_3_and_8_workers_running_at_once() {
     }
 }
 
+/// Every method and weighting: the configs of Fig. 2 besides A1, CEM (which none of them
+/// uses) and A1 with per-time-step weighting under either temporal averaging, through the
+/// pipeline with two workers: the same bits as in-process. The core is shared, but the pipeline carries each method's own inputs (the
+/// evaluation rollout, per-step costs under time-step weighting, the decayed covariance).
+#[test]
+fn every_method_is_bit_identical_to_in_process() {
+    let scratch = Scratch::new("methods");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+    let read = |name: &str| std::fs::read_to_string(dir.join(format!("{name}.toml"))).unwrap();
+    let cem = read("A1")
+        .replacen("name = \"A1\"", "name = \"cem\"", 1)
+        .replacen("method = \"pi2-cma\"", "method = \"cem\"\nelites = 5", 1)
+        .replacen("eliteness = 15.0\n", "", 1);
+    assert!(cem.contains("method = \"cem\"") && !cem.contains("eliteness"));
+    let mut cases: Vec<(String, String)> = ["A2", "A3", "A4", "C1", "C2", "C3", "D"]
+        .iter()
+        .map(|n| (n.to_string(), read(n)))
+        .collect();
+    cases.push(("cem".into(), cem));
+    for temporal in ["remaining-steps", "basis-activation"] {
+        let per_step = read("A1").replacen(
+            "weighting = \"episodic\"",
+            &format!("weighting = \"per-time-step\"\ntemporal_averaging = \"{temporal}\""),
+            1,
+        );
+        assert!(per_step.contains("per-time-step"));
+        cases.push((format!("A1-{temporal}"), per_step));
+    }
+    // A few at a time: each run has its updater, sampler and two workers.
+    for (batch, chunk) in cases.chunks(4).enumerate() {
+        let mut runs: Vec<(Run, PathBuf, String)> = chunk
+            .iter()
+            .enumerate()
+            .map(|(i, (name, text))| {
+                assert!(text.contains("updates = 40\n"), "{name}");
+                let text = text.replacen("updates = 40\n", "updates = 8\n", 1);
+                let cfg = write_config(&scratch, &format!("{name}.toml"), &text);
+                let result = scratch.path(&format!("result-{name}.toml"));
+                let id = 930 + (batch * 4 + i) as u64;
+                let run = Run::start(
+                    &scratch,
+                    id,
+                    &[
+                        cfg.to_str().unwrap(),
+                        "--workers",
+                        "2",
+                        "--quiet",
+                        "--no-record",
+                        "--result",
+                        result.to_str().unwrap(),
+                    ],
+                );
+                (run, result, text)
+            })
+            .collect();
+        for (run, result, text) in &mut runs {
+            run.wait_exit(Duration::from_secs(60), 0);
+            let r = RunResult::read(result).unwrap();
+            assert_eq!((r.updates, r.complete), (8, true), "{}", run.text());
+            assert_bit_identical(text, result);
+            assert_nothing_left(run);
+        }
+    }
+}
+
 #[test]
 fn supervisor_alone_hosts_all_roles_as_after_cargo_run() {
     // `cargo run -p supervisor` builds only the supervisor binary; it then runs the three
