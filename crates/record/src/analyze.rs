@@ -1019,6 +1019,10 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
     Ok(files)
 }
 
+/// The narrowest bar of `worker_timeline.svg`, in pixels: 1.5 covers at least one whole pixel
+/// wherever the bar begins.
+const MIN_BAR_PIXELS: f64 = 1.5;
+
 /// How many of the last updates `worker_timeline.svg` shows.
 pub const TIMELINE_UPDATES: usize = 10;
 
@@ -1115,6 +1119,15 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
         .disable_y_mesh()
         .draw()
         .map_err(|x| e(&x))?;
+    // The SVG backend draws on whole pixels: a rollout shorter than one (a via-point rollout
+    // takes a microsecond, the timeline spans milliseconds) became a rectangle 0 wide, and an
+    // update whose rollouts were all that short was missing from the figure. Every bar is at
+    // least MIN_BAR_PIXELS wide.
+    let (x_range, plot_pixels) = (
+        chart.x_range(),
+        chart.plotting_area().dim_in_pixel().0.max(1),
+    );
+    let min_width = MIN_BAR_PIXELS * (x_range.end - x_range.start) / f64::from(plot_pixels);
     // One colour per update shown (TIMELINE_UPDATES of them), named in the legend.
     let mut updates: Vec<u64> = bars.iter().map(|b| b.update).collect();
     updates.sort_unstable();
@@ -1127,7 +1140,7 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
                 Rectangle::new(
                     [
                         (ms(b.start_ns), y - 0.35),
-                        (ms(b.end_ns).max(ms(b.start_ns) + xmax * 1e-4), y + 0.35),
+                        (ms(b.end_ns).max(ms(b.start_ns) + min_width), y + 0.35),
                     ],
                     color.filled(),
                 )
@@ -1898,6 +1911,53 @@ mod tests {
         );
         assert_eq!(timeline(&r, 100).len(), 10);
         assert!(timeline(&Recording::default(), 10).is_empty());
+    }
+
+    /// Rollouts of a microsecond on a timeline of milliseconds (pipelined via-point runs): every
+    /// update still has its bars, at least a pixel wide.
+    #[test]
+    fn the_timeline_draws_every_rollout_however_short() {
+        let mut r = Recording::default();
+        for u in 0..10u64 {
+            for k in 0..15u32 {
+                let start = 1_000_000 + 100_000 * u + 600 * u64::from(k);
+                r.rollouts.push(proto::Rollout {
+                    update: u,
+                    rollout: k,
+                    worker: format!("worker-{}", k % 3),
+                    start_ns: start,
+                    end_ns: start + 250,
+                    ..Default::default()
+                });
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("pi2cma-timeline-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("worker_timeline.svg");
+        plot_worker_timeline(&r, &timeline(&r, 10), &path).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        // The bars are the filled rectangles other than the background, the legend's box and
+        // its 12 × 8 swatches.
+        let widths: Vec<u32> = svg
+            .split("<rect ")
+            .skip(1)
+            .filter(|r| {
+                ![
+                    "fill=\"#FFFFFF\"",
+                    "fill=\"none\"",
+                    "width=\"12\" height=\"8\"",
+                ]
+                .iter()
+                .any(|not_a_bar| r.contains(not_a_bar))
+            })
+            .filter_map(|r| {
+                let w = r.split("width=\"").nth(1)?.split('"').next()?;
+                w.parse().ok()
+            })
+            .collect();
+        assert_eq!(widths.len(), 150, "{svg}");
+        assert!(widths.iter().all(|w| *w >= 1), "bars 0 px wide: {widths:?}");
     }
 
     #[test]
