@@ -119,3 +119,54 @@ fn the_recorded_config_has_the_command_line_seed_and_updates() {
     assert_eq!(std::fs::read(&out).unwrap(), before, "overwritten");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A split recording: `mcap-tool record` names every part, and the `analyze` command it prints
+/// reads the whole run (given the first part alone, it read only that part's updates).
+#[test]
+fn record_names_every_part_of_a_split_recording_and_its_analyze_command_reads_them_all() {
+    let dir = scratch::scratch("record-split");
+    let config = dir.join("split.toml");
+    let a1 = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../config/A1.toml"),
+    )
+    .unwrap();
+    // About 1 MB takes 76 via-point updates: 150 make two parts.
+    std::fs::write(
+        &config,
+        a1.replace("updates = 40", "updates = 150") + "\n[recording]\nsplit_mb = 1\n",
+    )
+    .unwrap();
+    let out = dir.join("split.mcap");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .arg("record")
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    let parts = record::recording_parts(&out);
+    assert!(parts.len() >= 2, "not split: {parts:?}");
+    let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    assert!(
+        stderr.contains(&format!("split into {} parts", parts.len())),
+        "{stderr}"
+    );
+    // The printed command, run as printed (its program is this mcap-tool).
+    let command = stderr
+        .lines()
+        .find_map(|l| l.strip_prefix("analyse with: mcap-tool "))
+        .unwrap_or_else(|| panic!("no analyse command: {stderr}"));
+    assert!(command.contains(&names.join(" ")), "{command}");
+    let args: Vec<&str> = command.split_whitespace().collect();
+    let analysis = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .args(&args)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&analysis.stdout);
+    assert!(analysis.status.success(), "{text}");
+    assert!(text.contains("one run of 150 updates (0..=149)"), "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

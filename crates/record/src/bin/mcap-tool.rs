@@ -222,15 +222,17 @@ fn record_run(
     }
     let n = recorder.finish()?;
     result?;
+    // A split recording's command names every part: given the first alone, `analyze` reads
+    // only the updates of that part.
     eprintln!(
-        "recorded {n} updates{} to {}\nanalyse with: mcap-tool analyze {} --out {}",
+        "recorded {n} updates{} to {}\nanalyse with: {} --out {}",
         if stop.load(Ordering::SeqCst) {
             " (interrupted)"
         } else {
             ""
         },
-        out.display(),
-        out.display(),
+        record::describe_parts(out),
+        record::analyze_command("mcap-tool", out, None),
         out.with_extension("analysis").display()
     );
     if stop.load(Ordering::SeqCst) {
