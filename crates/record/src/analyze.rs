@@ -1470,6 +1470,16 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
+/// The runs among `recs`, as `analyze` takes them: copies of a file dropped (with a note in
+/// `out`), and the files of one run (a run and the runs resumed from it, the parts of a split
+/// recording) joined into one recording.
+pub fn join_runs(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
+    join_resumed(drop_copies(recs, out))
+        .into_iter()
+        .map(|(r, _)| r)
+        .collect()
+}
+
 /// Drops recordings that are copies of one given earlier (the same bytes; compared only when
 /// the run name, seed and eval costs match), with a note.
 fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {

@@ -170,3 +170,37 @@ fn record_names_every_part_of_a_split_recording_and_its_analyze_command_reads_th
     assert!(text.contains("one run of 150 updates (0..=149)"), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `mcap-tool experiment` takes the files of one run as one session, as `analyze` does: the
+/// parts of a split recording are joined, not averaged as sessions over 0 common updates.
+#[test]
+fn experiment_joins_the_parts_of_a_split_recording_into_one_session() {
+    let dir = scratch::scratch("experiment-split");
+    let mut cfg = RunConfig::default_config();
+    cfg.run.updates = Some(150);
+    cfg.recording = Some(session::RecordingSection { split_mb: Some(1) });
+    let first = dir.join("split.mcap");
+    let mut rec = McapRecorder::create(&first).unwrap();
+    run_session(&cfg, 1, &mut rec).unwrap();
+    rec.finish().unwrap();
+    let parts = record::recording_parts(&first);
+    assert!(parts.len() >= 2, "not split: {parts:?}");
+    let out = dir.join("experiment");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .arg("experiment")
+        .args(&parts)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{text}");
+    assert!(
+        text.contains("## Experiment: 1 sessions in 1 run(s)"),
+        "{text}"
+    );
+    assert!(!text.contains("NaN"), "{text}");
+    let mean = std::fs::read_to_string(out.join("mean_curves.csv")).unwrap();
+    assert_eq!(mean.lines().count(), 1 + 150, "{mean}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -71,7 +71,8 @@ enum Command {
         #[arg(long, short)]
         out: PathBuf,
     },
-    /// Mean curves and re-convergence table over the sessions of an experiment.
+    /// Mean curves and re-convergence table over the sessions of an experiment (the files of
+    /// one run, resumed or split into parts, are joined into one session, as by `analyze`).
     Experiment {
         #[arg(required = true)]
         files: Vec<PathBuf>,
@@ -162,6 +163,12 @@ fn run(cli: Cli) -> Result<()> {
                 .iter()
                 .map(|f| read_recording_slim(f))
                 .collect::<Result<Vec<_>, _>>()?;
+            // The parts of a split recording or a resumed run's files, taken as sessions of
+            // their own, gave a mean curve over 0 common updates (NaN) and segments at each
+            // part's first update.
+            let mut notes = String::new();
+            let recs = analyze::join_runs(recs, &mut notes);
+            print!("{notes}");
             let r = analyze::experiment(&recs, Some(&out), tolerance, true)?;
             print!("{}", r.table);
             for p in &r.files {
