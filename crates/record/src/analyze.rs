@@ -1600,6 +1600,23 @@ fn group_sessions<'a>(
         .collect()
 }
 
+/// What begins the re-convergence table's segment at `start`: a task change, or a recording
+/// that begins there (a run resumed from a file not given, the later part of a split recording
+/// given alone), whose segment is not one the task's change began.
+fn segment_label(sessions: &[&Recording], start: u64) -> &'static str {
+    if start == 0 {
+        // The run's start, also when a schedule changes the task from update 0 on.
+        ""
+    } else if sessions
+        .iter()
+        .any(|r| r.task_changes.iter().any(|c| c.update == start))
+    {
+        " (task change)"
+    } else {
+        " (first recorded update)"
+    }
+}
+
 /// Over the sessions of an experiment (grouped as `group_sessions` says): the mean eval-cost
 /// curve ± std over sessions and mean λ per update (`mean_curves.svg`, `mean_curves.csv`) over
 /// the updates every session of the group has, and the re-convergence table
@@ -1722,7 +1739,7 @@ pub fn experiment(
             let _ = writeln!(
                 rows,
                 "| {name} | {start}{} | {} | {} of {} | {to_converge} | {converged_at} | {fm:.4} ± {fs:.4} |",
-                if *start > 0 { " (task change)" } else { "" },
+                segment_label(sessions, *start),
                 ss.len(),
                 n.len(),
                 ss.len()
@@ -1968,6 +1985,41 @@ mod tests {
             .collect();
         assert_eq!(widths.len(), 150, "{svg}");
         assert!(widths.iter().all(|w| *w >= 1), "bars 0 px wide: {widths:?}");
+    }
+
+    /// A session whose recording begins at update 25 (resumed from a file not given) has a
+    /// segment from 25, which no task change began.
+    #[test]
+    fn a_segment_is_said_to_begin_at_a_task_change_only_where_one_is() {
+        let whole = rec_with(&[5.0, 4.0, 3.0, 3.0, 9.0, 6.0, 4.0, 4.0], Some(4));
+        let mut late = rec_with(&[5.0, 4.0, 3.0, 3.0, 9.0, 6.0, 4.0, 4.0], Some(4));
+        late.summaries.retain(|s| s.update >= 6);
+        assert_eq!(segment_label(&[&whole], 0), "");
+        assert_eq!(segment_label(&[&whole], 4), " (task change)");
+        assert_eq!(segment_label(&[&late], 6), " (first recorded update)");
+        let from_the_start = rec_with(&[5.0, 4.0], Some(0));
+        assert_eq!(segment_label(&[&from_the_start], 0), "");
+        let info = |seed| proto::RunInfo {
+            name: "A1".into(),
+            seed,
+            ..Default::default()
+        };
+        let (mut whole, mut late) = (whole, late);
+        whole.run.push(info(1));
+        late.run.push(info(2));
+        let report = experiment(&[whole, late], None, 0.05, false).unwrap();
+        assert!(
+            report.table.contains("| A1 | 4 (task change) | 1 |"),
+            "{}",
+            report.table
+        );
+        assert!(
+            report
+                .table
+                .contains("| A1 | 6 (first recorded update) | 1 |"),
+            "{}",
+            report.table
+        );
     }
 
     #[test]
