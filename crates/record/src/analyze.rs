@@ -1493,11 +1493,7 @@ fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
     };
     // The same numbers are not enough: runs are bit-identical by design (pipeline and
     // in-process, any worker count). A copy has the same bytes; they are read only for files
-    // whose numbers match.
-    let same_bytes = |a: &Path, b: &Path| match (std::fs::read(a), std::fs::read(b)) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    };
+    // whose numbers match, and piecewise (see `same_bytes`).
     let mut kept: Vec<(Recording, _)> = Vec::new();
     for r in recs {
         let id = identity(&r);
@@ -1517,6 +1513,34 @@ fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
         }
     }
     kept.into_iter().map(|(r, _)| r).collect()
+}
+
+/// Whether the files at `a` and `b` hold the same bytes; false if either cannot be read. They
+/// are compared a block at a time: reading both whole took memory for twice a recording's size
+/// (390 MB of RSS for a 176 MB T-ball recording and its copy, against 31 MB for analysing one).
+fn same_bytes(a: &Path, b: &Path) -> bool {
+    use std::io::Read as _;
+    const BLOCK: u64 = 1 << 20;
+    let (Ok(mut fa), Ok(mut fb)) = (std::fs::File::open(a), std::fs::File::open(b)) else {
+        return false;
+    };
+    match (fa.metadata(), fb.metadata()) {
+        (Ok(ma), Ok(mb)) if ma.len() == mb.len() => {}
+        _ => return false,
+    }
+    let (mut xa, mut xb) = (Vec::new(), Vec::new());
+    loop {
+        xa.clear();
+        xb.clear();
+        match (
+            (&mut fa).take(BLOCK).read_to_end(&mut xa),
+            (&mut fb).take(BLOCK).read_to_end(&mut xb),
+        ) {
+            (Ok(0), Ok(0)) => return true,
+            (Ok(_), Ok(_)) if xa == xb => {}
+            _ => return false,
+        }
+    }
 }
 
 /// The sessions of an experiment, grouped: by run name, and within a name by what makes runs
@@ -2020,6 +2044,31 @@ mod tests {
             "{}",
             report.table
         );
+    }
+
+    #[test]
+    fn files_are_the_same_bytes_only_to_the_last_byte() {
+        let dir = std::env::temp_dir().join(format!("pi2cma-same-bytes-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let data: Vec<u8> = (0..(3 << 20) + 17).map(|i| (i % 251) as u8).collect();
+        let write = |name: &str, bytes: &[u8]| {
+            let p = dir.join(name);
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        let a = write("a", &data);
+        let copy = write("copy", &data);
+        let mut changed = data.clone();
+        *changed.last_mut().unwrap() ^= 1;
+        let last_byte = write("last-byte", &changed);
+        let shorter = write("shorter", &data[..data.len() - 1]);
+        let empty = write("empty", &[]);
+        assert!(same_bytes(&a, &copy));
+        assert!(!same_bytes(&a, &last_byte));
+        assert!(!same_bytes(&a, &shorter));
+        assert!(same_bytes(&empty, &write("empty-too", &[])));
+        assert!(!same_bytes(&a, &dir.join("absent")));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

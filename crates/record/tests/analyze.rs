@@ -204,3 +204,52 @@ fn experiment_joins_the_parts_of_a_split_recording_into_one_session() {
     assert_eq!(mean.lines().count(), 1 + 150, "{mean}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Peak RSS (KiB) of `mcap-tool` run with `args` to its end.
+// The child is reaped by wait4, which also gives its peak RSS; std's wait cannot.
+#[allow(clippy::zombie_processes)]
+fn peak_rss_kib(args: &[&std::ffi::OsStr]) -> (bool, i64) {
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut status = 0;
+    // SAFETY: wait4 reaps the child this test started and writes only into the two locals it
+    // is given; `child` is not waited on again.
+    #[allow(unsafe_code)]
+    let usage = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        let pid = libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut u);
+        assert_eq!(pid, child.id() as libc::pid_t, "wait4");
+        u
+    };
+    (
+        libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0,
+        usage.ru_maxrss,
+    )
+}
+
+/// Analysis takes memory for the curves, not for the size of the files, also when a file is a
+/// copy of another: the copy check compared the two files read whole.
+#[test]
+fn a_copy_is_found_without_reading_the_files_whole() {
+    let dir = scratch::scratch("copy-memory");
+    let mut cfg = RunConfig::default_config();
+    cfg.run.updates = Some(2000);
+    let a = dir.join("a.mcap");
+    let mut rec = McapRecorder::create(&a).unwrap();
+    run_session(&cfg, 1, &mut rec).unwrap();
+    rec.finish().unwrap();
+    let copy = dir.join("copy.mcap");
+    std::fs::copy(&a, &copy).unwrap();
+    let bytes = std::fs::metadata(&a).unwrap().len() as i64;
+    let (ok, kib) = peak_rss_kib(&["analyze".as_ref(), a.as_os_str(), copy.as_os_str()]);
+    assert!(ok, "analyze failed");
+    // About 18 MB against a recording of 27 MB; reading both whole took 2 × 27 MB more.
+    assert!(
+        kib * 1024 < bytes,
+        "analyze of a {bytes}-byte recording and its copy peaked at {kib} KiB of RSS"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
