@@ -186,7 +186,13 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
     }
     if runs.len() > 1 {
         let recs: Vec<Recording> = runs.into_iter().map(|(r, _)| r).collect();
-        let exp = experiment(&recs, args.out.as_deref(), args.tolerance, !args.no_plots)?;
+        let exp = experiment(
+            &recs,
+            args.out.as_deref(),
+            args.tolerance,
+            !args.no_plots,
+            !args.no_csv,
+        )?;
         out.push_str(&exp.table);
         for p in &exp.files {
             let _ = writeln!(out, "wrote {}", p.display());
@@ -1644,12 +1650,14 @@ fn segment_label(sessions: &[&Recording], start: u64) -> &'static str {
 /// Over the sessions of an experiment (grouped as `group_sessions` says): the mean eval-cost
 /// curve ± std over sessions and mean λ per update (`mean_curves.svg`, `mean_curves.csv`) over
 /// the updates every session of the group has, and the re-convergence table
-/// (`reconvergence.csv`; also returned as Markdown).
+/// (`reconvergence.md`, `reconvergence.csv`; also returned as Markdown). Into `out` if given:
+/// the SVG with `figures`, the two CSV files with `csv`.
 pub fn experiment(
     recs: &[Recording],
     out: Option<&Path>,
     tolerance: f64,
     figures: bool,
+    csv: bool,
 ) -> Result<ExperimentReport, RecordError> {
     let mut notes = Vec::new();
     let groups = group_sessions(recs, &mut notes);
@@ -1801,10 +1809,12 @@ pub fn experiment(
     };
     if let Some(dir) = out {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
-        for (name, text) in [
+        // `--no-csv` holds for the experiment's CSV files too; its table stays, as Markdown.
+        let tables = [
             ("mean_curves.csv", &mean_csv),
             ("reconvergence.csv", &reconv_csv),
-        ] {
+        ];
+        for (name, text) in tables.into_iter().filter(|_| csv) {
             let p = dir.join(name);
             std::fs::write(&p, text).map_err(io(&p))?;
             report.files.push(p);
@@ -2031,7 +2041,7 @@ mod tests {
         let (mut whole, mut late) = (whole, late);
         whole.run.push(info(1));
         late.run.push(info(2));
-        let report = experiment(&[whole, late], None, 0.05, false).unwrap();
+        let report = experiment(&[whole, late], None, 0.05, false, false).unwrap();
         assert!(
             report.table.contains("| A1 | 4 (task change) | 1 |"),
             "{}",
@@ -2068,6 +2078,49 @@ mod tests {
         assert!(!same_bytes(&a, &shorter));
         assert!(same_bytes(&empty, &write("empty-too", &[])));
         assert!(!same_bytes(&a, &dir.join("absent")));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// `analyze --no-csv` writes no CSV file, the experiment's included.
+    #[test]
+    fn no_csv_holds_for_the_experiments_files_too() {
+        let dir = std::env::temp_dir().join(format!("pi2cma-no-csv-{}", std::process::id()));
+        let mut files = Vec::new();
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(3);
+        for seed in 1..=2 {
+            let f = dir.join(format!("s{seed}.mcap"));
+            let mut rec = crate::McapRecorder::create(&f).unwrap();
+            session::run_session(&cfg, seed, &mut rec).unwrap();
+            rec.finish().unwrap();
+            files.push(f);
+        }
+        let out = dir.join("analysis");
+        let args = |no_csv| AnalyzeArgs {
+            files: files.clone(),
+            out: Some(out.clone()),
+            no_csv,
+            no_plots: true,
+            verify: false,
+            tolerance: 0.05,
+        };
+        let csv_files = || {
+            let mut found = Vec::new();
+            for d in [out.clone(), out.join("s1"), out.join("s2")] {
+                for e in std::fs::read_dir(d).into_iter().flatten().flatten() {
+                    if e.path().extension().is_some_and(|x| x == "csv") {
+                        found.push(e.path());
+                    }
+                }
+            }
+            found
+        };
+        run(&args(true)).unwrap();
+        assert_eq!(csv_files(), Vec::<PathBuf>::new());
+        assert!(out.join("reconvergence.md").is_file());
+        run(&args(false)).unwrap();
+        assert!(out.join("mean_curves.csv").is_file() && out.join("reconvergence.csv").is_file());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -2136,7 +2189,7 @@ mod tests {
             session("A1", 1, 10.0, &[4.0, 2.0, 1.0]), // a copy of the first
             session("A1", 1, 20.0, &[8.0, 8.0, 8.0]), // other settings, same name
         ];
-        let r = experiment(&recs, None, 0.05, false).unwrap();
+        let r = experiment(&recs, None, 0.05, false, false).unwrap();
         let t = &r.table;
         assert!(t.contains("3 sessions in 2 run(s)"), "{t}");
         assert!(t.contains("counted once"), "{t}");

@@ -169,7 +169,7 @@ fn run(cli: Cli) -> Result<()> {
             let mut notes = String::new();
             let recs = analyze::join_runs(recs, &mut notes);
             print!("{notes}");
-            let r = analyze::experiment(&recs, Some(&out), tolerance, true)?;
+            let r = analyze::experiment(&recs, Some(&out), tolerance, true, true)?;
             print!("{}", r.table);
             for p in &r.files {
                 println!("wrote {}", p.display());
