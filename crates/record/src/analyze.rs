@@ -1685,8 +1685,8 @@ pub fn experiment(
         if by_update.len() < all {
             let lengths: Vec<usize> = sessions.iter().map(|r| r.curve().len()).collect();
             notes.push(format!(
-                "{name}: its sessions have {}–{} updates; the mean curve and the final eval cost \
-                 are over the {} updates every session has",
+                "{name}: its sessions have {}–{} updates; the mean curve and the eval costs at the \
+                 segments' ends are over the {} updates every session has",
                 lengths.iter().min().unwrap_or(&0),
                 lengths.iter().max().unwrap_or(&0),
                 by_update.len()
@@ -1744,11 +1744,14 @@ pub fn experiment(
                 per_segment.entry(s.start).or_default().push(s);
             }
         }
-        let (fm, fs) = by_update
-            .values()
-            .next_back()
-            .map_or((f64::NAN, f64::NAN), |(costs, _)| mean_std(costs));
         for (start, ss) in &per_segment {
+            // Where the segment ended up: its last update every session has. (The run's final
+            // cost on every row said nothing of how a segment before a task change ended.)
+            let end = ss.iter().map(|s| s.end).min().unwrap_or(*start);
+            let (fm, fs) = by_update
+                .range(*start..end)
+                .next_back()
+                .map_or((f64::NAN, f64::NAN), |(_, (costs, _))| mean_std(costs));
             let n: Vec<f64> = ss
                 .iter()
                 .filter_map(|s| s.updates_to_converge())
@@ -1795,7 +1798,7 @@ pub fn experiment(
          whose last eval cost is outside that band, or whose band holds for its last update \
          only, has not converged (\"–\"). Means are over the sessions that converged.\n"
     );
-    let _ = writeln!(t, "| run | segment from update | sessions | converged | updates to converge (mean ± std) | converged at (mean) | final eval cost (mean ± std) |");
+    let _ = writeln!(t, "| run | segment from update | sessions | converged | updates to converge (mean ± std) | converged at (mean) | eval cost at the segment's end (mean ± std) |");
     let _ = writeln!(t, "|---|---|---|---|---|---|---|");
     t.push_str(&rows);
     let changes: Vec<u64> = {
@@ -2202,6 +2205,35 @@ mod tests {
         );
         assert!(
             t.contains("| A1 (h = 20,") && t.contains("| 8.0000 ± 0.0000 |"),
+            "{t}"
+        );
+    }
+
+    #[test]
+    fn each_segment_row_gives_the_eval_cost_where_that_segment_ended() {
+        let with_change = |seed, costs: &[f64]| {
+            let mut r = session("T", seed, 10.0, costs);
+            r.task_changes.push(proto::TaskChange {
+                update: 4,
+                ..Default::default()
+            });
+            r
+        };
+        let recs = [
+            with_change(1, &[100.0, 30.0, 5.0, 1.0, 50.0, 10.0, 3.0, 2.0]),
+            with_change(2, &[90.0, 20.0, 4.0, 3.0, 60.0, 12.0, 5.0, 4.0]),
+        ];
+        let t = experiment(&recs, None, 0.05, false, false).unwrap().table;
+        let row = |start: &str| {
+            t.lines()
+                .find(|l| l.contains(&format!("| {start}")))
+                .unwrap_or_else(|| panic!("no segment {start}: {t}"))
+                .to_string()
+        };
+        // Before the change, at update 3: (1 + 3)/2; after it, at update 7: (2 + 4)/2.
+        assert!(row("0 ").ends_with("| 2.0000 ± 1.4142 |"), "{t}");
+        assert!(
+            row("4 (task change)").ends_with("| 3.0000 ± 1.4142 |"),
             "{t}"
         );
     }
