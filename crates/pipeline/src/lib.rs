@@ -338,6 +338,7 @@ pub fn announce_ready(
 /// ([`worker::ConfigRefused`]).
 pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
+    report_panics(name);
     match f().with_context(|| format!("{name} failed")) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -348,6 +349,43 @@ pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::proc
                 std::process::ExitCode::FAILURE
             }
         }
+    }
+}
+
+/// Ends a panic's output with `error: NAME panicked at FILE:LINE: MESSAGE`. The supervisor
+/// reports a process's last error line (else its last line) as why it died, and after the
+/// standard hook's message come the backtrace or the hint to set `RUST_BACKTRACE`: a user's task
+/// that panicked in a rollout was reported as "its last output: note: run with
+/// `RUST_BACKTRACE=1` …", naming neither the task's message nor where.
+fn report_panics(name: &str) {
+    let name = name.to_string();
+    let standard = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        standard(info);
+        eprintln!(
+            "error: {}",
+            panic_line(&name, info.payload(), info.location())
+        );
+    }));
+}
+
+/// One line for a panic: its message (a `&str` or `String` payload; other payloads have none
+/// to show) and where it was raised.
+fn panic_line(
+    name: &str,
+    payload: &(dyn std::any::Any + Send),
+    location: Option<&std::panic::Location<'_>>,
+) -> String {
+    let message = payload
+        .downcast_ref::<&str>()
+        .copied()
+        .or_else(|| payload.downcast_ref::<String>().map(String::as_str))
+        .unwrap_or("(a panic without a message)");
+    // The supervisor keeps one line.
+    let message = message.replace('\n', " ");
+    match location {
+        Some(at) => format!("{name} panicked at {at}: {message}"),
+        None => format!("{name} panicked: {message}"),
     }
 }
 
@@ -401,6 +439,26 @@ mod tests {
     use super::*;
 
     const MAX: Duration = Duration::from_micros(200);
+
+    #[test]
+    fn a_panic_is_one_line_with_its_message_and_place() {
+        let payload: Box<dyn std::any::Any + Send> = Box::new(String::from("two\nlines"));
+        let at = std::panic::Location::caller();
+        assert_eq!(
+            panic_line("w", payload.as_ref(), Some(at)),
+            format!("w panicked at {at}: two lines")
+        );
+        let payload: Box<dyn std::any::Any + Send> = Box::new("static");
+        assert_eq!(
+            panic_line("w", payload.as_ref(), None),
+            "w panicked: static"
+        );
+        let payload: Box<dyn std::any::Any + Send> = Box::new(7_u32);
+        assert_eq!(
+            panic_line("w", payload.as_ref(), None),
+            "w panicked: (a panic without a message)"
+        );
+    }
 
     #[test]
     fn a_poll_that_catches_the_wake_up_restores_the_full_budget() {
