@@ -161,3 +161,53 @@ print("ok")
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// `pi2cma_worker` refuses a task whose `parameters`, `steps` or `settings` is a method (the Rust
+/// trait's form), missing, or `settings` not a dict, naming the attribute, as a shape mismatch
+/// (exit 78, not restarted): it failed with `TypeError: 'method' object is not iterable` or an
+/// AttributeError and was restarted up to the restart limit.
+#[test]
+fn python_worker_names_a_shape_attribute_of_the_wrong_kind() {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let script = r#"
+import sys, types
+sys.path.insert(0, sys.argv[1])
+import pi2cma_worker as w
+shape = types.SimpleNamespace(parameters=2, steps=3, settings=["x"], basis_activations=None, origin="c.toml")
+class Good:
+    parameters, steps, settings = 2, 3, {"x": 0.0}
+    def set(self, name, value): pass
+w._check_shape(Good(), shape)
+class SettingsMethod(Good):
+    def settings(self): return {"x": 0.0}
+class StepsMethod(Good):
+    def steps(self): return 3
+class SettingsList(Good):
+    settings = [("x", 0.0)]
+class NoSettings:
+    parameters, steps = 2, 3
+for case in (SettingsMethod, StepsMethod, SettingsList, NoSettings):
+    try:
+        w._check_shape(case(), shape)
+        print(case.__name__, "passed")
+    except w.ConfigRefused as e:
+        print(case.__name__, e)
+"#;
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(repo.join("tools"))
+        .output()
+        .expect("python3 starts");
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    for expected in [
+        "SettingsMethod the task's `settings` is a method: it must be a dict",
+        "StepsMethod the task's `steps` is a method: it must be N, the number of step costs",
+        "SettingsList the task's `settings` is [('x', 0.0)]: it must be a dict",
+        "NoSettings the task has no attribute `settings`: it must be a dict",
+    ] {
+        assert!(text.contains(expected), "{expected:?} not in:\n{text}");
+    }
+}

@@ -254,11 +254,35 @@ def _node(run_id, worker, incarnation):
     )
 
 
+def _shape_attribute(task, name, what):
+    """The task's attribute `name`, or ConfigRefused naming it: a task written after the Rust
+    trait (`def settings(self)`) or without the attribute failed with `TypeError: 'method' object
+    is not iterable` or an AttributeError, named neither the attribute nor what it must be, and
+    was restarted up to the restart limit although every restart meets the same."""
+    try:
+        value = getattr(task, name)
+    except AttributeError:
+        raise ConfigRefused(f"the task has no attribute `{name}`: it must be {what}") from None
+    if callable(value):
+        raise ConfigRefused(
+            f"the task's `{name}` is a method: it must be {what}, an attribute (or a property)"
+        )
+    return value
+
+
 def _check_shape(task, shape):
-    theirs = sorted(task.settings)
+    settings = _shape_attribute(
+        task, "settings", "a dict of the names of [task.external.settings] and their values ({} for none)"
+    )
+    if not hasattr(settings, "keys"):
+        raise ConfigRefused(
+            f"the task's `settings` is {_short(settings)}: it must be a dict of the names of "
+            f"[task.external.settings] and their values"
+        )
+    theirs = sorted(settings)
     for what, ours, declared in [
-        ("parameters", task.parameters, shape.parameters),
-        ("steps", task.steps, shape.steps),
+        ("parameters", _shape_attribute(task, "parameters", "P, the length of theta"), shape.parameters),
+        ("steps", _shape_attribute(task, "steps", "N, the number of step costs"), shape.steps),
         ("settings", theirs, shape.settings),
     ]:
         if ours != declared:
