@@ -44,14 +44,16 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
 /// errors), e.g. `crates/supervisor/examples/reach-worker.rs`.
 ///
 /// The task must have the shape the config declares — P parameters, N steps, the same setting
-/// names in the same order — or this fails at start, naming both.
+/// names in the same order ([`session::check_task_shape`]) — or this fails at start, naming
+/// both. The same task runs without the pipeline through `session::InProcess::with_task`.
 pub fn serve<T: Task>(
     args: &WorkerArgs,
     make_task: impl FnOnce(&RunConfig) -> anyhow::Result<T>,
 ) -> anyhow::Result<()> {
     slot(args, |ctx| {
         let task = make_task(&ctx.config)?;
-        check_shape(&task, &ctx.config).map_err(|e| anyhow::Error::new(ConfigRefused(e)))?;
+        session::check_task_shape(&task, &ctx.config)
+            .map_err(|e| anyhow::Error::new(ConfigRefused(e.into())))?;
         Ok(task)
     })
 }
@@ -399,64 +401,6 @@ impl std::fmt::Display for ConfigRefused {
 }
 
 impl std::error::Error for ConfigRefused {}
-
-/// A worker's task must match what the update side was configured with: it sizes θ and the
-/// cost trajectories, and settings travel by position.
-fn check_shape(task: &dyn Task, config: &RunConfig) -> anyhow::Result<()> {
-    let declared = config.build_task()?;
-    let field = |f: &str| match config.external_worker() {
-        Some(_) => format!("task.external.{f}"),
-        None => format!("the `{}` task's {f}", declared.name()),
-    };
-    if task.parameters() != declared.parameters() {
-        bail!(
-            "task `{}` has {} parameters, but {} = {} in {}",
-            task.name(),
-            task.parameters(),
-            field("parameters"),
-            declared.parameters(),
-            config.origin.display()
-        );
-    }
-    if task.steps() != declared.steps() {
-        bail!(
-            "task `{}` has {} steps, but {} = {} in {}",
-            task.name(),
-            task.steps(),
-            field("steps"),
-            declared.steps(),
-            config.origin.display()
-        );
-    }
-    // The update weighs by the config's activations; a worker whose policy has others would
-    // be learning with a projection that is not its own.
-    if let (Some(own), Some(declared_psi)) =
-        (task.basis_activations(), declared.basis_activations())
-    {
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        if bits(&own) != bits(&declared_psi) {
-            bail!(
-                "task `{}` has other basis activations than {} in {}: the update weighs the \
-                 rollouts by the config's, so put the task's own there",
-                task.name(),
-                field("basis_activations"),
-                config.origin.display()
-            );
-        }
-    }
-    let names = |t: &dyn Task| t.settings().iter().map(|(n, _)| *n).collect::<Vec<_>>();
-    if names(task) != names(declared.as_ref()) {
-        bail!(
-            "task `{}` has the settings {:?}, but {} declares {:?} (same names, same order) in {}",
-            task.name(),
-            names(task),
-            field("settings"),
-            names(declared.as_ref()),
-            config.origin.display()
-        );
-    }
-    Ok(())
-}
 
 #[cfg(test)]
 mod tests {

@@ -40,6 +40,70 @@ pub enum SessionError {
         dim: usize,
         task_dim: usize,
     },
+    /// A task of your own has another shape than its config declares ([`check_task_shape`]).
+    #[error("{0}")]
+    TaskShape(String),
+}
+
+/// Checks that a task of your own has the shape its config declares: P parameters, N steps, the
+/// same setting names in the same order (alphabetical for `[task.external.settings]`, as the
+/// wire carries them), and, where both have them, the same basis activations. The update side
+/// is built from the config, so a task of another shape would be handed θ and settings it does
+/// not read as meant. A pipeline worker of your own (`pipeline::worker::serve`) and
+/// [`InProcess::with_task`] check it before their first rollout.
+pub fn check_task_shape(task: &dyn Task, config: &RunConfig) -> Result<(), SessionError> {
+    let declared = config.build_task()?;
+    let field = |f: &str| match config.external_worker() {
+        Some(_) => format!("task.external.{f}"),
+        None => format!("the `{}` task's {f}", declared.name()),
+    };
+    let origin = config.origin.display();
+    let refuse = |text: String| Err(SessionError::TaskShape(text));
+    if task.parameters() != declared.parameters() {
+        return refuse(format!(
+            "task `{}` has {} parameters, but {} = {} in {origin}",
+            task.name(),
+            task.parameters(),
+            field("parameters"),
+            declared.parameters(),
+        ));
+    }
+    if task.steps() != declared.steps() {
+        return refuse(format!(
+            "task `{}` has {} steps, but {} = {} in {origin}",
+            task.name(),
+            task.steps(),
+            field("steps"),
+            declared.steps(),
+        ));
+    }
+    // The update weighs by the config's activations; a task whose policy has others would be
+    // learning with a projection that is not its own.
+    if let (Some(own), Some(declared_psi)) =
+        (task.basis_activations(), declared.basis_activations())
+    {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        if bits(&own) != bits(&declared_psi) {
+            return refuse(format!(
+                "task `{}` has other basis activations than {} in {origin}: the update weighs \
+                 the rollouts by the config's, so put the task's own there",
+                task.name(),
+                field("basis_activations"),
+            ));
+        }
+    }
+    let names = |t: &dyn Task| t.settings().iter().map(|(n, _)| *n).collect::<Vec<_>>();
+    if names(task) != names(declared.as_ref()) {
+        return refuse(format!(
+            "task `{}` has the settings {:?}, but {} declares {:?} (same names, same order) in \
+             {origin}",
+            task.name(),
+            names(task),
+            field("settings"),
+            names(declared.as_ref()),
+        ));
+    }
+    Ok(())
 }
 
 /// The task of a config, with its rollout delay if one is set, ready to run rollouts. An
@@ -206,19 +270,59 @@ fn wall_ns() -> u64 {
 
 impl InProcess {
     pub fn new(config: &RunConfig, seed: u64) -> Result<Self, SessionError> {
-        Self::new_at(config, seed, None)
+        Self::new_at(config, seed, None, None)
     }
 
     /// A run resumed at `start` (e.g. the state a recording ended in): for the same config and
     /// seed it goes on exactly as the stopped run would have.
     pub fn resume(config: &RunConfig, seed: u64, start: Start) -> Result<Self, SessionError> {
-        Self::new_at(config, seed, Some(start))
+        Self::new_at(config, seed, Some(start), None)
     }
 
-    fn new_at(config: &RunConfig, seed: u64, start: Option<Start>) -> Result<Self, SessionError> {
-        let task = build_task(config)?;
-        let optimizer = build_optimizer_at(config, task.as_ref(), seed, start.as_ref())?;
-        let initial_settings = task.settings();
+    /// A run of `config` whose rollouts `task`, a task of your own, executes in this thread:
+    /// the task a `[task.external]` config declares for the pipeline's workers, run without the
+    /// pipeline. The update side is built from the config, as the pipeline's is: its
+    /// `initial_mean`, its basis activations, and its setting values, which are set in `task`
+    /// before the first update (then the schedule's changes at their updates). So for the same
+    /// config and seed the run ends with the pipeline's result, bit for bit. `task` must have
+    /// the declared shape ([`check_task_shape`]). Unlike a pipeline worker, a task that
+    /// refuses a scheduled change fails the run here.
+    pub fn with_task(
+        config: &RunConfig,
+        seed: u64,
+        task: Box<dyn Task>,
+    ) -> Result<Self, SessionError> {
+        Self::new_at(config, seed, None, Some(task))
+    }
+
+    /// [`InProcess::with_task`] resumed at `start`, as [`InProcess::resume`].
+    pub fn resume_with_task(
+        config: &RunConfig,
+        seed: u64,
+        task: Box<dyn Task>,
+        start: Start,
+    ) -> Result<Self, SessionError> {
+        Self::new_at(config, seed, Some(start), Some(task))
+    }
+
+    fn new_at(
+        config: &RunConfig,
+        seed: u64,
+        start: Option<Start>,
+        own: Option<Box<dyn Task>>,
+    ) -> Result<Self, SessionError> {
+        let (task, declared) = match own {
+            None => (build_task(config)?, None),
+            Some(task) => {
+                check_task_shape(task.as_ref(), config)?;
+                (task, Some(config.build_task()?))
+            }
+        };
+        // A task of your own may start from other values and another initial mean than the
+        // config declares; the pipeline's update side knows only the config's.
+        let shape = declared.as_deref().unwrap_or(task.as_ref());
+        let optimizer = build_optimizer_at(config, shape, seed, start.as_ref())?;
+        let initial_settings = shape.settings();
         let costs = optimizer.cost_batch();
         Ok(Self {
             config: config.clone(),
@@ -469,6 +573,85 @@ mod tests {
             e,
             "test: its distribution has 3 parameters, but the task has 2"
         );
+    }
+
+    /// The default config's via-point task, declared as `[task.external]` and handed to
+    /// `with_task` at another via-point: the config's setting and schedule are brought into it,
+    /// and the run is the built-in one, bit for bit. A task of another shape is refused, naming
+    /// the field; `InProcess::new` refuses the external config.
+    #[test]
+    fn a_task_of_your_own_runs_in_process_as_its_config_declares_it() {
+        let builtin = RunConfig::default_config();
+        let reference = capture(InProcess::new(&builtin, 1).unwrap());
+        let own = || {
+            let mut t = tasks::ViaPoint::new(&Default::default()).unwrap();
+            t.set("viapoint", 0.9).unwrap();
+            Box::new(t) as Box<dyn Task>
+        };
+        let section = |mean: &[f64]| {
+            format!(
+                "[task.external]\nworker = [\"./worker\"]\nparameters = 2\nsteps = 101\n\
+                 initial_mean = {mean:?}\n[task.external.settings]\nviapoint = 0.3\n"
+            )
+        };
+        let external = |mean: &[f64]| {
+            let builtin_section = DEFAULT_CONFIG
+                .split("[task.via-point]")
+                .nth(1)
+                .and_then(|rest| rest.split("\n\n").next())
+                .unwrap();
+            let text = DEFAULT_CONFIG.replace(
+                &format!("[task.via-point]{builtin_section}"),
+                &section(mean),
+            );
+            RunConfig::parse(&text, std::path::Path::new("own.toml")).unwrap()
+        };
+        let mean = own().initial_mean();
+        let cfg = external(&mean);
+        assert_eq!(
+            capture(InProcess::with_task(&cfg, 1, own()).unwrap()),
+            reference
+        );
+        // The config's initial mean, not the task's: another one is another run.
+        let other = capture(InProcess::with_task(&external(&[0.0, 0.0]), 1, own()).unwrap());
+        assert_ne!(other[0].after.mean, reference[0].after.mean);
+
+        let e = InProcess::with_task(&cfg, 1, Box::new(Target1D))
+            .err()
+            .unwrap()
+            .to_string();
+        assert_eq!(
+            e,
+            "task `target-1d` has 1 parameters, but task.external.parameters = 2 in own.toml"
+        );
+        let e = InProcess::new(&cfg, 1).err().unwrap().to_string();
+        assert!(e.contains("only the pipeline starts"), "{e}");
+    }
+
+    struct Target1D;
+    impl Task for Target1D {
+        fn name(&self) -> &'static str {
+            "target-1d"
+        }
+        fn parameters(&self) -> usize {
+            1
+        }
+        fn steps(&self) -> usize {
+            101
+        }
+        fn initial_mean(&self) -> Vec<f64> {
+            vec![0.0]
+        }
+        fn rollout(&mut self, _: &[f64], c: &mut [f64]) -> f64 {
+            c.fill(0.0);
+            0.0
+        }
+        fn settings(&self) -> Vec<(&'static str, f64)> {
+            vec![("viapoint", 0.0)]
+        }
+        fn set(&mut self, _: &str, _: f64) -> Result<(), TaskError> {
+            Ok(())
+        }
     }
 
     #[test]

@@ -159,6 +159,11 @@ struct Cli {
     /// `temporal_averaging = "basis-activation"` needs) and exit.
     #[arg(long, exclusive = true)]
     basis_activations: bool,
+    /// Run the whole of CONFIG in this process, without the pipeline
+    /// (`session::InProcess::with_task`), and print the final distribution's bits: those of
+    /// `supervisor run CONFIG`'s result file.
+    #[arg(long, exclusive = true, value_name = "CONFIG")]
+    in_process: Option<std::path::PathBuf>,
     #[command(flatten)]
     worker: pipeline::worker::WorkerArgs,
 }
@@ -195,6 +200,11 @@ fn main() -> std::process::ExitCode {
             format!("basis_activations = [\n  {},\n]", rows.join(",\n  "))
         });
     }
+    if let [flag, config] = &std::env::args().skip(1).collect::<Vec<_>>()[..] {
+        if flag == "--in-process" {
+            return pipeline::run_main("reach-worker", || in_process(config.as_ref()));
+        }
+    }
     // Without arguments of its own, `pipeline::worker::serve_main("reach-worker", Reach::new)`
     // would be the whole of main.
     let cli = Cli::parse();
@@ -207,4 +217,19 @@ fn main() -> std::process::ExitCode {
             })
         })
     })
+}
+
+/// The task of your own without the pipeline: the config's update side in this thread, with the
+/// config's initial mean and settings, the schedule at its updates, and the same noise, so the
+/// same bits as the pipeline's run of the config.
+fn in_process(path: &std::path::Path) -> anyhow::Result<()> {
+    let config = RunConfig::load(path)?;
+    let task = Reach::new(&config)?;
+    let mut run = session::InProcess::with_task(&config, config.run.seed, Box::new(task))?;
+    run.run(&mut session::NoObserver, &|| false)?;
+    let d = run.optimizer().distribution();
+    let bits = |v: &[f64]| pipeline::result::bits(v);
+    println!("mean_bits = {:?}", bits(d.mean.as_slice()));
+    println!("covariance_bits = {:?}", bits(d.covariance.as_slice()));
+    Ok(())
 }

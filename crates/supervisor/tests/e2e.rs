@@ -2367,6 +2367,31 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     // it), so these rollouts ran in the example's program.
     assert_eq!(rec.rollouts.len(), 80 * 10);
     assert_nothing_left(&run);
+
+    // The same task and config without the pipeline (`reach-worker --in-process`, through
+    // session::InProcess::with_task): the same final distribution, bit for bit.
+    let worker = Path::new(SUPERVISOR)
+        .parent()
+        .unwrap()
+        .join("examples/reach-worker");
+    let out = std::process::Command::new(worker)
+        .arg("--in-process")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        text.lines().collect::<Vec<_>>(),
+        [
+            format!("mean_bits = {:?}", r.mean_bits),
+            format!("covariance_bits = {:?}", r.covariance_bits)
+        ]
+    );
 }
 
 /// Runs config `text` (written as `<id>.toml`) to its end, which must be a success: the run,
