@@ -399,6 +399,10 @@ impl InProcess {
         for k in 0..samples.rollouts {
             let start = if timed { wall_ns() } else { 0 };
             let (per_step, terminal) = self.costs.slot_mut(k);
+            // As a pipeline worker hands them (a fresh cost sample): a task that writes only
+            // the steps that cost something, or adds to them, must not find the previous
+            // update's costs there, or it runs another run in-process than in the pipeline.
+            per_step.fill(0.0);
             *terminal = self.task.rollout(samples.row(k), per_step);
             if timed {
                 self.rollout_times.push((start, wall_ns()));
@@ -626,6 +630,52 @@ mod tests {
         );
         let e = InProcess::new(&cfg, 1).err().unwrap().to_string();
         assert!(e.contains("only the pipeline starts"), "{e}");
+    }
+
+    /// A task that writes only the steps that cost something finds zeros in the others, as in
+    /// a pipeline worker, not the costs of the update before.
+    #[test]
+    fn a_rollout_finds_its_step_costs_zeroed() {
+        struct Sparse(std::sync::Arc<std::sync::Mutex<f64>>);
+        impl Task for Sparse {
+            fn name(&self) -> &'static str {
+                "sparse"
+            }
+            fn parameters(&self) -> usize {
+                1
+            }
+            fn steps(&self) -> usize {
+                3
+            }
+            fn initial_mean(&self) -> Vec<f64> {
+                vec![0.0]
+            }
+            fn rollout(&mut self, theta: &[f64], c: &mut [f64]) -> f64 {
+                let found = c.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+                let mut seen = self.0.lock().unwrap();
+                *seen = seen.max(found);
+                c[1] = (theta[0] - 1.0).powi(2);
+                0.0
+            }
+            fn settings(&self) -> Vec<(&'static str, f64)> {
+                Vec::new()
+            }
+            fn set(&mut self, _: &str, _: f64) -> Result<(), TaskError> {
+                Ok(())
+            }
+        }
+        let text = DEFAULT_CONFIG
+            .split("[task.via-point]")
+            .next()
+            .unwrap()
+            .to_string()
+            + "[task.external]\nworker = [\"./worker\"]\nparameters = 1\nsteps = 3\n\
+               initial_mean = [0.0]\n";
+        let cfg = RunConfig::parse(&text, std::path::Path::new("sparse.toml")).unwrap();
+        let seen = std::sync::Arc::new(std::sync::Mutex::new(0.0));
+        let steps = capture(InProcess::with_task(&cfg, 1, Box::new(Sparse(seen.clone()))).unwrap());
+        assert_eq!(steps.len(), 40);
+        assert_eq!(*seen.lock().unwrap(), 0.0);
     }
 
     struct Target1D;

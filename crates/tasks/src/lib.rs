@@ -56,7 +56,8 @@ pub trait Task: Send {
     fn basis_activations(&self) -> Option<Vec<f64>> {
         None
     }
-    /// Executes θ: writes the N immediate costs into `per_step` and returns the terminal cost.
+    /// Executes θ: writes the N immediate costs into `per_step`, which comes zeroed (in every
+    /// executor), and returns the terminal cost.
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64;
     /// Current values of the settings a task change may set.
     fn settings(&self) -> Vec<(&'static str, f64)>;
