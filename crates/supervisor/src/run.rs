@@ -852,8 +852,24 @@ impl Supervisor {
                             .map(|(w, _)| format!("worker-{w} (waiting to be restarted)")),
                     )
                     .collect();
+                // A worker of the user's own that runs but never announces itself timed out
+                // with nothing to say what "ready" is: neither the wire docs nor the README's
+                // steps for a worker in another language named the announcement.
+                let own_worker_waits = self.cfg.external_worker().is_some()
+                    && self
+                        .procs
+                        .values()
+                        .any(|p| !p.ready && matches!(p.role, Role::Worker(_)));
+                let hint = if own_worker_waits {
+                    "; a worker is ready once it has opened its ports, announced itself on \
+                     `lifecycle` (role 3, its slot and incarnation) and rung `wake/supervisor`, \
+                     as pipeline::worker::serve and tools/pi2cma_worker.py do (README, \
+                     \"Wire layout\")"
+                } else {
+                    ""
+                };
                 self.fail(format!(
-                    "{} did not become ready within {} ms (pipeline.startup_timeout_ms)",
+                    "{} did not become ready within {} ms (pipeline.startup_timeout_ms){hint}",
                     waiting.join(", "),
                     self.pipe.startup_timeout_ms
                 ));

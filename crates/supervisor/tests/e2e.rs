@@ -2394,6 +2394,34 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     );
 }
 
+/// A worker of your own that runs but never announces itself on `lifecycle` (the step the
+/// README's and the wire crate's instructions for a worker in another language left out): the
+/// startup timeout says what being ready takes.
+#[test]
+fn a_worker_of_your_own_that_never_announces_itself_is_told_what_ready_takes() {
+    use std::os::unix::fs::PermissionsExt;
+    let scratch = Scratch::new("silent-worker");
+    let script = scratch.path("silent.sh");
+    std::fs::write(&script, "#!/bin/sh\nexec sleep 30\n").unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let text = external_config_from(
+        "external-reach.toml",
+        "../target/release/examples/reach-worker",
+        &script,
+        &[("workers = 2", "workers = 1\nstartup_timeout_ms = 2000")],
+    );
+    assert_run_fails_saying(
+        &scratch,
+        1000,
+        "silent.toml",
+        &text,
+        &[
+            "worker-0 did not become ready within 2000 ms (pipeline.startup_timeout_ms); a \
+             worker is ready once it has opened its ports, announced itself on `lifecycle`",
+        ],
+    );
+}
+
 /// Runs config `text` (written as `<id>.toml`) to its end, which must be a success: the run,
 /// its output and its result file.
 fn run_to_its_end(scratch: &Scratch, id: u64, text: &str) -> (Run, String, RunResult) {

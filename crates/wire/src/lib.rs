@@ -89,8 +89,10 @@
 //!
 //! A foreign worker joins as worker `w` by: creating a node named [`worker_node_name`] with the
 //! run's config, subscribing to `work/<w>`, listening on `wake/worker/<w>`, publishing on
-//! `costs` and `ready` and notifying `wake/updater` and `wake/sampler`, then sending [`Ready`]
-//! with [`Ready::NO_CHUNK`]. Every service must be opened with the settings of the functions
+//! `costs` and `ready` and notifying `wake/updater` and `wake/sampler`, then announcing itself
+//! on `lifecycle` ([`Lifecycle`] with [`role::WORKER`], its slot and incarnation) and ringing
+//! `wake/supervisor` (the supervisor waits for this before it starts a run or counts a worker
+//! in), then sending [`Ready`] with [`Ready::NO_CHUNK`]. Every service must be opened with the settings of the functions
 //! below (see [`Limits`]). What the services of a run take of `/dev/shm` is
 //! [`Limits::shared_memory`].
 
