@@ -616,6 +616,18 @@ mod tests {
             capture(InProcess::with_task(&cfg, 1, own()).unwrap()),
             reference
         );
+        // Resumed (at the schedule's change and after it), from a task at another via-point.
+        for at in [20usize, 27] {
+            let start = Start {
+                update: at as u64,
+                distribution: reference[at - 1].after.clone(),
+                settings: reference[at - 1].settings.clone(),
+                ran_with: Vec::new(),
+                origin: "test".into(),
+            };
+            let resumed = capture(InProcess::resume_with_task(&cfg, 1, own(), start).unwrap());
+            assert_eq!(resumed, reference[at..], "resumed at {at}");
+        }
         // The config's initial mean, not the task's: another one is another run.
         let other = capture(InProcess::with_task(&external(&[0.0, 0.0]), 1, own()).unwrap());
         assert_ne!(other[0].after.mean, reference[0].after.mean);
