@@ -861,10 +861,11 @@ impl Supervisor {
                         .values()
                         .any(|p| !p.ready && matches!(p.role, Role::Worker(_)));
                 let hint = if own_worker_waits {
-                    "; a worker is ready once it has opened its ports, announced itself on \
-                     `lifecycle` (role 3, its slot and incarnation) and rung `wake/supervisor`, \
-                     as pipeline::worker::serve and tools/pi2cma_worker.py do (README, \
-                     \"Wire layout\")"
+                    "; a worker of your own is ready once it has built its task (a simulator \
+                     that takes longer to start needs a larger pipeline.startup_timeout_ms), \
+                     opened its ports, announced itself on `lifecycle` (role 3, its slot and \
+                     incarnation) and rung `wake/supervisor`, as pipeline::worker::serve and \
+                     tools/pi2cma_worker.py do (README, \"Wire layout\")"
                 } else {
                     ""
                 };

@@ -2417,7 +2417,8 @@ fn a_worker_of_your_own_that_never_announces_itself_is_told_what_ready_takes() {
         &text,
         &[
             "worker-0 did not become ready within 2000 ms (pipeline.startup_timeout_ms); a \
-             worker is ready once it has opened its ports, announced itself on `lifecycle`",
+             worker of your own is ready once it has built its task",
+            "announced itself on `lifecycle` (role 3, its slot and incarnation)",
         ],
     );
 }
