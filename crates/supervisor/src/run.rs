@@ -744,9 +744,9 @@ impl Supervisor {
         };
         let since = match self.progress {
             Some(p) if self.rate > 0.0 => format!(
-                "since update {} (they came every {:.3} s before)",
+                "since update {} (they came every {} before)",
                 p.updates,
-                1.0 / self.rate
+                interval_text(1.0 / self.rate)
             ),
             Some(p) => format!("since update {}", p.updates),
             None => "since the start".to_string(),
@@ -2686,9 +2686,25 @@ fn die_with_parent(cmd: &mut Command) {
     }
 }
 
+/// A time between updates as the stall warning shows it: in seconds, in milliseconds below
+/// 10 ms (a run at thousands of updates per second came "every 0.000 s").
+fn interval_text(secs: f64) -> String {
+    if secs >= 0.01 {
+        format!("{secs:.3} s")
+    } else {
+        format!("{:.3} ms", secs * 1e3)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_stall_warning_shows_a_short_interval_in_ms() {
+        assert_eq!(interval_text(0.161), "0.161 s");
+        assert_eq!(interval_text(0.000118), "0.118 ms");
+    }
 
     #[test]
     fn a_child_killed_by_sigbus_is_said_to_have_found_the_shared_memory_full() {
