@@ -303,9 +303,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     Ok(()) => RanWith::check(&mut ran_with, &h, &published, &*task)?,
                     Err(CostError::Duplicate { .. }) => {} // re-executed after a worker was lost
                     Err(e) => bail!(
-                        "update {u}: {e} (reported by worker-{} for rollout {})",
+                        "update {u}: {e} (reported by worker-{} for rollout {}{})",
                         h.worker,
-                        h.rollout
+                        h.rollout,
+                        ran_with_text(&h, &published, &*task)
                     ),
                 }
             }
@@ -515,6 +516,22 @@ struct RanWith {
     values: Vec<f64>,
     worker: u32,
     rollout: u32,
+}
+
+/// The task settings rollout `h` ran with, for an error about its costs: a change that made a
+/// task's costs overflow (`supervisor set` of a target 1e308 away, which the update side cannot
+/// try on a task of your own) failed the run naming only the worker and the rollout.
+fn ran_with_text(h: &wire::CostHeader, published: &[f64], task: &dyn tasks::Task) -> String {
+    let names = task.settings();
+    if names.is_empty() {
+        return String::new();
+    }
+    let list: Vec<String> = names
+        .iter()
+        .zip(h.ran_with(published))
+        .map(|((name, _), v)| format!("{name} = {}", tasks::value_text(*v)))
+        .collect();
+    format!(", which ran with {}", list.join(", "))
 }
 
 impl RanWith {
@@ -854,6 +871,22 @@ mod tests {
                 (41, "target_y", 0.7, "runtime")
             ]
         );
+    }
+
+    #[test]
+    fn a_cost_error_names_the_settings_its_rollout_ran_with() {
+        let task = reach();
+        let published = [0.3, 1e308];
+        assert_eq!(
+            ran_with_text(&cost(0, 3, &[]), &published, &task),
+            ", which ran with target_x = 0.3, target_y = 1e308"
+        );
+        assert_eq!(
+            ran_with_text(&cost(0, 3, &[0.3, 0.7]), &published, &task),
+            ", which ran with target_x = 0.3, target_y = 0.7"
+        );
+        let none = tasks::External::new(1, 1, vec![0.0], &[]).unwrap();
+        assert_eq!(ran_with_text(&cost(0, 3, &[]), &[], &none), "");
     }
 
     #[test]
