@@ -182,7 +182,9 @@ def _apply_settings(task, names, applied, refused, update, settings, previous):
             if _same(settings[i], previous[i])
             else "the value the update before ran with"
         )
-        raise TaskFailed(
+        # Refused as the config is (exit 78, not restarted): a restarted worker's task meets the
+        # same value, and so does every other worker the rollouts go to.
+        raise SettingRefused(
             f"update {update}: the task's set({names[i]!r}, {previous[i]!r}) raised "
             f"{type(error).__name__}: {error} ({in_force}): nothing to fall back to"
         ) from error
@@ -209,6 +211,12 @@ class ConfigRefused(WorkerError):
     """The task has another shape than the run's config declares: a restart would refuse it
     again. Exits with 78 (crates/wire EXIT_CONFIG_REFUSED), which the supervisor does not
     restart."""
+
+
+class SettingRefused(ConfigRefused, TaskFailed):
+    """The task's `set` refused a value with nothing to fall back to (the config's own at the
+    first update, or one the other workers took): refused as the config is, with the task's
+    traceback."""
 
 
 class Shape:
@@ -322,6 +330,8 @@ def serve(make_task, argv=None):
     try:
         _serve(make_task, args)
     except ConfigRefused as e:
+        if e.__cause__ is not None:
+            traceback.print_exception(e.__cause__, file=sys.stderr)
         print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
         sys.exit(EXIT_CONFIG_REFUSED)
     except WorkerError as e:

@@ -308,12 +308,14 @@ impl Applied {
             } else {
                 "the value the update before ran with"
             };
-            bail!(
+            // Not a crash to restart: a restarted worker's task meets the same value, and so
+            // does every other worker the sampler hands the rollouts to.
+            return Err(anyhow::Error::new(ConfigRefused(anyhow::anyhow!(
                 "update {update}: the task refused {} = {} ({e}), {in_force}: nothing to fall \
                  back to",
                 self.names[i],
                 tasks::value_text(previous[i])
-            );
+            ))));
         }
         let changes: Vec<usize> = (0..settings.len())
             .filter(|&i| !same(settings[i], previous[i]))
@@ -543,12 +545,14 @@ mod tests {
 
     #[test]
     fn a_refused_value_with_nothing_to_fall_back_to_stops_the_worker() {
-        // The config's own value at the first update: previous = settings.
+        // The config's own value at the first update: previous = settings. Refused as the
+        // config is (run_main exits with wire::EXIT_CONFIG_REFUSED): a restart meets the same.
         let (mut task, mut applied) = fresh();
         let e = applied
             .apply(&mut task, 0, &[0.3, 5.0], &[0.3, 5.0])
-            .unwrap_err()
-            .to_string();
+            .unwrap_err();
+        assert!(e.downcast_ref::<ConfigRefused>().is_some(), "{e}");
+        let e = e.to_string();
         assert!(
             e.starts_with(
                 "update 0: the task refused y = 5 (task `target`: out of reach), a value in force \

@@ -2519,7 +2519,8 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
         );
         assert_nothing_left(&run);
 
-        // Refused before the first rollout: the config's own target.
+        // Refused before the first rollout: the config's own target. Refused as the config is
+        // (every restart would meet the same), not restarted as a crash.
         let stop_at_first = ("workers = 2", "workers = 2\nrestart_limit = 0");
         assert_run_fails_saying(
             &scratch,
@@ -2531,6 +2532,7 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
                 "a value in force before this update",
                 "nothing to fall back to",
                 "out of the arm's reach",
+                "refused the config, not restarted (exit status: 78",
             ],
         );
     }
