@@ -94,9 +94,13 @@ pub fn check_task_shape(task: &dyn Task, config: &RunConfig) -> Result<(), Sessi
     }
     let names = |t: &dyn Task| t.settings().iter().map(|(n, _)| *n).collect::<Vec<_>>();
     if names(task) != names(declared.as_ref()) {
+        // A TOML table has no order a task could follow: the config's names are sorted.
+        let order = match config.external_worker() {
+            Some(_) => "same names, in alphabetical order",
+            None => "same names, same order",
+        };
         return refuse(format!(
-            "task `{}` has the settings {:?}, but {} declares {:?} (same names, same order) in \
-             {origin}",
+            "task `{}` has the settings {:?}, but {} declares {:?} ({order}) in {origin}",
             task.name(),
             names(task),
             field("settings"),
@@ -688,6 +692,50 @@ mod tests {
         let steps = capture(InProcess::with_task(&cfg, 1, Box::new(Sparse(seen.clone()))).unwrap());
         assert_eq!(steps.len(), 40);
         assert_eq!(*seen.lock().unwrap(), 0.0);
+    }
+
+    /// An external task's settings come in alphabetical order, and the refusal of a task that
+    /// declares them in another says so (a user cannot see the order in the TOML table).
+    #[test]
+    fn a_task_with_its_settings_in_another_order_is_told_they_are_alphabetical() {
+        struct Reach;
+        impl Task for Reach {
+            fn name(&self) -> &'static str {
+                "reach"
+            }
+            fn parameters(&self) -> usize {
+                1
+            }
+            fn steps(&self) -> usize {
+                3
+            }
+            fn initial_mean(&self) -> Vec<f64> {
+                vec![0.0]
+            }
+            fn rollout(&mut self, _: &[f64], _: &mut [f64]) -> f64 {
+                0.0
+            }
+            fn settings(&self) -> Vec<(&'static str, f64)> {
+                vec![("goal_y", 0.0), ("goal_x", 1.0)]
+            }
+            fn set(&mut self, _: &str, _: f64) -> Result<(), TaskError> {
+                Ok(())
+            }
+        }
+        let text = DEFAULT_CONFIG
+            .split("[task.via-point]")
+            .next()
+            .unwrap()
+            .to_string()
+            + "[task.external]\nworker = [\"./worker\"]\nparameters = 1\nsteps = 3\n\
+               initial_mean = [0.0]\nsettings = { goal_y = 0.0, goal_x = 1.0 }\n";
+        let cfg = RunConfig::parse(&text, std::path::Path::new("reach.toml")).unwrap();
+        let e = check_task_shape(&Reach, &cfg).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "task `reach` has the settings [\"goal_y\", \"goal_x\"], but task.external.settings \
+             declares [\"goal_x\", \"goal_y\"] (same names, in alphabetical order) in reach.toml"
+        );
     }
 
     struct Target1D;
