@@ -106,26 +106,52 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             .iter()
             .map(|p| std::fs::canonicalize(p).is_ok_and(|c| read.iter().any(|(r, _)| *r == c)))
             .collect();
+        // A first part that was moved away is not there to be given.
         let missing: Vec<String> = parts
             .iter()
             .zip(&is_given)
-            .filter(|(_, given)| !**given)
+            .filter(|(p, given)| !**given && p.exists())
             .map(|(p, _)| p.display().to_string())
             .collect();
-        let given: Vec<usize> = (0..parts.len()).filter(|&i| is_given[i]).collect();
-        let gap = given.len() > 1 && given[given.len() - 1] - given[0] + 1 != given.len();
+        // By part number, not place in `parts`: parts deleted from the disk in between (a long
+        // run's archived ones) leave a gap that the list of those there does not show.
+        let given: Vec<u32> = parts
+            .iter()
+            .zip(&is_given)
+            .filter(|(_, given)| **given)
+            .map(|(p, _)| crate::part_number(p))
+            .collect();
+        let gap = given.windows(2).any(|w| w[1] != w[0] + 1);
         if gap {
             // Parts with a gap between them are neither one run nor separate sessions: their
             // curves would be averaged as an experiment's (0 common updates, NaN statistics).
+            let (low, high) = (given[0], given[given.len() - 1]);
+            let (there, gone): (Vec<PathBuf>, Vec<PathBuf>) = (low + 1..high)
+                .filter(|n| !given.contains(n))
+                .map(|n| crate::part_path_or_first(f, n))
+                .partition(|p| p.exists());
+            let names = |ps: &[PathBuf]| {
+                ps.iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let mut what = Vec::new();
+            if !there.is_empty() {
+                what.push(format!("not {}", names(&there)));
+            }
+            if !gone.is_empty() {
+                what.push(format!("{} no longer there", names(&gone)));
+            }
             return Err(RecordError::invalid(
                 f,
                 format!(
-                    "{} of the {} parts of this split recording are given, with a gap: not {}; \
-                     give the parts in between (or every part) to analyse the run, or one part \
-                     alone",
+                    "{} of the {} parts of this split recording are given, with a gap: {}; \
+                     give the parts in between (or every part) to analyse the run, or the parts \
+                     on one side of the gap",
                     given.len(),
                     parts.len(),
-                    missing.join(", ")
+                    what.join("; ")
                 ),
             ));
         }

@@ -51,18 +51,64 @@ pub fn first_part(path: &Path) -> PathBuf {
     }
 }
 
-/// Every part of the recording whose first part is `first`, in order: `first`, then each
-/// `<stem>.part-<n>.mcap` that exists, n = 2, 3, … without a gap.
+/// Every part of the recording whose first part is `first`, in order: `first` (there or not),
+/// then each `<stem>.part-<n>.mcap` beside it, n ≥ 2, by n. Parts may be missing in between:
+/// during a run of days, earlier parts are archived or deleted to free the disk while the
+/// recorder writes the newest. Stopping at the first missing part made the part being written
+/// invisible: a restarted recorder began again at a low part number (truncating an existing
+/// part when it got there), `--resume` went on from an early update, and a new recording to the
+/// path did not see the parts it would later overwrite.
 pub fn recording_parts(first: &Path) -> Vec<PathBuf> {
     let mut parts = vec![first.to_path_buf()];
-    for n in 2.. {
-        let p = part_path(first, n);
-        if !p.exists() {
-            break;
-        }
-        parts.push(p);
-    }
+    let Some(stem) = first.file_stem().map(|s| s.to_string_lossy().into_owned()) else {
+        return parts;
+    };
+    let dir = match first.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return parts;
+    };
+    let mut found: Vec<u32> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name();
+            let (s, n) = part_of(Path::new(&name))?;
+            // Only the name `part_path` gives (`part-2`, not `part-02`), so that every part
+            // listed is the file `part_path` names for its number.
+            (s == stem && part_path(first, n).file_name() == Some(name.as_os_str())).then_some(n)
+        })
+        .collect();
+    found.sort_unstable();
+    parts.extend(found.into_iter().map(|n| part_path(first, n)));
     parts
+}
+
+/// The parts of [`recording_parts`] that are there: a first part moved away during the run is
+/// not named in a command to run on them. `first` if none is.
+fn parts_there(first: &Path) -> Vec<PathBuf> {
+    let parts: Vec<PathBuf> = recording_parts(first)
+        .into_iter()
+        .filter(|p| p.exists())
+        .collect();
+    if parts.is_empty() {
+        vec![first.to_path_buf()]
+    } else {
+        parts
+    }
+}
+
+/// The parts of [`parts_there`] from the last gap in their numbers on: the ones `analyze` takes
+/// together (it refuses parts given across a gap).
+fn parts_after_the_last_gap(first: &Path) -> Vec<PathBuf> {
+    let mut parts = parts_there(first);
+    let numbers: Vec<u32> = parts.iter().map(|p| part_number(p)).collect();
+    let from = (1..numbers.len())
+        .rev()
+        .find(|&i| numbers[i] != numbers[i - 1] + 1)
+        .unwrap_or(0);
+    parts.split_off(from)
 }
 
 /// The last part of the recording `path` (its first part or any other) belongs to: the one a run
@@ -78,9 +124,9 @@ pub fn last_part(path: &Path) -> PathBuf {
 /// from the run's very start. `pi2cma` is how to call the `pi2cma` binary ([`program_name`]).
 pub fn analyze_command(pi2cma: &str, first: &Path, resumed_from: Option<&Path>) -> String {
     let mut files = resumed_from
-        .map(|r| recording_parts(&first_part(r)))
+        .map(|r| parts_after_the_last_gap(&first_part(r)))
         .unwrap_or_default();
-    files.extend(recording_parts(first));
+    files.extend(parts_after_the_last_gap(first));
     let files: Vec<String> = files.iter().map(|p| p.display().to_string()).collect();
     format!("{pi2cma} analyze {}", files.join(" "))
 }
@@ -99,15 +145,19 @@ pub fn program_name(path: &Path) -> String {
 
 /// How the binaries name a finished recording: `FILE`, or `FILE (split into n parts: FILE, …)`.
 pub fn describe_parts(path: &Path) -> String {
-    let parts = recording_parts(path);
-    if parts.len() == 1 {
+    let parts = parts_there(path);
+    if parts == [path] {
         return path.display().to_string();
     }
     let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    let all = parts.last().map_or(1, |p| part_number(p)) as usize;
+    let there = match parts.len() {
+        n if n == all => String::new(),
+        n => format!(", {n} of them there"),
+    };
     format!(
-        "{} (split into {} parts: {})",
+        "{} (split into {all} parts{there}: {})",
         path.display(),
-        parts.len(),
         names.join(", ")
     )
 }
@@ -568,6 +618,72 @@ mod tests {
 
         record(&first, 50, None);
         assert_eq!(recording_parts(&first), std::slice::from_ref(&first));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A long run's earlier parts archived while it runs (part 2 deleted here): the parts after
+    /// the gap are still the recording's. Before, the parts stopped at the first missing one,
+    /// so `--resume` went on from the end of part 1, a restarted recorder began again in part
+    /// 2, and a new recording to the path neither refused nor removed part 3.
+    #[test]
+    fn parts_after_a_missing_one_are_still_the_recordings() {
+        let dir = std::env::temp_dir().join(format!("split-gap-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("run.mcap");
+        let last = record(&first, 200, Some(1));
+        let third = part_path(&first, 3);
+        assert!(third.exists() && !part_path(&first, 4).exists());
+        std::fs::remove_file(part_path(&first, 2)).unwrap();
+        // Not a part: another spelling of its number.
+        std::fs::write(dir.join("run.part-03.mcap"), b"").unwrap();
+
+        assert_eq!(recording_parts(&first), [first.clone(), third.clone()]);
+        assert_eq!(last_part(&first), third);
+        let point = crate::resume::resume_point(&first).unwrap();
+        assert_eq!(point.start.update, 200);
+        assert_eq!(point.start.distribution, last);
+        let described = describe_parts(&first);
+        assert!(
+            described.contains("split into 3 parts, 2 of them there"),
+            "{described}"
+        );
+
+        let gap = crate::analyze::run(&crate::analyze::AnalyzeArgs {
+            files: vec![first.clone(), third.clone()],
+            out: None,
+            no_csv: true,
+            no_plots: true,
+            verify: false,
+            tolerance: 0.05,
+        })
+        .unwrap_err()
+        .to_string();
+        let second = part_path(&first, 2).display().to_string();
+        assert!(
+            gap.contains("with a gap") && gap.contains(&format!("{second} no longer there")),
+            "{gap}"
+        );
+
+        // The command printed at the end names what `analyze` takes together.
+        assert_eq!(
+            analyze_command("pi2cma", &first, None),
+            format!("pi2cma analyze {}", third.display())
+        );
+        // The first part moved away too: what is left is still a recording there.
+        std::fs::remove_file(&first).unwrap();
+        assert_eq!(last_part(&first), third);
+        assert_eq!(
+            analyze_command("pi2cma", &first, None),
+            format!("pi2cma analyze {}", third.display())
+        );
+        let e = refuse_overwrite(&first, "--record")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(&third.display().to_string()), "{e}");
+        // A new recording to the path (as `pi2cma run`'s `runs/latest/`) removes it, not
+        // overwrites it later when its own parts get there.
+        drop(RunFiles::create(&first).unwrap());
+        assert!(!third.exists());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

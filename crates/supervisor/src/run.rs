@@ -1848,12 +1848,13 @@ impl Supervisor {
                     }
                     (n, _) => format!(" (the recorder was restarted {n} time(s))"),
                 };
-                match record::recording_parts(&r.path).as_slice() {
-                    [one] => format!("recording: {}{restarted}\n", one.display()),
-                    parts => format!(
-                        "recording: {}, part {} of the recording begun in {}{restarted}\n",
-                        parts[parts.len() - 1].display(),
-                        parts.len(),
+                // By its number: earlier parts may have been archived meanwhile.
+                let last = record::last_part(&r.path);
+                match record::part_number(&last) {
+                    1 => format!("recording: {}{restarted}\n", last.display()),
+                    n => format!(
+                        "recording: {}, part {n} of the recording begun in {}{restarted}\n",
+                        last.display(),
                         r.path.display()
                     ),
                 }
@@ -2279,7 +2280,14 @@ impl Supervisor {
             })
             .collect();
         let mut unfinished = false;
-        if let Some(rec) = self.recording.as_ref().filter(|r| r.path.exists()) {
+        // Any part, not the first: a long run's first parts may have been archived meanwhile,
+        // and then what became of the recording (a part left unfinished above all) went
+        // unsaid.
+        if let Some(rec) = self
+            .recording
+            .as_ref()
+            .filter(|r| record::last_part(&r.path).exists())
+        {
             let path = record::describe_parts(&rec.path);
             // A resumed run's analysis joins the recording it resumed, for the whole curve.
             let resumed = self.start.as_ref().map(|s| PathBuf::from(&s.origin));

@@ -1734,6 +1734,86 @@ fn a_split_pipeline_recording_is_finished_parts_that_make_the_run() {
     assert_nothing_left(&run);
 }
 
+/// A long run's earlier parts archived while it runs (here the first two): `status` still names
+/// the part being written, and a recorder that dies then goes on in the part after it, with
+/// that part recovered. Before, the parts ended at the first one missing: `status` named the
+/// moved first file, the dead recorder's part was left unfinished while the supervisor tried to
+/// recover the missing file (exit 3), and the new recorder began again in part 2 and would
+/// have truncated part 3 on reaching it.
+#[test]
+fn a_recorder_that_dies_after_earlier_parts_were_archived_goes_on_after_the_last_part() {
+    let scratch = Scratch::new("rec-archived");
+    let text = format!(
+        "{}\n[recording]\nsplit_mb = 1\n",
+        config(&[("updates = 40", "updates = 400"), DELAYED])
+    );
+    let cfg = write_config(&scratch, "archived.toml", &text);
+    let mcap = scratch.path("day.mcap");
+    let result = scratch.path("result.toml");
+    let mut run = start_recorded(&scratch, 960, &cfg, &mcap, &result);
+    let part = |n| record::part_path(&mcap, n);
+    run.wait_status("part 3", |s| s.contains("part 3 of the recording begun in"));
+    std::fs::remove_file(&mcap).unwrap();
+    std::fs::remove_file(part(2)).unwrap();
+    // The part being written, as `status` names it: 3, or a later one on a slow machine.
+    let writing = |s: &str| -> Option<u32> {
+        let line = s.lines().find(|l| l.starts_with("recording: "))?;
+        let (file, rest) = line["recording: ".len()..].split_once(", part ")?;
+        let n: u32 = rest.split_whitespace().next()?.parse().ok()?;
+        (n >= 3 && Path::new(file) == part(n)).then_some(n)
+    };
+    let status = run.wait_status("the part being written after archiving", |s| {
+        writing(s).is_some()
+    });
+    let victim = sigkill_recorder(&status);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(
+        out.contains(&format!("WARNING: recorder (pid {victim}) died")),
+        "{out}"
+    );
+    let restarted = out
+        .lines()
+        .find_map(|l| {
+            l.split_once("recorder restarted: recording to ")
+                .map(|(_, file)| PathBuf::from(file.trim()))
+        })
+        .unwrap_or_else(|| panic!("no restart:\n{out}"));
+    let n = record::part_number(&restarted);
+    assert!(
+        restarted == part(n) && n > writing(&status).unwrap(),
+        "{}:\n{out}",
+        restarted.display()
+    );
+    assert!(!out.contains("NOT finished"), "{out}");
+    // The summary still says what became of the recording, its first part gone or not.
+    let dead = part(n - 1).display().to_string();
+    assert!(
+        out.contains("the recorder died and was restarted 1 time(s)")
+            && out.contains(&format!("into {dead} (complete, indexed)")),
+        "{out}"
+    );
+    let parts = record::recording_parts(&mcap);
+    assert_eq!(parts[1], part(3), "{parts:?}");
+    let recs: Vec<record::Recording> = parts[1..]
+        .iter()
+        .map(|p| record::read_recording(p).unwrap())
+        .collect();
+    for (p, rec) in parts[1..].iter().zip(&recs) {
+        assert!(rec.indexed && rec.truncated.is_none(), "{}", p.display());
+    }
+    // Part 3 kept what it held: from where part 2 ended, not overwritten by a later part.
+    assert!(
+        recs[0].updates[0].update > 100,
+        "{}",
+        recs[0].updates[0].update
+    );
+    let runs = record::join_resumed(recs);
+    assert_eq!(runs.len(), 1);
+    assert_eq!(runs[0].0.updates.last().unwrap().update, 399);
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn sigint_mid_run_leaves_a_finished_recording_with_every_completed_update() {
     let scratch = Scratch::new("rec-sigint");
