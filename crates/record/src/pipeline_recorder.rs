@@ -106,7 +106,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         Some(part) => RunFiles::continue_in_part(&out, part)?,
         None => RunFiles::create(&out)?,
     };
-    writer.split_at_mb(ctx.config.recording.as_ref().and_then(|r| r.split_mb));
+    writer.split_at_mb(ctx.config.recording_split_mb());
     // The settings a resumed run starts from: the supervisor's start file, read at once, not
     // the origin recording, which is streamed whole (a day's run: gigabytes) before the
     // recorder may announce itself.

@@ -365,7 +365,7 @@ impl Observer for McapRecorder {
             config_toml: text,
             settings: settings.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
             resumed_from: self.resumed_from.clone(),
-            split_mb: config.recording.as_ref().and_then(|r| r.split_mb),
+            split_mb: config.recording_split_mb(),
         })));
         self.hp = Some(hp);
         self.last_ns = now_ns();
