@@ -2164,6 +2164,68 @@ fn supervisor_record_starts_a_recorder_that_was_not_restarted_again() {
     assert_nothing_left(&run);
 }
 
+/// A recorder that dies again and again (a recurring crash, within `restart_limit`): each
+/// death starts a recovery thread for the part it left. Before, none was joined until the run
+/// ended, and each kept its stack mapped (2 MB, two mappings): the supervisor's address space
+/// grew by that per restart for as long as the run went on.
+#[test]
+fn the_recoveries_of_a_recorder_restarted_again_and_again_do_not_pile_up() {
+    let scratch = Scratch::new("rec-again");
+    let text = config(&[
+        ("updates = 40", "updates = 100000"),
+        DELAYED,
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrestart_limit = 30\nrestart_window_s = 600",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "again.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 961, &cfg, &result);
+    let path = scratch.recording("A1", 961);
+    let mappings = |pid: u32| {
+        std::fs::read_to_string(format!("/proc/{pid}/maps"))
+            .unwrap()
+            .lines()
+            .count()
+    };
+    let supervisor = run.child.id();
+    let end = Instant::now() + Duration::from_secs(120);
+    let status = run.wait_status("10 updates", |s| updates_in(s) >= 10);
+    sigkill_recorder(&status);
+    let deaths = 14;
+    let mut before = 0;
+    for k in 2..=deaths {
+        // Killed once its part exists, so that each death leaves a part of its own to recover.
+        let victim = restarted_recorder(&run, k - 1, end);
+        while !record::part_path(&path, k).exists() {
+            assert!(Instant::now() < end, "no part {k}:\n{}", run.text());
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if k == 3 {
+            // After the first recoveries, which set up what any thread needs.
+            before = mappings(supervisor);
+        }
+        signal(victim, "-9");
+    }
+    restarted_recorder(&run, deaths, end);
+    let after = mappings(supervisor);
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(
+        after < before + 8,
+        "{before} mappings after 2 restarts, {after} after {deaths}"
+    );
+    let out = run.text();
+    assert!(!out.contains("NOT finished"), "{out}");
+    assert_eq!(
+        out.matches("(complete, indexed)").count(),
+        deaths as usize,
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_recorder_killed_at_full_speed_releases_the_updater_it_was_holding_back() {
     // µs rollouts: the updater runs into the recorder's lag bound within milliseconds, so after
