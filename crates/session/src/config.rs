@@ -1319,7 +1319,7 @@ impl RunConfig {
     }
 
     /// MB per part of the run's recording (`recording.split_mb`), `None` for one file. A
-    /// continual run (no `run.updates`) without one is split at [`CONTINUAL_SPLIT_MB`]: one
+    /// continual run (no `run.updates`) without one is split at `CONTINUAL_SPLIT_MB` (1024): one
     /// file's writer keeps an index entry per update in memory until the file is finished (the
     /// MCAP summary), about 256 bytes per update, so a recorder of a via-point run at full
     /// speed grew by 1.6 MB/s (74 MB after 240 000 updates) without end.
