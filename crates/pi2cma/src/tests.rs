@@ -493,3 +493,45 @@ fn one_rollout_is_refused_with_or_without_the_evaluation_in_the_update() {
         assert!(Hyperparameters { rollouts: 2, ..h }.check().is_ok());
     }
 }
+
+/// Algorithm 1, line 18 is defined for any max > min, however close: the best rollout of a step
+/// gets e⁰ and the worst e^−h. Step costs that differ only in the subnormals (an external task
+/// whose costs vanish at the end of the movement) make h/(max − min) overflow; the per-step
+/// probabilities must still be those of line 18, as the episodic mapping's are, not 0·∞ = NaN.
+/// Worked by hand with h = 2·ln 2 (e^−h = 1/4): p = (4/9, 1/9, 4/9), θ_new = (1/9, 8/9), and
+/// Σ_new = diag(1/9, 16/9) (within the bounds, so unchanged).
+#[test]
+fn per_step_probabilities_of_costs_a_subnormal_apart_follow_line_18() {
+    let h = 2.0 * std::f64::consts::LN_2;
+    let tiny = f64::from_bits(1);
+    let old = Distribution::isotropic(DVector::zeros(2), 1.0).unwrap();
+    let samples = [0.0, 0.0, 1.0, 0.0, 0.0, 2.0];
+    let bounds = EigenvalueBounds::new(0.01, 100.0).unwrap();
+    for (step_costs, terminal) in [([0.0, tiny, 0.0], 0.0), ([0.0, 0.0, 0.0], tiny)] {
+        let mut costs = CostBatch::new(3, 2);
+        for k in 0..3 {
+            let (q, phi) = if terminal == 0.0 {
+                ([0.0, step_costs[k]], 0.0)
+            } else {
+                ([0.0, 0.0], if k == 1 { terminal } else { 0.0 })
+            };
+            costs.insert(k, &q, phi).unwrap();
+        }
+        let mut rule = update_rule(pi2cma(3, h, bounds), 2, 2);
+        let (new, w) = rule.update(&old, &samples, &costs).unwrap();
+        assert!(
+            close(new.mean[0], 1.0 / 9.0) && close(new.mean[1], 8.0 / 9.0),
+            "{}",
+            new.mean
+        );
+        let c = &new.covariance;
+        assert!(
+            close(c[(0, 0)], 1.0 / 9.0) && close(c[(1, 1)], 16.0 / 9.0),
+            "{c}"
+        );
+        assert_eq!(c[(0, 1)], 0.0);
+        for (a, b) in w.per_rollout.iter().zip([4.0 / 9.0, 1.0 / 9.0, 4.0 / 9.0]) {
+            assert!(close(*a, b), "{:?}", w.per_rollout);
+        }
+    }
+}

@@ -474,13 +474,18 @@ impl UpdateRule {
             }
         }
         match self.hp.mapping {
-            CostMapping::Exponential { eliteness } => exponential_rows(
-                &self.step_costs[..m * n],
-                n,
-                eliteness,
-                &mut self.step_probs[..m * n],
-                &mut self.step_scratch[..2 * n],
-            ),
+            CostMapping::Exponential { eliteness } => {
+                let unscaled = exponential_rows(
+                    &self.step_costs[..m * n],
+                    n,
+                    eliteness,
+                    &mut self.step_probs[..m * n],
+                    &mut self.step_scratch[..2 * n],
+                );
+                if unscaled {
+                    self.rescale_extreme_steps();
+                }
+            }
             CostMapping::Elites { .. } => {
                 for i in 0..n {
                     for r in 0..m {
@@ -495,6 +500,31 @@ impl UpdateRule {
                         self.step_probs[r * n + i] = self.probs[r];
                     }
                 }
+            }
+        }
+    }
+
+    /// The steps `exponential_rows` left uniform because h/(max − min) or max − min is not
+    /// finite get line 18's probabilities from the scalar mapping, which normalises first. Rare
+    /// (costs a subnormal apart, or near ±f64::MAX), so it need not be fast.
+    fn rescale_extreme_steps(&mut self) {
+        let n = self.steps;
+        let m = self.probs.len();
+        for i in 0..n {
+            let column = (0..m).map(|r| self.step_costs[r * n + i]);
+            let lo = column.clone().fold(f64::INFINITY, f64::min);
+            let hi = column.fold(f64::NEG_INFINITY, f64::max);
+            if !extreme_range(self.hp.mapping, hi - lo) {
+                continue;
+            }
+            for r in 0..m {
+                self.cost_to_go[r] = self.step_costs[r * n + i];
+            }
+            self.hp
+                .mapping
+                .probabilities(&self.cost_to_go, &mut self.probs, &mut self.order);
+            for r in 0..m {
+                self.step_probs[r * n + i] = self.probs[r];
             }
         }
     }
@@ -671,10 +701,23 @@ impl UpdateRule {
     }
 }
 
+/// Whether a step whose costs span `range` needs the scalar mapping's care: h/range or range
+/// itself is not finite, so (S − min)·(−h/range) would be 0·∞ = NaN for the best rollout.
+fn extreme_range(mapping: CostMapping, range: f64) -> bool {
+    match mapping {
+        CostMapping::Exponential { eliteness } => {
+            range > 0.0 && !(range.is_finite() && (eliteness / range).is_finite())
+        }
+        CostMapping::Elites { .. } => false,
+    }
+}
+
 /// The per-time-step PI² probabilities of K rollouts (rows of N cost-to-go values in `costs`)
 /// into `probs`, same layout. Compiled for several instruction sets and chosen at run time: the
 /// exponentials dominate a per-time-step update. Only element-wise IEEE operations in a fixed
-/// order, so every variant gives the same bits.
+/// order, so every variant gives the same bits. Returns whether some step's range was too small
+/// or too large to scale by (see [`extreme_range`]); such a step is left uniform here, and
+/// the caller must replace it.
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 fn exponential_rows(
     costs: &[f64],
@@ -682,7 +725,7 @@ fn exponential_rows(
     eliteness: f64,
     probs: &mut [f64],
     scratch: &mut [f64],
-) {
+) -> bool {
     let m = costs.len() / n;
     let (lo, hi) = scratch.split_at_mut(n);
     lo.copy_from_slice(&costs[..n]);
@@ -696,9 +739,13 @@ fn exponential_rows(
     }
     // hi becomes the scale −h/(max − min); 0 when all costs of a step are equal, which makes
     // every exponent 0 and the weights uniform.
+    let mut extreme = false;
     for i in 0..n {
         let range = hi[i] - lo[i];
-        hi[i] = if range > 0.0 { -eliteness / range } else { 0.0 };
+        let scale = -eliteness / range;
+        let usable = range > 0.0 && range.is_finite() && scale.is_finite();
+        extreme |= range > 0.0 && !usable;
+        hi[i] = if usable { scale } else { 0.0 };
     }
     for r in 0..m {
         let (s, pr) = (&costs[r * n..(r + 1) * n], &mut probs[r * n..(r + 1) * n]);
@@ -721,6 +768,7 @@ fn exponential_rows(
             *pr *= inv;
         }
     }
+    extreme
 }
 
 /// Per-step 2×2 covariances Σ_i = Σ_k P_ik ε_k ε_kᵀ, bounded, as rows (a, b, c) over the steps.
