@@ -535,3 +535,115 @@ fn per_step_probabilities_of_costs_a_subnormal_apart_follow_line_18() {
         }
     }
 }
+
+/// boundcovar by cyclic Jacobi rotations: an eigen-solver that shares no code with the crate's
+/// (tred2/tql2, the 2×2 closed form, the low-rank K×K problem), for the references below.
+fn jacobi_boundcovar(m: &DMatrix<f64>, bounds: EigenvalueBounds) -> DMatrix<f64> {
+    let n = m.nrows();
+    let (mut a, mut v) = (m.clone(), DMatrix::<f64>::identity(n, n));
+    for _sweep in 0..100 {
+        let off: f64 = (0..n)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .filter(|(i, j)| i != j)
+            .map(|(i, j)| a[(i, j)].powi(2))
+            .sum();
+        if off <= 1e-28 * a.norm_squared() {
+            break;
+        }
+        for p in 0..n {
+            for q in p + 1..n {
+                if a[(p, q)] == 0.0 {
+                    continue;
+                }
+                // Golub & Van Loan, Algorithm 8.5.1 (the symmetric Schur decomposition).
+                let tau = (a[(q, q)] - a[(p, p)]) / (2.0 * a[(p, q)]);
+                let t = tau.signum() / (tau.abs() + (1.0 + tau * tau).sqrt());
+                let c = 1.0 / (1.0 + t * t).sqrt();
+                let mut r = DMatrix::<f64>::identity(n, n);
+                (r[(p, p)], r[(q, q)], r[(p, q)], r[(q, p)]) = (c, c, t * c, -t * c);
+                a = r.transpose() * &a * &r;
+                v = &v * &r;
+            }
+        }
+    }
+    (0..n).fold(DMatrix::zeros(n, n), |acc, j| {
+        acc + v.column(j) * v.column(j).transpose() * bounds.clip(a[(j, j)])
+    })
+}
+
+/// The episodic mode (PI^BB) is Algorithm 1 with one step whose cost is the total S_0: one
+/// probability per rollout from lines 18–19, θ_new = θ + Σ_k P_k ε_k, Σ_new =
+/// boundcovar(Σ_k P_k ε_k ε_kᵀ). Checked for every covariance kernel (P = 2 closed form, dense,
+/// and the low-rank one the T-ball run takes with P = 21 > K = 10) and with the evaluation
+/// rollout in and out of the update; the per-time-step mode with rollout 0 left out is checked
+/// against `literal_algorithm_1` over the other rollouts.
+#[test]
+fn episodic_and_evaluation_excluded_updates_match_the_formulas() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(99);
+    let (k, n, h) = (5, 7, 10.0);
+    for &p in &[2usize, 3, 6, 12] {
+        for evaluation_in_update in [true, false] {
+            for _ in 0..10 {
+                let (theta, samples, q, phi) = random_problem(&mut rng, k, n, p);
+                let bounds =
+                    EigenvalueBounds::new(rng.random_range(0.0..0.5), rng.random_range(1.0..4.0))
+                        .unwrap();
+                let first = usize::from(!evaluation_in_update);
+                let s: Vec<f64> = (first..k)
+                    .map(|r| phi[r] + q[r].iter().sum::<f64>())
+                    .collect();
+                let lo = s.iter().cloned().fold(f64::INFINITY, f64::min);
+                let hi = s.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+                let e: Vec<f64> = s
+                    .iter()
+                    .map(|v| (-h * (v - lo) / (hi - lo)).exp())
+                    .collect();
+                let total: f64 = e.iter().sum();
+                let (mut mean, mut cov) = (theta.clone(), DMatrix::zeros(p, p));
+                for (r, sample) in samples[first..].iter().enumerate() {
+                    let d = sample - &theta;
+                    mean += &d * (e[r] / total);
+                    cov += &d * d.transpose() * (e[r] / total);
+                }
+                let cov = jacobi_boundcovar(&cov, bounds);
+
+                let old = Distribution::isotropic(theta.clone(), 1.0).unwrap();
+                let (flat, costs) = (flat(&samples), cost_batch(&q, &phi));
+                let mapping = CostMapping::Exponential { eliteness: h };
+                let adaptive = Exploration::Adaptive { bounds };
+                let episodic = Hyperparameters {
+                    evaluation_in_update,
+                    ..hp(k, mapping, adaptive, Weighting::Episodic)
+                };
+                let (new, _) = update_rule(episodic, p, n)
+                    .update(&old, &flat, &costs)
+                    .unwrap();
+                let tol = 1e-10 * (1.0 + cov.amax());
+                assert!((&new.mean - &mean).amax() < 1e-12, "P={p}: {}", new.mean);
+                assert!(
+                    (&new.covariance - &cov).amax() < tol,
+                    "P={p}, evaluation in update: {evaluation_in_update}: {} vs {cov}",
+                    new.covariance
+                );
+
+                let per_step = Hyperparameters {
+                    evaluation_in_update,
+                    ..pi2cma(k, h, bounds)
+                };
+                let (new, _) = update_rule(per_step, p, n)
+                    .update(&old, &flat, &costs)
+                    .unwrap();
+                let (mean, cov) = literal_algorithm_1(
+                    &theta,
+                    &samples[first..],
+                    &q[first..],
+                    &phi[first..],
+                    h,
+                    bounds,
+                );
+                assert!((&new.mean - &mean).amax() < 1e-12, "P={p}: {}", new.mean);
+                assert!((&new.covariance - &cov).amax() < 1e-10 * (1.0 + cov.amax()));
+            }
+        }
+    }
+}
