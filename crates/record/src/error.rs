@@ -78,6 +78,21 @@ impl From<session::ConfigError> for RecordError {
     }
 }
 
+impl RecordError {
+    /// Whether this is a full disk (ENOSPC), whichever writer met it.
+    pub(crate) fn is_disk_full(&self) -> bool {
+        let io = match self {
+            Self::Io { error, .. } => Some(error),
+            Self::Mcap {
+                error: mcap::McapError::Io(error),
+                ..
+            } => Some(error),
+            _ => None,
+        };
+        io.is_some_and(|e| e.kind() == std::io::ErrorKind::StorageFull)
+    }
+}
+
 /// mcap's I/O error says "I/O error from writing, or reading a compression stream" and keeps
 /// the cause (a full disk, a vanished directory) as its source: the cause is what to say.
 fn mcap_message(error: &mcap::McapError) -> String {

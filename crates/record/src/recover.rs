@@ -87,7 +87,7 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
         Ok(r) => r,
         Err(e) => {
             let _ = std::fs::remove_file(&tmp);
-            return Err(e);
+            return Err(disk_full_hint(e, input, output));
         }
     };
     // Nothing readable: not a recording at all (a config given by mistake, an empty file), or
@@ -346,6 +346,24 @@ fn chunk_reads_whole(file: &File, at: u64, len: u64) -> std::io::Result<bool> {
     })
 }
 
+/// A full disk names the way out: the input is untouched, and recovered onto another disk it
+/// needs no room on its own (in place, the copy is written next to it first).
+fn disk_full_hint(e: RecordError, input: &Path, output: &Path) -> RecordError {
+    if !e.is_disk_full() {
+        return e;
+    }
+    let how = if same_file(input, output) {
+        format!(
+            "recovering in place writes the copy next to it first; recover it onto a disk with \
+             room: recover {} --out OTHER_DISK/FILE",
+            input.display()
+        )
+    } else {
+        "choose an --out on a disk with room".to_string()
+    };
+    RecordError::invalid(input, format!("not recovered, left as it is ({e}): {how}"))
+}
+
 fn tmp_path(output: &Path) -> PathBuf {
     with_suffix(output, ".recover-tmp")
 }
@@ -544,5 +562,38 @@ impl RecoverReport {
             ));
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_full_disk_says_the_recording_is_untouched_and_where_to_recover_it() {
+        let full = || std::io::Error::from_raw_os_error(28);
+        let input = Path::new("runs/a.mcap");
+        let e = disk_full_hint(
+            RecordError::mcap("runs/a.mcap.recover-tmp", mcap::McapError::Io(full())),
+            input,
+            input,
+        )
+        .to_string();
+        assert!(
+            e.starts_with("runs/a.mcap: not recovered, left as it is (runs/a.mcap.recover-tmp: MCAP: I/O error: No space left on device")
+                && e.ends_with("recover it onto a disk with room: recover runs/a.mcap --out OTHER_DISK/FILE"),
+            "{e}"
+        );
+        let e = disk_full_hint(
+            RecordError::io("/x/b.mcap.recover-tmp", full()),
+            input,
+            Path::new("/x/b.mcap"),
+        )
+        .to_string();
+        assert!(e.ends_with("choose an --out on a disk with room"), "{e}");
+        // Other errors pass as they are.
+        let other = RecordError::io("runs/a.mcap", std::io::Error::from_raw_os_error(13));
+        let text = other.to_string();
+        assert_eq!(disk_full_hint(other, input, input).to_string(), text);
     }
 }
