@@ -246,10 +246,17 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         0 => format!("{:.1} ms of CPU", cpu * 1e3),
         n => format!("{:.1} µs of CPU per update", cpu * 1e6 / n as f64),
     };
+    // A split recording: where it began and the part it ended in (every part would make a
+    // line of kilobytes in a long run).
+    let last = crate::last_part(&out);
+    let to = if last == out {
+        out.display().to_string()
+    } else {
+        format!("{} … {}", out.display(), last.display())
+    };
     eprintln!(
-        "recorded {written} updates to {} ({cost}; {rounds} rounds, {holds} of them asked for \
-         by a held updater)",
-        out.display(),
+        "recorded {written} updates to {to} ({cost}; {rounds} rounds, {holds} of them asked for \
+         by a held updater)"
     );
     Ok(())
 }
