@@ -124,11 +124,34 @@ pub fn last_part(path: &Path) -> PathBuf {
 /// from the run's very start. `pi2cma` is how to call the `pi2cma` binary ([`program_name`]).
 pub fn analyze_command(pi2cma: &str, first: &Path, resumed_from: Option<&Path>) -> String {
     let mut files = resumed_from
-        .map(|r| parts_after_the_last_gap(&first_part(r)))
+        .map(|r| as_shell_words(&first_part(r)))
         .unwrap_or_default();
-    files.extend(parts_after_the_last_gap(first));
-    let files: Vec<String> = files.iter().map(|p| p.display().to_string()).collect();
+    files.extend(as_shell_words(first));
     format!("{pi2cma} analyze {}", files.join(" "))
+}
+
+/// More parts than this are named by a pattern in a printed command (a day's run in 1 GB parts
+/// has thousands: a command of kilobytes).
+const PARTS_NAMED_ONE_BY_ONE: usize = 4;
+
+/// The parts of `first` that `analyze` takes together ([`parts_after_the_last_gap`]), as a
+/// shell names them: one by one, or, when they are many and are every part there (no earlier
+/// ones before a gap that a pattern would take in too), the first file and
+/// `<stem>.part-*.mcap` (`analyze` puts the parts in order itself).
+fn as_shell_words(first: &Path) -> Vec<String> {
+    let parts = parts_after_the_last_gap(first);
+    let named = |ps: &[PathBuf]| ps.iter().map(|p| p.display().to_string()).collect();
+    if parts.len() <= PARTS_NAMED_ONE_BY_ONE || parts != parts_there(first) {
+        return named(&parts);
+    }
+    let pattern =
+        part_path(first, 2)
+            .display()
+            .to_string()
+            .replacen(".part-2.mcap", ".part-*.mcap", 1);
+    let mut words: Vec<String> = named(&parts[..usize::from(parts[0] == first)]);
+    words.push(pattern);
+    words
 }
 
 /// How a printed command calls the program at `path` so that it works as printed: relative to
@@ -149,7 +172,11 @@ pub fn describe_parts(path: &Path) -> String {
     if parts == [path] {
         return path.display().to_string();
     }
-    let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    let mut names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
+    if names.len() > PARTS_NAMED_ONE_BY_ONE {
+        names.drain(2..names.len() - 1);
+        names.insert(2, "…".into());
+    }
     let all = parts.last().map_or(1, |p| part_number(p)) as usize;
     let there = match parts.len() {
         n if n == all => String::new(),
@@ -749,6 +776,48 @@ mod tests {
         assert_eq!(
             analyze_command("pi2cma", &dir.join("a.mcap"), None),
             format!("pi2cma analyze {} {}", files[0], files[1])
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A recording of many parts is named by a pattern in the printed command, and in its
+    /// description by its first, second and last part; a gap before the pattern's parts would
+    /// put earlier ones in, so then they are named one by one.
+    #[test]
+    fn many_parts_are_named_by_a_pattern() {
+        let dir = std::env::temp_dir().join(format!("split-many-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("day.mcap");
+        std::fs::write(&first, b"").unwrap();
+        for n in 2..=12 {
+            std::fs::write(part_path(&first, n), b"").unwrap();
+        }
+        let d = dir.display();
+        assert_eq!(
+            analyze_command("pi2cma", &first, None),
+            format!("pi2cma analyze {d}/day.mcap {d}/day.part-*.mcap")
+        );
+        assert_eq!(
+            describe_parts(&first),
+            format!(
+                "{d}/day.mcap (split into 12 parts: {d}/day.mcap, {d}/day.part-2.mcap, …, \
+                 {d}/day.part-12.mcap)"
+            )
+        );
+        // The first part archived: the pattern alone.
+        std::fs::remove_file(&first).unwrap();
+        assert_eq!(
+            analyze_command("pi2cma", &first, None),
+            format!("pi2cma analyze {d}/day.part-*.mcap")
+        );
+        // Part 4 archived too: the pattern would take in 2 and 3 across the gap.
+        std::fs::remove_file(part_path(&first, 4)).unwrap();
+        let words: Vec<String> = (5..=12)
+            .map(|n| part_path(&first, n).display().to_string())
+            .collect();
+        assert_eq!(
+            analyze_command("pi2cma", &first, None),
+            format!("pi2cma analyze {}", words.join(" "))
         );
         std::fs::remove_dir_all(&dir).unwrap();
     }
