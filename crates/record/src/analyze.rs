@@ -158,11 +158,12 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
         if !missing.is_empty() && parts.len() > 1 {
             let _ = writeln!(
                 out,
-                "note: the split recording {} has {} parts; not given: {} (give every part to \
-                 analyse the whole run)\n",
+                "note: the split recording {} has {} parts; not given: {} ({} of them; give \
+                 every part to analyse the whole run)\n",
                 f.display(),
                 parts.len(),
-                missing.join(", ")
+                crate::split::name_list(missing.clone()),
+                missing.len()
             );
         }
     }

@@ -172,21 +172,25 @@ pub fn describe_parts(path: &Path) -> String {
     if parts == [path] {
         return path.display().to_string();
     }
-    let mut names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
-    if names.len() > PARTS_NAMED_ONE_BY_ONE {
-        names.drain(2..names.len() - 1);
-        names.insert(2, "…".into());
-    }
+    let names = name_list(parts.iter().map(|p| p.display().to_string()).collect());
     let all = parts.last().map_or(1, |p| part_number(p)) as usize;
     let there = match parts.len() {
         n if n == all => String::new(),
         n => format!(", {n} of them there"),
     };
     format!(
-        "{} (split into {all} parts{there}: {})",
+        "{} (split into {all} parts{there}: {names})",
         path.display(),
-        names.join(", ")
     )
+}
+
+/// Files named in a message: every one, or when they are many the first two, `…` and the last.
+pub(crate) fn name_list(mut names: Vec<String>) -> String {
+    if names.len() > PARTS_NAMED_ONE_BY_ONE {
+        names.drain(2..names.len() - 1);
+        names.insert(2, "…".into());
+    }
+    names.join(", ")
 }
 
 /// Refuses to record at `path` (given by `option`, e.g. `--out`) when a recording is there: a
