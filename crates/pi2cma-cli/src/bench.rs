@@ -4,8 +4,8 @@ use std::time::{Duration, Instant};
 
 use nalgebra::DVector;
 use pi2cma::{
-    CostBatch, CostMapping, Distribution, EigenvalueBounds, Exploration, Hyperparameters,
-    ParameterBatch, TemporalAveraging, UpdateRule, Weighting,
+    CostBatch, CostMapping, CovarianceStructure, Distribution, EigenvalueBounds, Exploration,
+    Hyperparameters, ParameterBatch, TemporalAveraging, UpdateRule, Weighting,
 };
 use session::{build_optimizer, build_task, RunConfig, WeightingName};
 
@@ -82,6 +82,7 @@ pub fn large_update(weighting: Weighting, groups: usize, threads: usize) -> Meas
         },
         weighting,
         evaluation_in_update: true,
+        covariance: CovarianceStructure::Full,
     };
     let mut rule = UpdateRule::new(hp, p, n, None)
         .expect("valid hyperparameters")

@@ -25,7 +25,8 @@ pub use distribution::{Distribution, NoiseKey, Sampler};
 pub use error::{CostError, ParameterError};
 pub use optimizer::{Optimizer, ParameterBatch, UpdateSummary};
 pub use update::{
-    Exploration, Hyperparameters, TemporalAveraging, UpdateRule, UpdateWeights, Weighting,
+    CovarianceStructure, Exploration, Hyperparameters, TemporalAveraging, UpdateRule,
+    UpdateWeights, Weighting,
 };
 pub use weighting::CostMapping;
 

@@ -92,7 +92,7 @@ impl Optimizer {
 
     /// Continues a run from a known state (e.g. a recording, or another process's copy).
     pub fn resume(rule: UpdateRule, distribution: Distribution, seed: u64, update: u64) -> Self {
-        let lambda = distribution.largest_eigenvalue();
+        let lambda = rule.lambda_of(&distribution);
         Self {
             rule,
             distribution,
@@ -164,7 +164,7 @@ impl Optimizer {
         };
         let lambda_next = match self.rule.hyperparameters().exploration {
             Exploration::Constant => self.lambda,
-            _ => new.largest_eigenvalue(),
+            _ => self.rule.lambda_of(&new),
         };
         let summary = UpdateSummary {
             update: self.update,

@@ -18,6 +18,7 @@ fn hp(
         exploration,
         weighting,
         evaluation_in_update: true,
+        covariance: CovarianceStructure::Full,
     }
 }
 
@@ -646,4 +647,167 @@ fn episodic_and_evaluation_excluded_updates_match_the_formulas() {
             }
         }
     }
+}
+
+/// Per-dimension covariance, worked by hand: P = 4 = 2 DMP dimensions × B = 2, K = 3, episodic
+/// with the hand example's totals (2, 1, 2) → p = (1/6, 2/3, 1/6), bounds [0.5, 2].
+/// ε_1 = (1, 1, 0, 2), ε_2 = (1, −1, 2, 0).
+/// Block 0: 2/3·[1 1; 1 1] + 1/6·[1 −1; −1 1] = [5/6 1/2; 1/2 5/6], eigenvalues 4/3 along
+/// (1, 1)/√2 and 1/3 along (1, −1)/√2; 1/3 is raised to 1/2: [11/12 5/12; 5/12 11/12].
+/// Block 1: 2/3·diag(0, 4) + 1/6·diag(4, 0) = diag(2/3, 8/3), bounded: diag(2/3, 2).
+/// The entries across blocks are 0 (a full Σ would have e.g. Σ_02 = 1/6·1·2 = 1/3).
+/// θ_new = 2/3·ε_1 + 1/6·ε_2 = (5/6, 1/2, 1/3, 4/3); λ_next = 2.
+#[test]
+fn per_dimension_update_matches_hand_computation() {
+    let bounds = EigenvalueBounds::new(0.5, 2.0).unwrap();
+    let h = 2.0 * std::f64::consts::LN_2;
+    let per_dimension = Hyperparameters {
+        covariance: CovarianceStructure::PerDimension { block: 2 },
+        ..hp(
+            3,
+            CostMapping::Exponential { eliteness: h },
+            Exploration::Adaptive { bounds },
+            Weighting::Episodic,
+        )
+    };
+    let old = Distribution::isotropic(DVector::zeros(4), 1.0).unwrap();
+    let samples = [0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 2.0, 1.0, -1.0, 2.0, 0.0];
+    let mut costs = CostBatch::new(3, 2);
+    costs.insert(0, &[1.0, 1.0], 0.0).unwrap();
+    costs.insert(1, &[0.0, 1.0], 0.0).unwrap();
+    costs.insert(2, &[2.0, 0.0], 0.0).unwrap();
+    let mut opt = Optimizer::resume(
+        UpdateRule::new(per_dimension.clone(), 4, 2, None).unwrap(),
+        old.clone(),
+        1,
+        0,
+    );
+    let (new, _) = update_rule(per_dimension, 4, 2)
+        .update(&old, &samples, &costs)
+        .unwrap();
+    for (a, b) in new.mean.iter().zip([5.0 / 6.0, 0.5, 1.0 / 3.0, 4.0 / 3.0]) {
+        assert!(close(*a, b), "{}", new.mean);
+    }
+    #[rustfmt::skip]
+    let expect = DMatrix::from_row_slice(4, 4, &[
+        11.0 / 12.0, 5.0 / 12.0, 0.0, 0.0,
+        5.0 / 12.0, 11.0 / 12.0, 0.0, 0.0,
+        0.0, 0.0, 2.0 / 3.0, 0.0,
+        0.0, 0.0, 0.0, 2.0,
+    ]);
+    for (a, b) in new.covariance.iter().zip(expect.iter()) {
+        assert!(close(*a, *b), "{}", new.covariance);
+    }
+    for (i, j) in [(0, 2), (0, 3), (1, 2), (1, 3)] {
+        assert_eq!(new.covariance[(i, j)], 0.0);
+        assert_eq!(new.covariance[(j, i)], 0.0);
+    }
+
+    // The same update through ask/tell, with these samples: λ_next is the blocks' largest.
+    let mut rule = update_rule(
+        Hyperparameters {
+            covariance: CovarianceStructure::PerDimension { block: 2 },
+            ..hp(
+                3,
+                CostMapping::Exponential { eliteness: h },
+                Exploration::Adaptive { bounds },
+                Weighting::Episodic,
+            )
+        },
+        4,
+        2,
+    );
+    let (again, _) = rule.update(&old, &samples, &costs).unwrap();
+    assert_eq!(again, new);
+    assert!(close(rule.lambda_of(&new), 2.0));
+    assert_eq!(opt.lambda(), 1.0);
+    let summary = opt.tell(&random_costs_for(&opt)).unwrap();
+    let c = &opt.distribution().covariance;
+    assert_eq!(summary.lambda_next, rule.lambda_of(opt.distribution()));
+    for (i, j) in [(0, 2), (0, 3), (1, 2), (1, 3)] {
+        assert_eq!(c[(i, j)], 0.0, "{c}");
+    }
+}
+
+/// Costs for the optimizer's current batch (any finite values will do).
+fn random_costs_for(opt: &Optimizer) -> CostBatch {
+    let mut costs = opt.cost_batch();
+    for k in 0..costs.rollouts() {
+        let q: Vec<f64> = (0..costs.steps())
+            .map(|i| ((k * 7 + i * 3) % 5) as f64)
+            .collect();
+        costs.insert(k, &q, k as f64).unwrap();
+    }
+    costs
+}
+
+/// Per-time-step PI²-CMA with a per-dimension covariance: each B×B block is Algorithm 1 run on
+/// that dimension's parameters alone (`literal_algorithm_1`, same costs), the mean is the full
+/// update's, and the entries across blocks are 0. B = 2 (closed form), 3 (dense), 6 (low rank,
+/// B > K).
+#[test]
+fn per_dimension_per_time_step_blocks_are_algorithm_1_per_dimension() {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let (k, n, h) = (5, 7, 10.0);
+    for &(dims, b) in &[(3usize, 2usize), (2, 3), (3, 6)] {
+        let p = dims * b;
+        for _ in 0..5 {
+            let (theta, samples, q, phi) = random_problem(&mut rng, k, n, p);
+            let bounds =
+                EigenvalueBounds::new(rng.random_range(0.0..0.5), rng.random_range(1.0..4.0))
+                    .unwrap();
+            let per_dim = Hyperparameters {
+                covariance: CovarianceStructure::PerDimension { block: b },
+                ..pi2cma(k, h, bounds)
+            };
+            let old = Distribution::isotropic(theta.clone(), 1.0).unwrap();
+            let (new, _) = update_rule(per_dim, p, n)
+                .update(&old, &flat(&samples), &cost_batch(&q, &phi))
+                .unwrap();
+            let (full, _) = update_rule(pi2cma(k, h, bounds), p, n)
+                .update(&old, &flat(&samples), &cost_batch(&q, &phi))
+                .unwrap();
+            assert_eq!(new.mean, full.mean);
+            for d in 0..dims {
+                let sub = |v: &DVector<f64>| v.rows(d * b, b).clone_owned();
+                let sub_samples: Vec<DVector<f64>> = samples.iter().map(sub).collect();
+                let (_, cov) = literal_algorithm_1(&sub(&theta), &sub_samples, &q, &phi, h, bounds);
+                let got = new.covariance.view((d * b, d * b), (b, b));
+                assert!(
+                    (got - &cov).amax() < 1e-10 * (1.0 + cov.amax()),
+                    "B={b}, block {d}: {got} vs {cov}"
+                );
+            }
+            for i in 0..p {
+                for j in 0..p {
+                    if i / b != j / b {
+                        assert_eq!(new.covariance[(i, j)], 0.0, "B={b}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// P must be whole DMP dimensions of B parameters.
+#[test]
+fn per_dimension_needs_p_to_be_a_multiple_of_the_block() {
+    let bounds = EigenvalueBounds::new(0.1, 2.0).unwrap();
+    let h = Hyperparameters {
+        covariance: CovarianceStructure::PerDimension { block: 3 },
+        ..pi2cma(5, 10.0, bounds)
+    };
+    assert!(matches!(
+        UpdateRule::new(h.clone(), 7, 4, None),
+        Err(ParameterError::OutOfRange {
+            field: "covariance",
+            ..
+        })
+    ));
+    assert!(UpdateRule::new(h, 6, 4, None).is_ok());
+    let zero = Hyperparameters {
+        covariance: CovarianceStructure::PerDimension { block: 0 },
+        ..pi2cma(5, 10.0, bounds)
+    };
+    assert!(zero.check().is_err());
 }

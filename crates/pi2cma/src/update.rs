@@ -45,6 +45,19 @@ pub enum TemporalAveraging {
     BasisActivation,
 }
 
+/// The shape of Σ.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CovarianceStructure {
+    /// One P×P covariance over all parameters: correlations across DMP dimensions are learned.
+    #[default]
+    Full,
+    /// The paper's shape (Σ_init = λ_init·I_B per DMP dimension, Algorithm 1 written for one
+    /// dimension): Σ is block-diagonal with one `block`×`block` covariance per DMP dimension
+    /// (`block` = B, basis functions per dimension; P = dimensions × B). Each block gets line 23
+    /// from its own parameters and boundcovar on its own; entries across blocks stay 0.
+    PerDimension { block: usize },
+}
+
 /// Validated-on-use hyperparameters of one update rule.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Hyperparameters {
@@ -56,6 +69,7 @@ pub struct Hyperparameters {
     /// Whether rollout 0 (θ_0 = θ) enters the update (the authors' 2012 code) or only serves as
     /// the evaluation (their later code).
     pub evaluation_in_update: bool,
+    pub covariance: CovarianceStructure,
 }
 
 impl Hyperparameters {
@@ -88,6 +102,13 @@ impl Hyperparameters {
         }
         if let Exploration::Adaptive { bounds } = self.exploration {
             EigenvalueBounds::new(bounds.min, bounds.max)?;
+        }
+        if self.covariance == (CovarianceStructure::PerDimension { block: 0 }) {
+            return Err(ParameterError::OutOfRange {
+                field: "covariance",
+                value: "per-dimension with 0 basis functions per dimension".into(),
+                reason: "a DMP dimension has at least one basis function",
+            });
         }
         Ok(())
     }
@@ -138,6 +159,10 @@ pub struct UpdateRule {
     gram: DMatrix<f64>,
     lowrank_acc: DMatrix<f64>,
     small: DMatrix<f64>,
+    /// Per-dimension covariance with adaptive exploration: one full-covariance rule of B
+    /// parameters per DMP dimension, which computes that dimension's block from its own ε and
+    /// the shared costs. Empty otherwise.
+    blocks: Vec<UpdateRule>,
 }
 
 /// What one call of [`UpdateRule::update`] returns besides the new distribution.
@@ -219,6 +244,36 @@ impl UpdateRule {
             Weighting::PerTimeStep { .. } => steps,
             Weighting::Episodic => 0,
         };
+        let blocks = match (hp.covariance, hp.exploration) {
+            (CovarianceStructure::PerDimension { block }, _) if !dim.is_multiple_of(block) => {
+                return Err(ParameterError::OutOfRange {
+                    field: "covariance",
+                    value: format!(
+                        "per-dimension with {block} basis functions per dimension, P = {dim}"
+                    ),
+                    reason: "P must be a multiple of the basis functions per dimension",
+                });
+            }
+            (CovarianceStructure::PerDimension { block }, Exploration::Adaptive { .. }) => {
+                let sub = Hyperparameters {
+                    covariance: CovarianceStructure::Full,
+                    ..hp.clone()
+                };
+                (0..dim / block)
+                    .map(|d| {
+                        let psi = basis_activations.map(|psi| {
+                            psi.chunks_exact(dim)
+                                .flat_map(|row| &row[d * block..(d + 1) * block])
+                                .copied()
+                                .collect::<Vec<f64>>()
+                        });
+                        UpdateRule::new(sub.clone(), block, steps, psi.as_deref())
+                    })
+                    .collect::<Result<Vec<_>, _>>()?
+            }
+            // Constant and decaying exploration keep Σ's shape: nothing to compute per block.
+            _ => Vec::new(),
+        };
         let kernel = if dim == 2 {
             CovarianceKernel::Closed2
         } else if dim <= m {
@@ -250,6 +305,7 @@ impl UpdateRule {
             gram: DMatrix::zeros(m, m),
             lowrank_acc: DMatrix::zeros(m, m),
             small: DMatrix::zeros(m, m),
+            blocks,
         })
     }
 
@@ -262,7 +318,30 @@ impl UpdateRule {
     /// steps are summed in fixed blocks, in block order. The default, 1, starts no thread.
     pub fn with_threads(mut self, threads: usize) -> Self {
         self.threads = threads.max(1);
+        self.blocks = std::mem::take(&mut self.blocks)
+            .into_iter()
+            .map(|b| b.with_threads(threads))
+            .collect();
         self
+    }
+
+    /// λ of `d`: the largest eigenvalue of Σ. With a per-dimension covariance, the largest of
+    /// the blocks' largest eigenvalues, each from its own B×B block (the entries across blocks
+    /// are 0 by construction).
+    pub fn lambda_of(&self, d: &Distribution) -> f64 {
+        match self.hp.covariance {
+            CovarianceStructure::PerDimension { block }
+                if block > 0 && d.dim().is_multiple_of(block) =>
+            {
+                (0..d.dim() / block)
+                    .map(|i| {
+                        let c = d.covariance.view((i * block, i * block), (block, block));
+                        crate::boundcovar::largest_eigenvalue(&c.clone_owned())
+                    })
+                    .fold(f64::NEG_INFINITY, f64::max)
+            }
+            _ => d.largest_eigenvalue(),
+        }
     }
 
     pub fn dim(&self) -> usize {
@@ -309,8 +388,10 @@ impl UpdateRule {
                 self.eps[r * p + j] = samples[k * p + j] - theta[j];
             }
         }
+        // With per-dimension blocks, the blocks' own rules compute Σ: this rule computes only
+        // the mean.
         let adaptive = match self.hp.exploration {
-            Exploration::Adaptive { bounds } => Some(bounds),
+            Exploration::Adaptive { bounds } if self.blocks.is_empty() => Some(bounds),
             _ => None,
         };
         let unbounded = adaptive.is_some_and(|b| b.min == 0.0 && b.max == f64::INFINITY);
@@ -399,6 +480,9 @@ impl UpdateRule {
         let covariance = match self.hp.exploration {
             Exploration::Constant => old.covariance.clone(),
             Exploration::Decay { factor } => &old.covariance * factor,
+            Exploration::Adaptive { .. } if !self.blocks.is_empty() => {
+                self.block_covariance(old, samples, costs)?
+            }
             Exploration::Adaptive { bounds } => self.finish_covariance(bounds, unbounded),
         };
         // Finite costs can still overflow what follows from them (a covariance whose entries
@@ -425,6 +509,35 @@ impl UpdateRule {
                 totals: self.totals.clone(),
             },
         ))
+    }
+
+    /// The block-diagonal Σ of a per-dimension covariance: block d is the full-covariance
+    /// update of dimension d's parameters alone (same costs, so the same probabilities).
+    fn block_covariance(
+        &mut self,
+        old: &Distribution,
+        samples: &[f64],
+        costs: &CostBatch,
+    ) -> Result<DMatrix<f64>, CostError> {
+        let (p, k) = (self.dim, self.hp.rollouts);
+        let mut covariance = DMatrix::zeros(p, p);
+        let mut sub_samples = Vec::new();
+        for (d, rule) in self.blocks.iter_mut().enumerate() {
+            let (lo, b) = (d * rule.dim, rule.dim);
+            let sub_old = Distribution {
+                mean: old.mean.rows(lo, b).clone_owned(),
+                covariance: old.covariance.view((lo, lo), (b, b)).clone_owned(),
+            };
+            sub_samples.clear();
+            for r in 0..k {
+                sub_samples.extend_from_slice(&samples[r * p + lo..r * p + lo + b]);
+            }
+            let (sub_new, _) = rule.update(&sub_old, &sub_samples, costs)?;
+            covariance
+                .view_mut((lo, lo), (b, b))
+                .copy_from(&sub_new.covariance);
+        }
+        Ok(covariance)
     }
 
     /// P_{i,k} for every step, rollout-major (row r holds the N probabilities of rollout r).
