@@ -35,6 +35,10 @@ CHOICE):
 * PAPER IV-A.1: PI² with constant exploration: Σ unchanged. IV-A.2: λ_u = λ_init D^u, i.e.
   Σ_new = D Σ (CHOICE: Σ ← DΣ, not σ ← Dσ). CEM (Eq. 2): Σ around the old mean with the elite
   probabilities, then bounded if bounds are given (lambda_min 0 and lambda_max inf: no bound).
+* Per-dimension covariance (recording's `covariance_block` = B > 0; PAPER: Σ_init = λ_init·I_B
+  per DMP dimension, Algorithm 1 written for one dimension): lines 23, 24 and 28 on each
+  dimension's B parameters alone, with the probabilities all dimensions share; Σ is
+  block-diagonal. 0 (and recordings without the field): one full P×P covariance.
 * PAPER IV-A.3 footnote 3: λ_u is the LARGEST eigenvalue of Σ_u.
 * PAPER IV-A.1: the learning curve is the cost of trial 0; the band is the standard deviation
   of the K-1 exploration trials (CHOICE: sample std, ddof = 1).
@@ -70,7 +74,9 @@ def hp_dict(h):
     return dict(rollouts=h.rollouts, mapping=h.mapping, eliteness=h.eliteness, elites=h.elites,
                 exploration=h.exploration, decay=h.decay, lambda_min=h.lambda_min,
                 lambda_max=h.lambda_max, weighting=h.weighting,
-                evaluation_in_update=h.evaluation_in_update)
+                evaluation_in_update=h.evaluation_in_update,
+                # Absent in recordings made before the field existed: 0, one full covariance.
+                covariance_block=getattr(h, "covariance_block", 0))
 
 
 def dist(d):
@@ -201,27 +207,52 @@ def update(before_mean, before_cov, samples, q, phi, hp, basis=None):
         new_cov = before_cov.copy()
     elif ex == EXP_DECAY:
         new_cov = hp["decay"] * before_cov
+    elif ex == EXP_ADAPT and hp["covariance_block"] > 0:
+        # Per DMP dimension: each B x B block is lines 23-24 and 28 on that dimension's
+        # parameters alone, with the probabilities all dimensions share; zero across blocks.
+        B = hp["covariance_block"]
+        if P % B:
+            raise ValueError(f"covariance_block = {B} does not divide P = {P}")
+        new_cov = np.zeros((P, P))
+        for d in range(P // B):
+            blk = slice(d * B, (d + 1) * B)
+            new_cov[blk, blk] = adapted_covariance(eps[:, blk], Pm, T, hp, episodic)
     elif ex == EXP_ADAPT:
-        lo, hi = hp["lambda_min"], hp["lambda_max"]
-        if episodic:
-            C = np.einsum("k,ka,kb->ab", Pm[:, 0], eps, eps)  # line 23 / Eq. 2
-            new_cov = boundcovar(C, lo, hi)  # line 24
-        else:
-            # group identical probability columns (often many steps share them) for speed
-            cols, inv = np.unique(Pm.T, axis=0, return_inverse=True)
-            inv = np.asarray(inv).reshape(-1)
-            Cu = np.einsum("mk,ka,kb->mab", cols, eps, eps)
-            Cu = boundcovar(Cu, lo, hi)
-            Tu = np.bincount(inv, weights=T, minlength=len(cols))
-            new_cov = np.einsum("m,mab->ab", Tu, Cu)  # line 28
+        new_cov = adapted_covariance(eps, Pm, T, hp, episodic)
     else:
         raise ValueError(f"unknown exploration {ex}")
     tot = S[:, 0]
+    B = hp["covariance_block"] or P
     return dict(weights=w_avg, mean=new_mean, cov=new_cov,
-                lam=float(np.linalg.eigvalsh(before_cov).max()),
-                lam_next=float(np.linalg.eigvalsh(new_cov).max()),
+                lam=largest_eigenvalue(before_cov, B),
+                lam_next=largest_eigenvalue(new_cov, B),
                 eval_cost=float(tot[0]), expl_mean=float(tot[1:].mean()),
                 expl_std=float(tot[1:].std(ddof=1)), total=tot, S=S, P=Pm)
+
+
+def largest_eigenvalue(C, B):
+    """λ (PAPER IV-A.3 footnote 3): the largest eigenvalue of Σ; with per-dimension blocks of
+    size B, the largest over the blocks (the same matrix's eigenvalues, found block by block)."""
+    P = C.shape[0]
+    return float(max(np.linalg.eigvalsh(C[d * B:(d + 1) * B, d * B:(d + 1) * B]).max()
+                     for d in range(P // B)))
+
+
+def adapted_covariance(eps, Pm, T, hp, episodic):
+    """Lines 23, 24 and 28 for the parameters whose ε are the columns of `eps`."""
+    lo, hi = hp["lambda_min"], hp["lambda_max"]
+    if episodic:
+        C = np.einsum("k,ka,kb->ab", Pm[:, 0], eps, eps)  # line 23 / Eq. 2
+        new_cov = boundcovar(C, lo, hi)  # line 24
+    else:
+        # group identical probability columns (often many steps share them) for speed
+        cols, inv = np.unique(Pm.T, axis=0, return_inverse=True)
+        inv = np.asarray(inv).reshape(-1)
+        Cu = np.einsum("mk,ka,kb->mab", cols, eps, eps)
+        Cu = boundcovar(Cu, lo, hi)
+        Tu = np.bincount(inv, weights=T, minlength=len(cols))
+        new_cov = np.einsum("m,mab->ab", Tu, Cu)  # line 28
+    return new_cov
 
 
 # --------------------------------------------------------------------------- comparison

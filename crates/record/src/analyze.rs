@@ -509,7 +509,11 @@ fn describe_hp(hp: &proto::Hyperparameters) -> String {
             .to_lowercase(),
         Err(_) => "?".into(),
     };
-    format!("{mapping}, {exploration}, {weighting}")
+    let covariance = match hp.covariance_block {
+        0 => String::new(),
+        b => format!(", Σ per dimension ({b}×{b} blocks)"),
+    };
+    format!("{mapping}, {exploration}{covariance}, {weighting}")
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -3,10 +3,10 @@
 
 use nalgebra::{DMatrix, DVector};
 use pi2cma::{
-    CostMapping, Distribution, EigenvalueBounds, Exploration, Hyperparameters, TemporalAveraging,
-    Weighting,
+    CostMapping, CovarianceStructure, Distribution, EigenvalueBounds, Exploration, Hyperparameters,
+    TemporalAveraging, Weighting,
 };
-use session::{Method, RunConfig, TaskSection, WeightingName};
+use session::{CovarianceName, Method, RunConfig, TaskSection, WeightingName};
 
 use crate::proto;
 
@@ -47,6 +47,10 @@ pub(crate) fn hyperparameters_to_proto(hp: &Hyperparameters) -> proto::Hyperpara
     let mut p = proto::Hyperparameters {
         rollouts: hp.rollouts as u32,
         evaluation_in_update: hp.evaluation_in_update,
+        covariance_block: match hp.covariance {
+            CovarianceStructure::Full => 0,
+            CovarianceStructure::PerDimension { block } => block as u32,
+        },
         ..Default::default()
     };
     match hp.mapping {
@@ -131,6 +135,12 @@ pub fn hyperparameters_from_proto(p: &proto::Hyperparameters) -> Result<Hyperpar
         exploration,
         weighting,
         evaluation_in_update: p.evaluation_in_update,
+        covariance: match p.covariance_block {
+            0 => CovarianceStructure::Full,
+            block => CovarianceStructure::PerDimension {
+                block: block as usize,
+            },
+        },
     })
 }
 
@@ -175,6 +185,10 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
             _ => "remaining-steps",
         };
         opt.insert("temporal_averaging".into(), Value::String(t.into()));
+    }
+    // Written only when not the default, so that configs of earlier runs read back unchanged.
+    if o.covariance == CovarianceName::PerDimension {
+        opt.insert("covariance".into(), Value::String("per-dimension".into()));
     }
     opt.insert("lambda_init".into(), Value::Float(o.lambda_init));
     let floats = [
@@ -281,10 +295,38 @@ mod tests {
 
     #[test]
     fn config_round_trips_through_toml() {
-        let cfg = RunConfig::default_config();
+        let mut cfg = RunConfig::default_config();
         let text = config_to_toml(&cfg);
         let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
         assert_eq!(back, cfg, "{text}");
+        cfg.optimizer.covariance = CovarianceName::PerDimension;
+        let text = config_to_toml(&cfg);
+        let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
+        assert_eq!(back, cfg, "{text}");
+    }
+
+    /// The setting travels in the recorded hyperparameters; a recording from before the field
+    /// existed (0, proto3's default) reads as one full covariance.
+    #[test]
+    fn covariance_structure_round_trips_and_defaults_to_full() {
+        let mut cfg = RunConfig::default_config();
+        cfg.optimizer.covariance = CovarianceName::PerDimension;
+        let hp = cfg.hyperparameters();
+        assert_eq!(
+            hp.covariance,
+            CovarianceStructure::PerDimension { block: 2 }
+        );
+        let p = hyperparameters_to_proto(&hp);
+        assert_eq!(p.covariance_block, 2);
+        assert_eq!(hyperparameters_from_proto(&p).unwrap(), hp);
+        let old = proto::Hyperparameters {
+            covariance_block: 0,
+            ..p
+        };
+        assert_eq!(
+            hyperparameters_from_proto(&old).unwrap().covariance,
+            CovarianceStructure::Full
+        );
     }
 
     #[test]

@@ -349,6 +349,7 @@ impl ResumePoint {
                 &r.evaluation_in_update,
                 &c.evaluation_in_update,
             ),
+            differ("optimizer.covariance", &r.covariance, &c.covariance),
         ]
         .into_iter()
         .flatten()

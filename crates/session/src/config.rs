@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use pi2cma::{
-    CostMapping, EigenvalueBounds, Exploration, Hyperparameters, TemporalAveraging, Weighting,
+    CostMapping, CovarianceStructure, EigenvalueBounds, Exploration, Hyperparameters,
+    TemporalAveraging, Weighting,
 };
 use serde::Deserialize;
 use tasks::{TaskChange, TaskSchedule, ViaPointSpec};
@@ -77,6 +78,18 @@ pub enum WeightingName {
     PerTimeStep,
 }
 
+/// `optimizer.covariance`: the shape of Σ.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CovarianceName {
+    /// One P×P covariance over all of the policy's parameters.
+    #[default]
+    Full,
+    /// One B×B covariance per DMP dimension (the paper's Σ_init = λ_init·I_B per joint): Σ is
+    /// block-diagonal, B = the task's `basis_functions`.
+    PerDimension,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum TemporalName {
@@ -108,6 +121,9 @@ pub struct OptimizerSection {
     /// Eigenvalue bounds, for pi2-cma (required) and cem (optional, default unbounded).
     pub lambda_min: Option<f64>,
     pub lambda_max: Option<f64>,
+    /// The shape of Σ; default "full".
+    #[serde(default)]
+    pub covariance: CovarianceName,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -581,6 +597,24 @@ impl RunConfig {
             ));
         }
         self.validate_lambdas()?;
+        if o.covariance == CovarianceName::PerDimension {
+            if !bounded {
+                return Err(self.invalid(
+                    "optimizer.covariance",
+                    "\"per-dimension\"",
+                    "only applies to method pi2-cma, cem (the others do not adapt Σ, which stays \
+                     λ·I: block-diagonal already)",
+                ));
+            }
+            if let TaskSection::External(_) = self.task {
+                return Err(self.invalid(
+                    "optimizer.covariance",
+                    "\"per-dimension\"",
+                    "needs the policy's DMP shape (basis functions per dimension), which \
+                     [task.external] does not declare: use \"full\"",
+                ));
+            }
+        }
         if o.rollouts > MAX_ROLLOUTS {
             return Err(self.invalid(
                 "optimizer.rollouts",
@@ -1302,6 +1336,18 @@ impl RunConfig {
             },
             weighting: self.weighting(),
             evaluation_in_update: o.evaluation_in_update,
+            covariance: match o.covariance {
+                CovarianceName::Full => CovarianceStructure::Full,
+                // P = dims × B for the DMP tasks; `validate` refuses the external task, whose
+                // shape is unknown (block 0 fails the core's own check).
+                CovarianceName::PerDimension => CovarianceStructure::PerDimension {
+                    block: match &self.task {
+                        TaskSection::ViaPoint(v) => v.basis_functions,
+                        TaskSection::Tball(t) => t.basis_functions,
+                        TaskSection::External(_) => 0,
+                    },
+                },
+            },
         }
     }
 
@@ -2362,6 +2408,62 @@ mod tests {
                 &[("eliteness = 15.0", "eliteness = 15.0\nelites = 3")]
             )),
             "test.toml: optimizer.elites = (set): only applies to method cem"
+        );
+    }
+
+    /// `optimizer.covariance`: "full" (the default, also when absent) or "per-dimension", whose
+    /// block size is the task's basis functions per DMP dimension; anything else, a method
+    /// that does not adapt Σ, or a task without a DMP shape is refused by name.
+    #[test]
+    fn covariance_structure_is_a_checked_setting() {
+        let tball = include_str!("../../../config/tball.toml");
+        assert_eq!(
+            parse(tball).unwrap().hyperparameters().covariance,
+            CovarianceStructure::Full
+        );
+        let per_dim = tball.replace(
+            "[optimizer]\n",
+            "[optimizer]\ncovariance = \"per-dimension\"\n",
+        );
+        assert_eq!(
+            parse(&per_dim).unwrap().hyperparameters().covariance,
+            CovarianceStructure::PerDimension { block: 3 }
+        );
+        let full = tball.replace("[optimizer]\n", "[optimizer]\ncovariance = \"full\"\n");
+        assert_eq!(
+            parse(&full).unwrap().hyperparameters(),
+            parse(tball).unwrap().hyperparameters()
+        );
+        let e = parse(&tball.replace("[optimizer]\n", "[optimizer]\ncovariance = \"per-joint\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("test.toml: optimizer.covariance: ")
+                && e.contains("per-joint")
+                && e.contains("expected `full` or `per-dimension`"),
+            "{e}"
+        );
+        let pi2 = DEFAULT_CONFIG
+            .replace("method = \"pi2-cma\"", "method = \"pi2\"")
+            .replace("lambda_min = 2.0\n", "")
+            .replace("lambda_max = inf\n", "")
+            .replace(
+                "[optimizer]\n",
+                "[optimizer]\ncovariance = \"per-dimension\"\n",
+            );
+        let e = parse(&pi2).unwrap_err().to_string();
+        assert!(
+            e.starts_with("test.toml: optimizer.covariance = \"per-dimension\": only applies"),
+            "{e}"
+        );
+        let external = include_str!("../../../config/external-reach.toml").replace(
+            "[optimizer]\n",
+            "[optimizer]\ncovariance = \"per-dimension\"\n",
+        );
+        let e = parse(&external).unwrap_err().to_string();
+        assert!(
+            e.contains("optimizer.covariance = \"per-dimension\": needs the policy's DMP shape"),
+            "{e}"
         );
     }
 }

@@ -9,10 +9,10 @@ mod config;
 mod start;
 
 pub use config::{
-    executable_file, ConfigError, ExternalConfig, MemoryNeed, MemoryPart, Method, OptimizerSection,
-    PipelineSection, RecordingSection, RunConfig, RunSection, ScheduleEntry, TaskSection,
-    TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG, LAMBDA_RANGE, MAX_DMP_WORK,
-    MAX_ELITENESS, MAX_EXTERNAL_SETTINGS, MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS,
+    executable_file, ConfigError, CovarianceName, ExternalConfig, MemoryNeed, MemoryPart, Method,
+    OptimizerSection, PipelineSection, RecordingSection, RunConfig, RunSection, ScheduleEntry,
+    TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG, LAMBDA_RANGE,
+    MAX_DMP_WORK, MAX_ELITENESS, MAX_EXTERNAL_SETTINGS, MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS,
     MEMORY_LIMIT_BYTES,
 };
 

@@ -463,6 +463,19 @@ fn every_method_is_bit_identical_to_in_process() {
         assert!(per_step.contains("per-time-step"));
         cases.push((format!("A1-{temporal}"), per_step));
     }
+    // One B×B covariance per joint: 7 blocks of 3, each through the per-time-step kernel.
+    let per_dimension = read("tball").replacen(
+        "[optimizer]\n",
+        "[optimizer]\ncovariance = \"per-dimension\"\n",
+        1,
+    );
+    let per_dimension = per_dimension.replacen(
+        "weighting = \"episodic\"",
+        "weighting = \"per-time-step\"",
+        1,
+    );
+    assert!(per_dimension.contains("per-dimension") && per_dimension.contains("per-time-step"));
+    cases.push(("tball-per-dimension".into(), per_dimension));
     // A few at a time: each run has its updater, sampler and two workers.
     for (batch, chunk) in cases.chunks(4).enumerate() {
         let mut runs: Vec<(Run, PathBuf, String)> = chunk
@@ -473,7 +486,9 @@ fn every_method_is_bit_identical_to_in_process() {
                 let text = text.replacen("updates = 40\n", "updates = 8\n", 1);
                 let cfg = write_config(&scratch, &format!("{name}.toml"), &text);
                 let result = scratch.path(&format!("result-{name}.toml"));
-                let id = 930 + (batch * 4 + i) as u64;
+                // Ids 930–939 are this test's; a later batch reuses those of runs that have
+                // ended and left nothing behind (asserted below).
+                let id = 930 + ((batch * 4 + i) % 10) as u64;
                 let run = Run::start(
                     &scratch,
                     id,

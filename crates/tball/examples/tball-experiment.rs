@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p tball --example tball-experiment -- \
 //!     [--config config/tball.toml] [--sessions 10] [--out runs/tball] [--weighting per-time-step]
-//!     [--covariance per-joint]
+//!     [--covariance per-dimension]
 //! ```
 //!
 //! Updates are numbered from 1 in the output, as in the paper: "after 20 updates" is update 20,
@@ -15,12 +15,8 @@ use std::error::Error;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use nalgebra::{DMatrix, DVector};
-use pi2cma::{
-    boundcovar, Distribution, EigenvalueBounds, Exploration, Hyperparameters, Optimizer, UpdateRule,
-};
 use plotters::prelude::*;
-use session::{Observer, RunConfig, UpdateRecord, WeightingName};
+use session::{CovarianceName, Observer, RunConfig, UpdateRecord, WeightingName};
 use tasks::Task;
 use tball::{Tball, Trace};
 
@@ -88,100 +84,24 @@ struct Args {
     /// Overrides `optimizer.weighting`, to compare the two modes on the same run.
     #[arg(long, value_enum)]
     weighting: Option<Weighting>,
-    /// One covariance over all the weights of the 7 joints (what every other command does), or
-    /// one B × B covariance per joint, as the paper's Σ_init = λ_init·I_3 implies (episodic
-    /// weighting only; see `per_joint_session`).
-    #[arg(long, value_enum, default_value = "full")]
-    covariance: Covariance,
+    /// Overrides `optimizer.covariance`: one covariance over all the weights of the 7 joints,
+    /// or one B × B covariance per joint (`per-dimension`, also accepted as `per-joint`), as the
+    /// paper's Σ_init = λ_init·I_3 implies.
+    #[arg(long, value_enum)]
+    covariance: Option<Covariance>,
 }
 
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
 enum Covariance {
     Full,
-    PerJoint,
+    #[value(alias = "per-joint")]
+    PerDimension,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum Weighting {
     Episodic,
     PerTimeStep,
-}
-
-/// A session whose search distribution has one B × B covariance per joint: the paper gives
-/// Algorithm 1 for a 1-D policy and starts the T-ball run from Σ = λ_init·I_3 (B = 3), so each
-/// joint's weights have their own covariance, updated with the probabilities all joints share.
-/// The core keeps one P × P covariance; this runs its episodic update with the eigenvalue bounds
-/// lifted, which gives Σ_k P_k ε_k ε_kᵀ over all weights, keeps each joint's diagonal block of
-/// it, bounds that block on its own (boundcovar), and goes on from the block-diagonal Σ. The
-/// per-time-step mode bounds every step's Σ_i before the temporal average, which a bound after
-/// the update cannot reproduce, so it is refused.
-fn per_joint_session(cfg: &RunConfig, seed: u64, rec: &mut Recorder) -> Res<()> {
-    let hp = cfg.hyperparameters();
-    let Exploration::Adaptive { bounds } = hp.exploration else {
-        return Err("--covariance per-joint needs method pi2-cma".into());
-    };
-    if hp.weighting != pi2cma::Weighting::Episodic {
-        return Err("--covariance per-joint needs episodic weighting".into());
-    }
-    let updates = cfg
-        .run
-        .updates
-        .ok_or("--covariance per-joint needs run.updates")?;
-    let unbounded = Hyperparameters {
-        exploration: Exploration::Adaptive {
-            bounds: EigenvalueBounds::unbounded(),
-        },
-        ..hp
-    };
-    let mut task = session::build_task(cfg)?;
-    let (steps, basis) = (task.steps(), rec.task.dmp().basis());
-    let initial = Distribution::isotropic(
-        DVector::from_vec(task.initial_mean()),
-        cfg.optimizer.lambda_init,
-    )?;
-    let mut optimizer = Optimizer::new(unbounded.clone(), initial, steps, seed, None)?;
-    let (schedule, initial_settings) = (cfg.schedule(), task.settings());
-    let mut costs = optimizer.cost_batch();
-    for u in 0..updates {
-        schedule.configure(task.as_mut(), &initial_settings, u)?;
-        let before = optimizer.distribution().clone();
-        let samples = optimizer.ask().clone();
-        costs.clear();
-        for k in 0..samples.rollouts {
-            let (per_step, terminal) = costs.slot_mut(k);
-            *terminal = task.rollout(samples.row(k), per_step);
-        }
-        let mut summary = optimizer.tell(&costs)?;
-        let after = Distribution::new(
-            optimizer.distribution().mean.clone(),
-            per_joint(&optimizer.distribution().covariance, basis, bounds),
-        )?;
-        summary.lambda_next = after.largest_eigenvalue();
-        let rule = UpdateRule::new(unbounded.clone(), after.dim(), steps, None)?;
-        optimizer = Optimizer::resume(rule, after, seed, u + 1);
-        rec.on_update(&UpdateRecord {
-            before: &before,
-            after: optimizer.distribution(),
-            samples: &samples,
-            costs: &costs,
-            summary: &summary,
-            task_settings: &task.settings(),
-            rollout_times: &[],
-        });
-    }
-    Ok(())
-}
-
-/// The block-diagonal matrix of `sigma`'s diagonal blocks of size `basis`, each bounded.
-fn per_joint(sigma: &DMatrix<f64>, basis: usize, bounds: EigenvalueBounds) -> DMatrix<f64> {
-    let p = sigma.nrows();
-    let mut out = DMatrix::zeros(p, p);
-    for start in (0..p).step_by(basis) {
-        let block = sigma.view((start, start), (basis, basis)).clone_owned();
-        out.view_mut((start, start), (basis, basis))
-            .copy_from(&boundcovar(&block, bounds));
-    }
-    out
 }
 
 fn mean(v: impl Iterator<Item = f64>) -> f64 {
@@ -207,14 +127,21 @@ fn run() -> Res<()> {
         };
         cfg.validate()?;
     }
+    if let Some(c) = args.covariance {
+        cfg.optimizer.covariance = match c {
+            Covariance::Full => CovarianceName::Full,
+            Covariance::PerDimension => CovarianceName::PerDimension,
+        };
+        cfg.validate()?;
+    }
     println!(
         "{}: {} sessions, weighting {:?}{}",
         args.config.display(),
         args.sessions,
         cfg.optimizer.weighting,
-        match args.covariance {
-            Covariance::Full => "",
-            Covariance::PerJoint => ", one covariance per joint",
+        match cfg.optimizer.covariance {
+            CovarianceName::Full => "",
+            CovarianceName::PerDimension => ", one covariance per joint",
         }
     );
     let task_cfg = common::tball_task(&cfg, &args.config)?;
@@ -226,12 +153,7 @@ fn run() -> Res<()> {
             task: Tball::new(task_cfg)?,
             rows: Vec::new(),
         };
-        match args.covariance {
-            Covariance::Full => {
-                session::run_session(&cfg, cfg.run.seed + s, &mut rec)?;
-            }
-            Covariance::PerJoint => per_joint_session(&cfg, cfg.run.seed + s, &mut rec)?,
-        }
+        session::run_session(&cfg, cfg.run.seed + s, &mut rec)?;
         sessions.push(rec.rows);
     }
     let elapsed = start.elapsed();
@@ -571,34 +493,4 @@ fn plot_bat(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
     }
     root.present()?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Worked by hand: joint 0's block [[1, .9, 0], [.9, 1, 0], [0, 0, 1]] has eigenvalues 1.9,
-    /// 0.1 and 1 on (1, 1, 0)/√2, (1, −1, 0)/√2 and (0, 0, 1); clipped to [0.5, 1.5] they give
-    /// [[1, .5, 0], [.5, 1, 0], [0, 0, 1]]. Joint 1's block 4·I becomes 1.5·I, and the 0.3
-    /// between the joints is dropped.
-    #[test]
-    fn per_joint_bounds_each_joints_block_and_drops_the_rest() {
-        let mut sigma = DMatrix::<f64>::zeros(6, 6);
-        for i in 0..3 {
-            sigma[(i, i)] = 1.0;
-            sigma[(i + 3, i + 3)] = 4.0;
-            for j in 3..6 {
-                sigma[(i, j)] = 0.3;
-                sigma[(j, i)] = 0.3;
-            }
-        }
-        (sigma[(0, 1)], sigma[(1, 0)]) = (0.9, 0.9);
-        let out = per_joint(&sigma, 3, EigenvalueBounds::new(0.5, 1.5).unwrap());
-        let mut expect = DMatrix::<f64>::identity(6, 6);
-        (expect[(0, 1)], expect[(1, 0)]) = (0.5, 0.5);
-        for i in 3..6 {
-            expect[(i, i)] = 1.5;
-        }
-        assert!((&out - &expect).amax() < 1e-12, "{out}");
-    }
 }
