@@ -86,6 +86,10 @@ variant CEM-per-step A1 's/^method = .*/method = "cem"/; s/^weighting = .*/weigh
 variant C2 C2 ''
 variant D-per-step D 's/^weighting = .*/weighting = "per-time-step"/'
 variant tball tball ''
+# One B×B covariance per joint (optimizer.covariance): 7 blocks of 3, episodic and per time step.
+variant tball-per-dimension tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "per-dimension"/'
+variant tball-per-dimension-per-step tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "per-dimension"/; s/^weighting = .*/weighting = "per-time-step"/'
+"$bin/mcap-tool" verify "$work/tball-per-dimension-per-step/run.mcap"
 python3 tools/check_update.py "${checked[@]}"
 
 echo "recordings: 4 passed, 0 failed"

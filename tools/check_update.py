@@ -344,7 +344,10 @@ def main():
         hp = run["hp"]
         label = (f"{run['name']}: K={hp['rollouts']} P={run['P']} N={run['N']} mapping={hp['mapping']} "
                  f"expl={hp['exploration']} weighting={hp['weighting']} eval_in_update={hp['evaluation_in_update']} "
-                 f"λ∈[{hp['lambda_min']},{hp['lambda_max']}] updates={len(ups)} changes={changes}")
+                 f"λ∈[{hp['lambda_min']},{hp['lambda_max']}] "
+                 + (f"Σ per dimension ({hp['covariance_block']}×{hp['covariance_block']} blocks) "
+                    if hp["covariance_block"] else "")
+                 + f"updates={len(ups)} changes={changes}")
         print(f"{path}\n  {label}")
         print("  max rel diff: " + "  ".join(f"{q}={res[q][0]:.2e}(u{res[q][1]})" for q in QUANTS))
         worst = max(res[q][0] for q in QUANTS)
