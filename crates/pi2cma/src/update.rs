@@ -513,6 +513,9 @@ impl UpdateRule {
 
     /// The block-diagonal Σ of a per-dimension covariance: block d is the full-covariance
     /// update of dimension d's parameters alone (same costs, so the same probabilities).
+    /// Unlike the full path it allocates per update (each block's copies of θ, Σ and the
+    /// samples, and the probabilities recomputed per block): small next to the rollouts of a
+    /// DMP task, and it keeps each block exactly the full rule's result for B parameters.
     fn block_covariance(
         &mut self,
         old: &Distribution,
