@@ -52,7 +52,16 @@ pub enum SessionError {
 /// not read as meant. A pipeline worker of your own (`pipeline::worker::serve`) and
 /// [`InProcess::with_task`] check it before their first rollout.
 pub fn check_task_shape(task: &dyn Task, config: &RunConfig) -> Result<(), SessionError> {
-    let declared = config.build_task()?;
+    check_shape_against(task, config.build_task()?.as_ref(), config)
+}
+
+/// [`check_task_shape`] against the config's task `declared`, built once by a caller that
+/// needs it too.
+fn check_shape_against(
+    task: &dyn Task,
+    declared: &dyn Task,
+    config: &RunConfig,
+) -> Result<(), SessionError> {
     let field = |f: &str| match config.external_worker() {
         Some(_) => format!("task.external.{f}"),
         None => format!("the `{}` task's {f}", declared.name()),
@@ -93,7 +102,7 @@ pub fn check_task_shape(task: &dyn Task, config: &RunConfig) -> Result<(), Sessi
         }
     }
     let names = |t: &dyn Task| t.settings().iter().map(|(n, _)| *n).collect::<Vec<_>>();
-    if names(task) != names(declared.as_ref()) {
+    if names(task) != names(declared) {
         // A TOML table has no order a task could follow: the config's names are sorted.
         let order = match config.external_worker() {
             Some(_) => "same names, in alphabetical order",
@@ -104,7 +113,7 @@ pub fn check_task_shape(task: &dyn Task, config: &RunConfig) -> Result<(), Sessi
             task.name(),
             names(task),
             field("settings"),
-            names(declared.as_ref()),
+            names(declared),
         ));
     }
     Ok(())
@@ -318,8 +327,9 @@ impl InProcess {
         let (task, declared) = match own {
             None => (build_task(config)?, None),
             Some(task) => {
-                check_task_shape(task.as_ref(), config)?;
-                (task, Some(config.build_task()?))
+                let declared = config.build_task()?;
+                check_shape_against(task.as_ref(), declared.as_ref(), config)?;
+                (task, Some(declared))
             }
         };
         // A task of your own may start from other values and another initial mean than the
