@@ -51,6 +51,11 @@ MAX_SETTINGS = 8
 WAKE = iox2.EventId.new(1)
 NO_CHUNK = 2**64 - 1
 QUEUE_EMPTY = 1
+# Ready.flags: a rollout of the chunk other than its last is done (crates/wire Ready::ROLLOUT_DONE);
+# sent at most every ROLLOUT_DONE_INTERVAL_S, only in a run with pipeline.rollout_timeout_ms,
+# which then bounds one rollout rather than the whole chunk.
+ROLLOUT_DONE = 1
+ROLLOUT_DONE_INTERVAL_S = 0.001
 ROLE_WORKER = 3
 # Costs are announced to the updater at least this often while a chunk is being worked on.
 NOTIFY_INTERVAL_S = 0.001
@@ -104,14 +109,14 @@ class CostHeader(WireStruct):
 
 
 class Ready(WireStruct):
-    WIRE_NAME = "pi2cma.Ready.v1"
+    WIRE_NAME = "pi2cma.Ready.v2"
     _fields_ = [
         ("run_id", ctypes.c_uint64),
-        ("completed_chunk", ctypes.c_uint64),
+        ("chunk", ctypes.c_uint64),
         ("worker", ctypes.c_uint32),
         ("incarnation", ctypes.c_uint32),
         ("pid", ctypes.c_uint32),
-        ("reserved", ctypes.c_uint32),
+        ("flags", ctypes.c_uint32),
     ]
 
 
@@ -235,6 +240,7 @@ class Shape:
         self.basis_activations = ext.get("basis_activations")
         self.rollouts = cfg["optimizer"]["rollouts"]
         self.max_workers = cfg.get("pipeline", {}).get("max_workers", 16)
+        self.rollout_timeout_ms = cfg.get("pipeline", {}).get("rollout_timeout_ms")
         self.origin = config_path
 
     def nodes(self):
@@ -484,8 +490,8 @@ def _serve(make_task, args):
     lifecycle.send_copy(Lifecycle(run_id=run_id, pid=pid, role=ROLE_WORKER, worker=w, incarnation=inc))
     supervisor_bell.notify_with_custom_event_id(WAKE)
 
-    def publish_ready(chunk):
-        ready.send_copy(Ready(run_id=run_id, completed_chunk=chunk, worker=w, incarnation=inc, pid=pid))
+    def publish_ready(chunk, flags=0):
+        ready.send_copy(Ready(run_id=run_id, chunk=chunk, worker=w, incarnation=inc, pid=pid, flags=flags))
 
     publish_ready(NO_CHUNK)
     sampler_bell.notify_with_custom_event_id(WAKE)
@@ -495,6 +501,8 @@ def _serve(make_task, args):
     # The update of the work items last applied, and the (setting, value) its task refused in it.
     refused_update, refused = None, set()
     chunk, done_in_chunk = None, 0
+    report_rollouts = shape.rollout_timeout_ms is not None
+    reported_at = time.monotonic()
     last_notify = time.monotonic()
     n = shape.steps
     last_run_dir_check = time.monotonic()
@@ -531,6 +539,8 @@ def _serve(make_task, args):
                 )
             theta = list((ctypes.c_double * count).from_address(item.payload().as_ptr()))
             update, rollout, chunk_id, chunk_len, flags = h.update, h.rollout, h.chunk, h.chunk_len, h.flags
+            if chunk != chunk_id:
+                chunk, done_in_chunk, reported_at = chunk_id, 0, time.monotonic()
             if update != refused_update:
                 refused_update, refused = update, set()
             m = min(h.settings_len, len(names))
@@ -582,14 +592,15 @@ def _serve(make_task, args):
                 header.settings[i] = applied[i] if i < header.settings_len else 0.0
             sample.assume_init().send()
             unannounced = True
-            if chunk != chunk_id:
-                chunk, done_in_chunk = chunk_id, 0
             done_in_chunk += 1
             chunk_done = done_in_chunk >= chunk_len
+            now = time.monotonic()
             # Ready before the updater's bell, and not before the costs (see the wire protocol).
             if chunk_done:
                 publish_ready(chunk_id)
-            now = time.monotonic()
+            elif report_rollouts and now - reported_at >= ROLLOUT_DONE_INTERVAL_S:
+                publish_ready(chunk_id, ROLLOUT_DONE)
+                reported_at = now
             if chunk_done or not inbox.has_samples() or now - last_notify >= NOTIFY_INTERVAL_S:
                 updater_bell.notify_with_custom_event_id(WAKE)
                 last_notify, unannounced = now, False

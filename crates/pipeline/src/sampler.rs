@@ -3,9 +3,10 @@
 //! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts, pending as at the start of the hand-out:
 //! equal shares at the start of an update, smaller ones while some workers are still busy
 //! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. Rollouts of a
-//! lost worker go back to the pending queue. A worker that holds its chunk for longer than
-//! `pipeline.rollout_timeout_ms` per rollout is reported to the supervisor (`overdue`), which
-//! kills and restarts it.
+//! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
+//! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
+//! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
+//! restarts it.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -28,8 +29,14 @@ struct Assignment {
     chunk: u64,
     update: u64,
     rollouts: Vec<u32>,
-    /// When it was handed out, for `pipeline.rollout_timeout_ms`.
+    /// When it was handed out.
     since: Instant,
+    /// When the sampler last learnt of progress on it: the hand-out, or the latest
+    /// [`Ready::ROLLOUT_DONE`] of its worker. `pipeline.rollout_timeout_ms` counts from here,
+    /// so it bounds one rollout, not the chunk: a worker that hangs in its chunk's second
+    /// rollout is found about one timeout after its first was done, not chunk-length timeouts
+    /// after the hand-out.
+    progress: Instant,
 }
 
 struct WorkerPort {
@@ -168,22 +175,28 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 continue;
             }
             if trace {
-                eprintln!(
-                    "{} ready w{} chunk {}",
-                    us(),
-                    r.worker,
-                    r.completed_chunk as i64
-                );
+                eprintln!("{} ready w{} chunk {}", us(), r.worker, r.chunk as i64);
+            }
+            if r.flags & Ready::ROLLOUT_DONE != 0 {
+                let on_its_chunk = workers
+                    .get_mut(&r.worker)
+                    .filter(|w| w.incarnation == r.incarnation)
+                    .and_then(|w| w.assignment.as_mut())
+                    .filter(|a| a.chunk == r.chunk);
+                if let Some(a) = on_its_chunk {
+                    // When read, not when sent: a sampler that was not scheduled for a while
+                    // takes the progress as later than it was, never a rollout as longer.
+                    a.progress = Instant::now();
+                }
+                continue;
             }
             match workers.get_mut(&r.worker) {
                 Some(w) if r.incarnation < w.incarnation => {} // from a lost predecessor
                 Some(w) if r.incarnation == w.incarnation => {
-                    let done = r.completed_chunk != Ready::NO_CHUNK;
-                    let assigned = done
-                        && w.assignment
-                            .as_ref()
-                            .is_some_and(|a| a.chunk == r.completed_chunk);
-                    let late = done && w.overdue_chunk == Some(r.completed_chunk);
+                    let done = r.chunk != Ready::NO_CHUNK;
+                    let assigned =
+                        done && w.assignment.as_ref().is_some_and(|a| a.chunk == r.chunk);
+                    let late = done && w.overdue_chunk == Some(r.chunk);
                     if assigned {
                         w.assignment = None;
                     }
@@ -225,19 +238,16 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         if let Some(per_rollout) = rollout_timeout {
             for (&worker, w) in workers.iter_mut() {
                 let Some(a) = &w.assignment else { continue };
-                let held = a.since.elapsed();
-                // A timeout past what a Duration holds never expires.
-                let limit = per_rollout
-                    .checked_mul(a.rollouts.len() as u32)
-                    .unwrap_or(Duration::MAX);
-                if held <= limit {
+                let stalled = a.progress.elapsed();
+                if stalled <= per_rollout {
                     continue;
                 }
                 let report = wire::Overdue {
                     run_id: ctx.run_id,
                     update: a.update,
                     chunk: a.chunk,
-                    held_ms: held.as_millis() as u64,
+                    held_ms: a.since.elapsed().as_millis() as u64,
+                    stalled_ms: stalled.as_millis() as u64,
                     worker,
                     incarnation: w.incarnation,
                     rollouts: a.rollouts.len() as u32,
@@ -333,11 +343,13 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             if trace {
                 eprintln!("{} chunk {chunk} -> w{id}: {:?}", us(), rollouts);
             }
+            let now = Instant::now();
             w.assignment = Some(Assignment {
                 chunk,
                 update: cur.update,
                 rollouts,
-                since: Instant::now(),
+                since: now,
+                progress: now,
             });
             to_ring.push(id);
         }

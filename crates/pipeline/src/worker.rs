@@ -80,6 +80,13 @@ fn slot<T: Task>(
         .pipeline()
         .fault_hang_at_update
         .filter(|_| incarnation == 0);
+    let hang_in = ctx
+        .config
+        .pipeline()
+        .fault_hang_at_chunk_rollout
+        .unwrap_or(1);
+    // Only a run with a rollout timeout needs to hear of a chunk's progress (Ready::ROLLOUT_DONE).
+    let report_rollouts = ctx.config.pipeline().rollout_timeout_ms.is_some();
     let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
 
     let inbox = wire::work(&ctx.node, ctx.run_id, w, &ctx.limits)?.subscriber("work")?;
@@ -95,15 +102,15 @@ fn slot<T: Task>(
     let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("ready")?;
     let updater_bell = ctx.notifier("updater")?;
     let sampler_bell = ctx.notifier("sampler")?;
-    let publish_ready = |completed_chunk: u64| -> anyhow::Result<()> {
+    let publish_ready = |chunk: u64, flags: u32| -> anyhow::Result<()> {
         iox(
             ready.send_copy(Ready {
                 run_id: ctx.run_id,
-                completed_chunk,
+                chunk,
                 worker: w,
                 incarnation,
                 pid: std::process::id(),
-                _reserved: 0,
+                flags,
             }),
             "send ready",
         )?;
@@ -113,10 +120,12 @@ fn slot<T: Task>(
         iox(bell.notify_with_custom_event_id(wire::WAKE), what).map(|_| ())
     };
     let _announced = announce_ready(&ctx, wire::role::WORKER, w, incarnation)?;
-    publish_ready(Ready::NO_CHUNK)?;
+    publish_ready(Ready::NO_CHUNK, 0)?;
     ring(&sampler_bell, "notify sampler")?;
 
+    // (the chunk being worked on, its rollouts sent)
     let mut chunk = (u64::MAX, 0u32);
+    let mut reported_at = Instant::now();
     let mut last_notify = Instant::now();
     let mut unannounced = false;
     let mut last_run_dir_check = Instant::now();
@@ -167,7 +176,11 @@ fn slot<T: Task>(
                 );
             }
             let (ran_with, ran_with_len) = wire::pack_settings(&applied.values);
-            if hang_at.is_some_and(|n| h.update >= n) {
+            if chunk.0 != h.chunk {
+                chunk = (h.chunk, 0);
+                reported_at = Instant::now();
+            }
+            if hang_at.is_some_and(|n| h.update >= n) && chunk.1 + 1 == hang_in {
                 // Fault injection (pipeline.fault_hang_at_update): a simulator or robot that
                 // stops answering. Only a signal ends it.
                 while !crate::termination_requested() {
@@ -201,9 +214,6 @@ fn slot<T: Task>(
             drop(item);
             iox(sample.send(), "send costs")?;
             unannounced = true;
-            if chunk.0 != h.chunk {
-                chunk = (h.chunk, 0);
-            }
             chunk.1 += 1;
             let chunk_done = chunk.1 >= h.chunk_len;
             // Ready before the updater's bell: the distribution the updater then publishes
@@ -211,7 +221,10 @@ fn slot<T: Task>(
             // before the costs: the sampler forgets a chunk once it is reported done, so a
             // worker killed in between would leave a rollout that nobody redoes.
             if chunk_done {
-                publish_ready(h.chunk)?;
+                publish_ready(h.chunk, 0)?;
+            } else if report_rollouts && reported_at.elapsed() >= wire::ROLLOUT_DONE_INTERVAL {
+                publish_ready(h.chunk, Ready::ROLLOUT_DONE)?;
+                reported_at = Instant::now();
             }
             let more = iox(inbox.has_samples(), "inbox")?;
             if chunk_done || !more || last_notify.elapsed() >= NOTIFY_INTERVAL {

@@ -270,6 +270,9 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
         if let Some(u) = p.fault_hang_at_update {
             t.insert("fault_hang_at_update".into(), int(u));
         }
+        if let Some(r) = p.fault_hang_at_chunk_rollout {
+            t.insert("fault_hang_at_chunk_rollout".into(), int(u64::from(r)));
+        }
         root.insert("pipeline".into(), Value::Table(t));
     }
     let mut text =

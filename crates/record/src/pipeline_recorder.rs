@@ -567,7 +567,8 @@ impl WriterState {
                         wire::lost::EXITED => (Event::Exit, "exited unasked"),
                         wire::lost::HUNG => (
                             Event::Crash,
-                            "hung (it held its chunk past pipeline.rollout_timeout_ms) and was killed",
+                            "hung (no rollout done for longer than pipeline.rollout_timeout_ms) and was \
+                             killed",
                         ),
                         _ => (Event::Crash, "crashed"),
                     };

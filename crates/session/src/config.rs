@@ -239,9 +239,10 @@ pub struct PipelineSection {
     /// Longest a rollout worker polls for its next work before it blocks (adaptive, see
     /// `pipeline::Spin`); 0 never polls.
     pub worker_spin_us: u64,
-    /// Longest a worker may hold a chunk, per rollout in it; a worker over it is taken to hang
-    /// (a simulator or robot that stopped answering), is killed and restarted, and its
-    /// rollouts go to the others. Unset: no limit (a rollout may take any time).
+    /// Longest one rollout may take: a worker that holds a chunk and sends no cost for longer
+    /// is taken to hang (a simulator or robot that stopped answering), is killed and
+    /// restarted, and its rollouts go to the others. Unset: no limit (a rollout may take any
+    /// time).
     pub rollout_timeout_ms: Option<u64>,
     /// FAULT INJECTION, for tests only: from this update on, workers report NaN costs.
     pub fault_nan_from_update: Option<u64>,
@@ -249,6 +250,10 @@ pub struct PipelineSection {
     /// (sleeps instead of running its chunk) at its first chunk of this update or a later one;
     /// restarted workers do not.
     pub fault_hang_at_update: Option<u64>,
+    /// FAULT INJECTION, for tests only: with `fault_hang_at_update`, the rollout of the chunk
+    /// (1: its first, the default) in which the worker stops answering, after sending the
+    /// costs of those before; a chunk with fewer rollouts runs to its end.
+    pub fault_hang_at_chunk_rollout: Option<u32>,
 }
 
 impl PipelineSection {
@@ -269,6 +274,7 @@ impl Default for PipelineSection {
             rollout_timeout_ms: None,
             fault_nan_from_update: None,
             fault_hang_at_update: None,
+            fault_hang_at_chunk_rollout: None,
         }
     }
 }
@@ -708,6 +714,13 @@ impl RunConfig {
                     "pipeline.rollout_timeout_ms",
                     0,
                     "must be > 0 (leave it out for no limit)",
+                ));
+            }
+            if p.fault_hang_at_chunk_rollout == Some(0) {
+                return Err(self.invalid(
+                    "pipeline.fault_hang_at_chunk_rollout",
+                    0,
+                    "must be ≥ 1 (1: a chunk's first rollout)",
                 ));
             }
         }

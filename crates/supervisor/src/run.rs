@@ -770,7 +770,7 @@ impl Supervisor {
         }
         self.stall_reported = true;
         let timeout = match self.pipe.rollout_timeout_ms {
-            Some(ms) => format!("hung workers are restarted after {ms} ms per rollout"),
+            Some(ms) => format!("a worker in a rollout for over {ms} ms is restarted as hung"),
             None => "pipeline.rollout_timeout_ms is not set, so a hung worker is never \
                      restarted"
                 .to_string(),
@@ -1532,8 +1532,8 @@ impl Supervisor {
     fn kill_hung(&mut self, o: Overdue) {
         let per_rollout = self.pipe.rollout_timeout_ms.unwrap_or(0);
         let why = format!(
-            "hung: held {} rollout(s) of update {} for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} per rollout",
-            o.rollouts, o.update, o.held_ms
+            "hung: no rollout done for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} (held {} rollout(s) of update {} for {} ms)",
+            o.stalled_ms, o.rollouts, o.update, o.held_ms
         );
         // Ours also when a scale-down has taken its slot away: asked to stop, a hung worker
         // does not, and would stay, holding its rollouts, until the run ends.

@@ -621,7 +621,7 @@ fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
         let said = format!("worker-{w} (pid ");
         assert!(
             out.lines().any(|l| l.contains(&said)
-                && l.contains("hung: held")
+                && l.contains("hung: no rollout done for")
                 && l.contains("of update 4")),
             "{out}"
         );
@@ -647,6 +647,53 @@ fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
         assert!(logged(&rec, "restart", &name), "{:#?}", rec.logs);
     }
     assert_recorded(&rec, 30);
+    assert_nothing_left(&run);
+}
+
+/// `rollout_timeout_ms` bounds one rollout, not a worker's chunk: a worker that sends the cost
+/// of its chunk's first rollout and hangs in the second is killed about one timeout after that
+/// cost, not after the timeout times the chunk's length from the hand-out (5 rollouts of 400 ms:
+/// 2 s, as before each worker reported its rollouts within a chunk).
+#[test]
+fn a_worker_hung_in_its_chunks_second_rollout_is_killed_after_about_one_timeout() {
+    let scratch = Scratch::new("hung-second");
+    let text = config(&[
+        ("updates = 40", "updates = 12"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+        ),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 400\nfault_hang_at_update = 3\n\
+             fault_hang_at_chunk_rollout = 2",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "hung-second.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1300, &cfg, &result);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    // K = 15 and 3 workers: chunks of 5 at the start of update 3, so every first incarnation
+    // hangs in its second rollout there.
+    let hung: Vec<&str> = out.lines().filter(|l| l.contains(") hung: ")).collect();
+    assert_eq!(hung.len(), 3, "{out}");
+    for line in hung {
+        let held_ms: u64 = line
+            .split(" for ")
+            .nth(2)
+            .and_then(|s| s.split(" ms").next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no held time in {line}"));
+        // One rollout of 20 ms, then one timeout, checked every 0.1 s: about 0.5 s; well under
+        // the 2 s of five timeouts even on a loaded machine.
+        assert!(
+            (400..1200).contains(&held_ms),
+            "held {held_ms} ms: {line}\n{out}"
+        );
+        assert!(line.contains("of update 3"), "{line}");
+    }
+    assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
 }
 
@@ -988,7 +1035,9 @@ fn a_hung_unsupervised_worker_loses_its_rollouts_to_the_others() {
     let out = run.text();
     assert!(out.contains("-> w5:"), "w5 never got work:\n{out}");
     assert!(
-        out.contains("worker-5 (incarnation 0, not started by this supervisor) hung: held"),
+        out.contains(
+            "worker-5 (incarnation 0, not started by this supervisor) hung: no rollout done for"
+        ),
         "{out}"
     );
     assert!(

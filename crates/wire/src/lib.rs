@@ -45,13 +45,15 @@
 //! 3. The worker executes each θ and writes the N immediate costs straight into a loaned `costs`
 //!    sample ([`CostHeader::terminal`] holds the terminal cost, [`CostHeader::settings`] the
 //!    task settings it ran with: the work item's unless its task refused a change). After the
-//!    last rollout of its chunk it publishes [`Ready`] with `completed_chunk` = that chunk,
+//!    last rollout of its chunk it publishes [`Ready`] with `chunk` = that chunk,
 //!    then rings `wake/updater`, then rings `wake/sampler` unless the chunk carried
 //!    [`WorkHeader::QUEUE_EMPTY`]. Ready goes out before the updater's bell: the updater may
 //!    publish the next distribution as soon as it has the costs, and the sampler, woken by that,
 //!    must find every finished worker's Ready. Within a long chunk the worker also rings
-//!    `wake/updater` at least every millisecond. A worker that has just started sends [`Ready`]
-//!    with [`Ready::NO_CHUNK`] and rings `wake/sampler`.
+//!    `wake/updater` at least every millisecond, and, in a run with a rollout timeout, publishes
+//!    [`Ready`] with [`Ready::ROLLOUT_DONE`] after a rollout that is not the chunk's last (at
+//!    most every [`ROLLOUT_DONE_INTERVAL`], ringing nobody). A worker that has just started
+//!    sends [`Ready`] with [`Ready::NO_CHUNK`] and rings `wake/sampler`.
 //! 4. The updater stores cost (u, k) (duplicates and other updates are ignored, so a rollout may
 //!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
 //!
@@ -76,7 +78,8 @@
 //! recorder drops what its subscribers held when it announced itself and begins at the first
 //! distribution after, whose costs all follow it.
 //!
-//! A worker that holds its chunk for longer than `pipeline.rollout_timeout_ms` per rollout is
+//! A worker that holds a chunk and sends no cost for longer than `pipeline.rollout_timeout_ms`
+//! (it reports the rollouts it finishes within a chunk with [`Ready::ROLLOUT_DONE`]) is
 //! reported by the sampler on `overdue` ([`Overdue`], once per incarnation, ringing
 //! `wake/supervisor`); the supervisor kills it and reports it lost with [`lost::HUNG`].
 //!
@@ -243,24 +246,41 @@ impl CostHeader {
     }
 }
 
-/// A worker asks for work.
+/// A worker asks for work (`flags` 0), or reports that it is still getting through its chunk
+/// ([`Ready::ROLLOUT_DONE`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Ready.v1")]
+#[type_name("pi2cma.Ready.v2")]
 pub struct Ready {
     pub run_id: u64,
-    /// The chunk just finished, or [`Ready::NO_CHUNK`] from a worker that has just started.
-    pub completed_chunk: u64,
+    /// The chunk just finished, or [`Ready::NO_CHUNK`] from a worker that has just started;
+    /// with [`Ready::ROLLOUT_DONE`], the chunk the worker is working on.
+    pub chunk: u64,
     pub worker: u32,
     /// Increases with every restart of worker `worker`.
     pub incarnation: u32,
     pub pid: u32,
-    pub _reserved: u32,
+    /// 0 or [`Ready::ROLLOUT_DONE`].
+    pub flags: u32,
 }
 
 impl Ready {
     pub const NO_CHUNK: u64 = u64::MAX;
+    /// A rollout of `chunk` other than its last has just been sent: not a request for work,
+    /// but what lets `pipeline.rollout_timeout_ms` bound one rollout rather than a whole chunk
+    /// (the sampler counts the timeout from the latest of these). Sent only when the run has a
+    /// rollout timeout, without ringing `wake/sampler` (it is read when the sampler next wakes,
+    /// at least every 0.1 s), and at most every [`ROLLOUT_DONE_INTERVAL`]: fast rollouts send
+    /// none at all. A worker's own messages reach the sampler in order, and it sends nothing
+    /// after a chunk's last Ready until it gets the next chunk, so a full subscriber buffer
+    /// drops only older reports of the same worker, never a request for work.
+    pub const ROLLOUT_DONE: u32 = 1;
 }
+
+/// A worker sends [`Ready::ROLLOUT_DONE`] at most this often. A rollout therefore begins at
+/// most this long after the sampler's last sign of life from its worker, and is taken to hang
+/// only when it runs longer than `pipeline.rollout_timeout_ms` minus this.
+pub const ROLLOUT_DONE_INTERVAL: std::time::Duration = std::time::Duration::from_millis(1);
 
 /// What the updater reports to the supervisor (rate-limited, and always for the last update),
 /// and its answer to each runtime task change ([`Progress::TASK_CHANGE`]).
@@ -402,18 +422,20 @@ impl RunNote {
     }
 }
 
-/// The sampler's report of a worker that holds its chunk for longer than
-/// `pipeline.rollout_timeout_ms` per rollout: it has held `rollouts` rollouts of update `update`
-/// for `held_ms`. The supervisor kills that incarnation and restarts it; its rollouts go to the
-/// other workers as any lost worker's do.
+/// The sampler's report of a worker that has sent no cost for longer than
+/// `pipeline.rollout_timeout_ms` while it holds a chunk: it has held `rollouts` rollouts of
+/// update `update` for `held_ms`, and `stalled_ms` of that passed since its last sign of
+/// progress (the hand-out, or its last [`Ready::ROLLOUT_DONE`]). The supervisor kills that
+/// incarnation and restarts it; its rollouts go to the other workers as any lost worker's do.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Overdue.v1")]
+#[type_name("pi2cma.Overdue.v2")]
 pub struct Overdue {
     pub run_id: u64,
     pub update: u64,
     pub chunk: u64,
     pub held_ms: u64,
+    pub stalled_ms: u64,
     pub worker: u32,
     pub incarnation: u32,
     pub rollouts: u32,
@@ -1028,7 +1050,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
         assert_eq!(std::mem::size_of::<Progress>(), 88 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
-        assert_eq!(std::mem::size_of::<Overdue>(), 48);
+        assert_eq!(std::mem::size_of::<Overdue>(), 56);
         assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);
     }
 

@@ -46,8 +46,9 @@ const LOANED_SAMPLES: usize = 2;
 
 /// Samples of a small message (ready, lifecycle, control, progress, …) counted as in use at
 /// once per publisher: they are rare (one lifecycle announcement per process, a ready per
-/// chunk, progress at most every 0.1 s) and drained as they come, and the pages they take are
-/// a few at most even if a burst (a scale-down's lost workers) fills more.
+/// chunk and at most one a millisecond within it, progress at most every 0.1 s) and drained as
+/// they come, and the pages they take are a few at most even if a burst (a scale-down's lost
+/// workers, the rollout reports of a worker whose sampler sleeps) fills more.
 const SMALL_IN_USE: usize = 16;
 
 /// The sum of the peaks of W segments that share a bound on the samples in use at once, as a
