@@ -3,6 +3,7 @@
 //! of the item's update come with the item, so a worker that joins or restarts mid-run needs no
 //! history.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::bail;
@@ -30,6 +31,32 @@ pub struct WorkerArgs {
 
 /// Costs are announced to the updater at least this often while a chunk is being worked on.
 const NOTIFY_INTERVAL: Duration = Duration::from_millis(1);
+
+/// This process runs a worker slot: [`stop_requested`] may read iceoryx2's signal flag, whose
+/// handlers [`Context::new`] installed. Elsewhere reading it would install them, and Ctrl-C
+/// would no longer end an in-process run.
+static SERVING: AtomicBool = AtomicBool::new(false);
+/// [`stop_requested`] has told the task to stop: the rollout it is in is abandoned.
+static STOP_SEEN_BY_TASK: AtomicBool = AtomicBool::new(false);
+
+/// Whether this worker has been asked to stop: SIGTERM or SIGINT, which `supervisor stop`, a
+/// scale-down and Ctrl-C send. For a rollout that takes long (a robot's episode, a simulation
+/// of many steps): check it, e.g. once per control cycle, and return at once when it is true.
+/// A rollout that saw it true is abandoned, whatever it returns: its cost is not sent (the
+/// sampler hands the rollout to another worker after a scale-down; after a stop the update
+/// stays unfinished), and the worker exits with status 0 at once. A rollout that never checks
+/// runs to its end first (its cost is sent), and a worker still in it after
+/// `pipeline.shutdown_timeout_ms` is SIGKILLed by the supervisor.
+///
+/// Two atomic loads once a stop has been seen, an uncontended lock before: cheap enough for
+/// every step. Outside a worker (a task run by `session::InProcess`) always false.
+pub fn stop_requested() -> bool {
+    if !SERVING.load(Ordering::Relaxed) || !crate::termination_requested() {
+        return false;
+    }
+    STOP_SEEN_BY_TASK.store(true, Ordering::Relaxed);
+    true
+}
 
 /// The built-in `rollout-worker`: runs the config's own task (via-point, T-ball). That task is
 /// the one the run was sized from, so there is no shape to check.
@@ -72,6 +99,7 @@ fn slot<T: Task>(
             ctx.limits.max_workers
         );
     }
+    SERVING.store(true, Ordering::Relaxed);
     let mut task = make_task(&ctx)?;
     let mut applied = Applied::new(&task);
     let nan_from = ctx.config.pipeline().fault_nan_from_update;
@@ -195,6 +223,16 @@ fn slot<T: Task>(
             let sample = iox(costs.loan_slice_uninit(steps), "loan cost sample")?;
             let mut sample = sample.write_from_fn(|_| 0.0);
             let mut terminal = task.rollout(item.payload(), sample.payload_mut());
+            if STOP_SEEN_BY_TASK.load(Ordering::Relaxed) {
+                // The task returned early on stop_requested(): what it wrote is not this
+                // rollout's cost. The sampler hands the rollout on once this worker is gone.
+                println!(
+                    "update {}, rollout {}: stopped by a signal during the rollout; abandoned, \
+                     its cost not sent",
+                    h.update, h.rollout
+                );
+                return Ok(Flow::Stop);
+            }
             if nan_from.is_some_and(|n| h.update >= n) {
                 // Fault injection (pipeline.fault_nan_from_update): a task returning NaN.
                 terminal = f64::NAN;

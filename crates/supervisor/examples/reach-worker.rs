@@ -11,7 +11,9 @@
 //! (P = 10, N = 101, the initial mean, the settings `target_x` and `target_y`); the supervisor
 //! starts, restarts and scales this program like its own workers, and every run is recorded as
 //! usual. Replace `rollout` with a call into your simulator, or with executing the movement on a
-//! robot and measuring the cost: nothing else changes.
+//! robot and measuring the cost: nothing else changes. A long rollout should look at
+//! `pipeline::worker::stop_requested()` as this one's real-time wait does, so that a stop or a
+//! scale-down does not wait for it to end.
 
 use dmp::{AffineDmp, Dmp, Gains, Trajectory};
 use session::RunConfig;
@@ -28,6 +30,8 @@ const DT: f64 = 0.01;
 /// Weight of the hand's squared distance (m²) to the target at mid-reach, against the
 /// acceleration cost.
 const TARGET_WEIGHT: f64 = 1e4;
+/// How often a rollout that takes `--rollout-ms` looks whether the worker is to stop.
+const CONTROL_CYCLE: std::time::Duration = std::time::Duration::from_millis(10);
 
 struct Reach {
     /// The DMP weights of a minimum-jerk reach from START to END: the initial mean, printed by
@@ -100,7 +104,19 @@ impl Task for Reach {
         let hand = Self::hand(&self.trajectory.pos[2 * mid..2 * mid + 2]);
         let miss = (hand[0] - self.target[0]).powi(2) + (hand[1] - self.target[1]).powi(2);
         per_step[mid] += TARGET_WEIGHT * miss;
-        std::thread::sleep(self.delay.saturating_sub(start.elapsed()));
+        // The real-time part of a rollout (a robot's movement, a simulator's steps) is where a
+        // stop or a scale-down would otherwise wait for the rollout to end: look for one every
+        // control cycle and leave at once. The worker abandons a rollout left this way.
+        while let Some(rest) = self
+            .delay
+            .checked_sub(start.elapsed())
+            .filter(|r| !r.is_zero())
+        {
+            if pipeline::worker::stop_requested() {
+                break;
+            }
+            std::thread::sleep(rest.min(CONTROL_CYCLE));
+        }
         0.0
     }
 

@@ -3594,6 +3594,60 @@ pi2cma_worker.serve(Slow)
     assert_nothing_left(&reference);
 }
 
+/// A Rust worker whose task looks at `pipeline::worker::stop_requested()` in a long rollout
+/// (the reach example's real-time wait, here a minute a rollout) leaves it at once when it is
+/// scaled down or the run is stopped: the rollout is abandoned, its cost not sent, and the
+/// worker exits 0. Before, SIGTERM was seen only after the rollout, so the supervisor waited
+/// `shutdown_timeout_ms` (15 s here) and SIGKILLed the worker.
+#[test]
+fn a_rust_worker_that_checks_stop_requested_leaves_a_long_rollout_at_once() {
+    let scratch = Scratch::new("rust-slow");
+    let text = external_config(&[
+        (
+            "reach-worker\"]",
+            "reach-worker\", \"--rollout-ms\", \"60000\"]",
+        ),
+        ("workers = 2", "workers = 2\nshutdown_timeout_ms = 15000"),
+    ]);
+    let cfg = write_config(&scratch, "slow.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1301, &cfg, &result);
+    let s = run.wait_status("2 workers", |s| s.contains("worker-1 pid"));
+    let (first, second) = (pid_of(&s, "worker-0"), pid_of(&s, "worker-1"));
+    // Both are well into their first rollout (the first update needs a minute).
+    std::thread::sleep(Duration::from_millis(1000));
+    let bound = Duration::from_secs(5);
+    let t0 = Instant::now();
+    run.ctl_ok(&["scale", "--workers", "1"]);
+    while supervisor::process_alive(second) {
+        assert!(
+            t0.elapsed() < bound,
+            "worker-1 still in its rollout {:?} after the scale-down:\n{}",
+            t0.elapsed(),
+            run.text()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let t0 = Instant::now();
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(t0.elapsed() < bound, "{:?}:\n{}", t0.elapsed(), run.text());
+    assert!(!supervisor::process_alive(first));
+    let out = run.text();
+    assert!(!out.contains("did not stop within"), "{out}");
+    let abandoned = out
+        .lines()
+        .filter(|l| {
+            l.contains("stopped by a signal during the rollout; abandoned, its cost not sent")
+        })
+        .count();
+    assert_eq!(abandoned, 2, "{out}");
+    if let Ok(r) = RunResult::read(&result) {
+        assert_eq!((r.complete, r.updates), (false, 0));
+    }
+    assert_nothing_left(&run);
+}
+
 /// The run of a robot that loses power: the whole group is SIGKILLed mid-run, after a runtime
 /// task change, leaving an unfinished recording. The pipeline resumes from that file, as it is,
 /// and reaches the bits of an uninterrupted run with the same change; so does the in-process
