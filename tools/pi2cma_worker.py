@@ -563,6 +563,22 @@ def _serve(make_task, args):
                     in_rollout[0] = False
             except Stopped:
                 pass
+            except SystemExit as e:
+                # The task ends its worker on purpose (an operator's stop button, a robot's
+                # safety stop): say so, as the supervisor sees only the exit status. Status 0 is
+                # a deliberate stop it does not restart; any other, a failure it does.
+                quiet = e.code is None or e.code == 0
+                how = (
+                    "with status 0, stopped on purpose (the supervisor does not restart it)"
+                    if quiet
+                    else "with a failure status (the supervisor restarts it)"
+                )
+                print(
+                    f"{where}: the task's rollout called sys.exit({e.code!r}): the worker exits "
+                    f"{how}; the rollout is abandoned, its cost not sent",
+                    flush=True,
+                )
+                raise
             except Exception as e:
                 # The task turned Stopped into an error of its own: still a stop.
                 if not interrupted[0]:

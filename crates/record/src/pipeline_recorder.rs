@@ -325,9 +325,13 @@ struct WorkerSlots {
 impl WorkerSlots {
     fn announced(&mut self, worker: u32, incarnation: u32) -> Started {
         let (live, last_loss) = self.slots.entry(worker).or_default();
+        // A worker that exited on purpose is not restarted either: what fills its slot again
+        // comes from a scale-up.
         let started = if live.iter().any(|&i| i < incarnation)
-            || *last_loss == Some(wire::lost::SCALED_DOWN)
-        {
+            || matches!(
+                *last_loss,
+                Some(wire::lost::SCALED_DOWN | wire::lost::EXITED)
+            ) {
             Started::Scale
         } else if incarnation > 0 {
             // Also when the loss was never seen (a restarted recorder joins a run under way).
@@ -564,7 +568,11 @@ impl WriterState {
                     let (event, what) = match c.reason {
                         wire::lost::SCALED_DOWN => (Event::Scale, "stopped by a scale-down"),
                         wire::lost::STOPPED => (Event::Exit, "stopped with the run"),
-                        wire::lost::EXITED => (Event::Exit, "exited unasked"),
+                        wire::lost::EXITED => (
+                            Event::Exit,
+                            "exited on its own with status 0, taken as stopped on purpose (not \
+                             restarted)",
+                        ),
                         wire::lost::HUNG => (
                             Event::Crash,
                             "hung (no rollout done for longer than pipeline.rollout_timeout_ms) and was \
@@ -882,6 +890,9 @@ mod tests {
         assert_eq!(slots.announced(2, 3), Started::Restart);
         slots.lost(2, 3, wire::lost::HUNG);
         assert_eq!(slots.announced(2, 4), Started::Restart);
+        // Exited on its own with status 0: not restarted, so what comes next is a scale-up.
+        slots.lost(2, 4, wire::lost::EXITED);
+        assert_eq!(slots.announced(2, 5), Started::Scale);
         // A restarted recorder may see an incarnation above 0 with no history in its slot: it
         // cannot tell, and says restart, as before the slots were tracked.
         assert_eq!(slots.announced(5, 3), Started::Restart);

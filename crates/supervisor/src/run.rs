@@ -2007,6 +2007,10 @@ impl Supervisor {
                     ));
                     return;
                 }
+                if status.success() {
+                    self.exited_on_purpose(w, pid, &cause);
+                    return;
+                }
                 let now = Instant::now();
                 if !may_restart(&mut slot.restarts, &self.pipe, now) {
                     let n = slot.restarts.len();
@@ -2123,6 +2127,34 @@ impl Supervisor {
                 }
             }
         }
+    }
+
+    /// Worker `w` (pid `pid`) exited with status 0 unasked: a task that ended its worker on
+    /// purpose (`sys.exit(0)` in a Python rollout, `std::process::exit(0)`, an operator's
+    /// `kill` of the worker, which ends it in order). Restarting it would undo that and spend
+    /// the restart limit on it, so it is taken as a scale-down by one: its slot is freed, its
+    /// rollouts go to the others, and `supervisor scale` brings a worker back. With no worker
+    /// left to run rollouts the run is stopped, as by `supervisor stop`.
+    fn exited_on_purpose(&mut self, w: u32, pid: u32, cause: &str) {
+        self.slots.remove(&w);
+        self.target_workers = self.target_workers.saturating_sub(1);
+        let left = self.slots.len() + self.live_joined().count();
+        if left > 0 {
+            say(&format!(
+                "worker-{w} (pid {pid}) exited on its own ({cause}): taken as stopped on \
+                 purpose, not restarted; its rollouts go to the others, {left} worker(s) go on \
+                 (`supervisor scale` adds workers again)"
+            ));
+            return;
+        }
+        say(&format!(
+            "worker-{w} (pid {pid}) exited on its own ({cause}): taken as stopped on purpose, \
+             not restarted; no worker is left to run rollouts, so the run stops"
+        ));
+        if self.outcome.is_none() {
+            self.outcome = Some(Outcome::Stopped);
+        }
+        self.begin_stop();
     }
 
     /// After the recorder died mid-run: unless `pipeline.restart_limit` restarts within

@@ -3648,6 +3648,113 @@ fn a_rust_worker_that_checks_stop_requested_leaves_a_long_rollout_at_once() {
     assert_nothing_left(&run);
 }
 
+/// A worker that exits with status 0 unasked was stopped on purpose (an operator's `kill`,
+/// which a Rust worker answers by ending in order; `sys.exit(0)` in a Python task's rollout):
+/// it is not restarted (it was, as a death, counting towards `restart_limit`), the run goes on
+/// with the others, and with none left it stops as `supervisor stop` stops it.
+#[test]
+fn a_worker_that_exits_0_on_its_own_is_not_restarted() {
+    use std::os::unix::fs::PermissionsExt;
+    let scratch = Scratch::new("exit-0");
+    // A Rust worker (the built-in one) ended by SIGTERM: the other goes on, and the result is
+    // the in-process one.
+    let text = config(&[
+        ("updates = 40", "updates = 20"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+        ),
+        ("workers = 3", "workers = 2"),
+    ]);
+    let cfg = write_config(&scratch, "exit-0.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1302, &cfg, &result);
+    let s = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let victim = pid_of(&s, "worker-1");
+    signal(victim, "-TERM");
+    let s = run.wait_status("worker-1 gone", |s| !s.contains("worker-1 pid"));
+    assert!(s.contains("workers: 1 running (target 1"), "{s}");
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    let said = out
+        .lines()
+        .find(|l| {
+            l.contains(&format!(
+                "worker-1 (pid {victim}) exited on its own (exit status: 0"
+            ))
+        })
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        said.contains(
+            "taken as stopped on purpose, not restarted; its rollouts go to the others, 1 \
+             worker(s) go on"
+        ),
+        "{said}"
+    );
+    assert!(!out.contains("restart 1 of"), "{out}");
+    assert_bit_identical(&text, &result);
+    let rec = record::read_recording(&scratch.recording("A1", 1302)).unwrap();
+    let logged = rec.logs.iter().any(|l| {
+        l.event == "exit"
+            && l.name == "worker-1"
+            && l.message.contains("taken as stopped on purpose")
+    });
+    assert!(logged, "{:#?}", rec.logs);
+    assert_nothing_left(&run);
+
+    // A Python task that calls sys.exit(0) in its third rollout, in the run's only worker:
+    // the run stops, exit 0, at the update it was in.
+    let tools =
+        std::path::absolute(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools")).unwrap();
+    let script = scratch.path("quits.py");
+    std::fs::write(
+        &script,
+        format!(
+            r#"#!/usr/bin/env python3
+import sys
+sys.path.insert(0, {tools:?})
+import pi2cma_worker, reach_worker
+class Quits(reach_worker.Reach):
+    def rollout(self, theta):
+        self.n = getattr(self, "n", 0) + 1
+        if self.n == 3:
+            sys.exit(0)
+        return super().rollout(theta)
+pi2cma_worker.serve(Quits)
+"#
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let text = external_config_from(
+        "external-reach-python.toml",
+        "../tools/reach_worker.py",
+        &script,
+        &[("workers = 2", "workers = 1")],
+    );
+    let cfg = write_config(&scratch, "quits.toml", &text);
+    let result = scratch.path("quits.result.toml");
+    let mut run = Run::start_quiet(&scratch, 1303, &cfg, &result);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    for said in [
+        "update 0, rollout 2: the task's rollout called sys.exit(0): the worker exits with \
+         status 0, stopped on purpose (the supervisor does not restart it); the rollout is \
+         abandoned, its cost not sent",
+        "exited on its own (exit status: 0",
+        "): taken as stopped on purpose, not restarted; no worker is left to run rollouts, so \
+         the run stops",
+        "stopped on request",
+    ] {
+        assert!(out.contains(said), "no `{said}` in:\n{out}");
+    }
+    assert!(!out.contains("restart 1 of"), "{out}");
+    if let Ok(r) = RunResult::read(&result) {
+        assert_eq!((r.complete, r.updates), (false, 0));
+    }
+    assert_nothing_left(&run);
+}
+
 /// The run of a robot that loses power: the whole group is SIGKILLed mid-run, after a runtime
 /// task change, leaving an unfinished recording. The pipeline resumes from that file, as it is,
 /// and reaches the bits of an uninterrupted run with the same change; so does the in-process
