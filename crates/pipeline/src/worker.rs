@@ -503,6 +503,85 @@ mod tests {
         }
     }
 
+    /// A robot driver's handle that must stay on the thread that opened it.
+    struct Driver {
+        link: std::rc::Rc<std::cell::Cell<u64>>,
+    }
+
+    impl Task for Driver {
+        fn name(&self) -> &'static str {
+            "driver"
+        }
+        fn parameters(&self) -> usize {
+            1
+        }
+        fn steps(&self) -> usize {
+            1
+        }
+        fn initial_mean(&self) -> Vec<f64> {
+            vec![0.0]
+        }
+        fn rollout(&mut self, theta: &[f64], c: &mut [f64]) -> f64 {
+            self.link.set(self.link.get() + 1);
+            c[0] = theta[0] * theta[0];
+            0.0
+        }
+        fn settings(&self) -> Vec<(&'static str, f64)> {
+            vec![]
+        }
+        fn set(&mut self, name: &str, _: f64) -> Result<(), TaskError> {
+            Err(TaskError::Invalid {
+                task: "driver",
+                reason: name.into(),
+            })
+        }
+    }
+
+    /// Compiles only while `serve`, `serve_main` and the in-process runner take a task that is
+    /// not `Send` (they required it, though each keeps its task on one thread).
+    #[allow(dead_code)]
+    fn serve_a_driver(args: &WorkerArgs) -> anyhow::Result<()> {
+        serve(args, |_| {
+            Ok(Driver {
+                link: Default::default(),
+            })
+        })
+    }
+
+    #[allow(dead_code)]
+    fn serve_main_a_driver() -> std::process::ExitCode {
+        serve_main("driver-worker", |_| {
+            Ok(Driver {
+                link: Default::default(),
+            })
+        })
+    }
+
+    #[allow(dead_code)]
+    fn run_a_driver_in_process(config: &RunConfig) -> anyhow::Result<session::InProcess> {
+        let task = Driver {
+            link: Default::default(),
+        };
+        Ok(session::InProcess::with_task(config, 1, Box::new(task))?)
+    }
+
+    #[test]
+    fn a_task_that_is_not_send_is_served_as_any_other() {
+        let served: fn(&WorkerArgs) -> anyhow::Result<()> = serve_a_driver;
+        let main: fn() -> std::process::ExitCode = serve_main_a_driver;
+        let in_process: fn(&RunConfig) -> anyhow::Result<session::InProcess> =
+            run_a_driver_in_process;
+        let _ = (served, main, in_process);
+        // And its settings are applied through the same path as a Send task's.
+        let link = std::rc::Rc::new(std::cell::Cell::new(0));
+        let mut task = Driver { link: link.clone() };
+        let mut applied = Applied::new(&task);
+        assert!(applied.apply(&mut task, 0, &[], &[]).unwrap().is_empty());
+        let mut c = [0.0];
+        task.rollout(&[3.0], &mut c);
+        assert_eq!((c[0], link.get()), (9.0, 1));
+    }
+
     fn fresh() -> (Target, Applied) {
         let task = Target {
             xy: [f64::NAN; 2],

@@ -44,7 +44,12 @@ pub enum TaskError {
 }
 
 /// A policy with its cost function.
-pub trait Task: Send {
+///
+/// Not `Send`: a pipeline worker (`pipeline::worker::serve`) and the in-process runner
+/// (`session::InProcess`) keep their task on the thread that built it, so a task may hold
+/// what must stay there (an `Rc`, a robot driver's handle). Code that moves a task to another
+/// thread asks for `Task + Send` itself.
+pub trait Task {
     fn name(&self) -> &'static str;
     /// P: the length of θ.
     fn parameters(&self) -> usize;
