@@ -14,6 +14,10 @@
 //! robot and measuring the cost: nothing else changes. A long rollout should look at
 //! `pipeline::worker::stop_requested()` as this one's real-time wait does, so that a stop or a
 //! scale-down does not wait for it to end.
+//!
+//! Copied into a crate of your own outside this workspace: copy the workspace's `Cargo.lock`
+//! along, so that your worker is built with the iceoryx2 version the rest of the pipeline uses
+//! (iceoryx2 connects only processes of the same version, patch included).
 
 use dmp::{AffineDmp, Dmp, Gains, Trajectory};
 use session::RunConfig;

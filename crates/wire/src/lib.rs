@@ -800,46 +800,79 @@ pub type SliceService<H> = publish_subscribe::PortFactory<Service, [f64], H>;
 pub type FixedService<T> = publish_subscribe::PortFactory<Service, T, ()>;
 pub type EventService = event::PortFactory<Service>;
 
-/// Whether opening or creating a service failed only because a system call was interrupted
-/// (EINTR) or the service was in flux: such an open is retried, as POSIX code retries EINTR.
-/// The sampler opening a new worker's `work/<w>` and `wake/worker/<w>` saw it during a
-/// scale-up next to a joined worker, and failed the run.
-fn interrupted(e: &PublishSubscribeOpenOrCreateError) -> bool {
-    matches!(
-        e,
-        PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
-            PublishSubscribeOpenError::Interrupt
-        ) | PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(
-            PublishSubscribeCreateError::Interrupt
-        ) | PublishSubscribeOpenOrCreateError::SystemInFlux
-    )
+/// How opening or creating a service failed, as far as [`open_or_create`] treats failures
+/// differently.
+trait OpenFailure: std::fmt::Debug {
+    /// Only because a system call was interrupted (EINTR) or the service was in flux: such an
+    /// open is retried, as POSIX code retries EINTR. The sampler opening a new worker's
+    /// `work/<w>` and `wake/worker/<w>` saw it during a scale-up next to a joined worker, and
+    /// failed the run.
+    fn interrupted(&self) -> bool;
+    /// The service was created by a process built with another iceoryx2 version, which
+    /// iceoryx2 refuses down to the patch version.
+    fn version_mismatch(&self) -> bool;
 }
 
-fn event_interrupted(e: &EventOpenOrCreateError) -> bool {
-    matches!(
-        e,
-        EventOpenOrCreateError::EventOpenError(EventOpenError::Interrupt)
-            | EventOpenOrCreateError::EventCreateError(EventCreateError::Interrupt)
-            | EventOpenOrCreateError::SystemInFlux
-    )
+impl OpenFailure for PublishSubscribeOpenOrCreateError {
+    fn interrupted(&self) -> bool {
+        matches!(
+            self,
+            Self::PublishSubscribeOpenError(PublishSubscribeOpenError::Interrupt)
+                | Self::PublishSubscribeCreateError(PublishSubscribeCreateError::Interrupt)
+                | Self::SystemInFlux
+        )
+    }
+    fn version_mismatch(&self) -> bool {
+        matches!(
+            self,
+            Self::PublishSubscribeOpenError(PublishSubscribeOpenError::VersionMismatch)
+        )
+    }
 }
 
-/// Opens or creates the run's service `pi2cma/<run>/<tail>` with `open`, again while it fails as
-/// `retry` says, a few times; an error names the service.
-fn open_or_create<T, E: std::fmt::Debug>(
+impl OpenFailure for EventOpenOrCreateError {
+    fn interrupted(&self) -> bool {
+        matches!(
+            self,
+            Self::EventOpenError(EventOpenError::Interrupt)
+                | Self::EventCreateError(EventCreateError::Interrupt)
+                | Self::SystemInFlux
+        )
+    }
+    fn version_mismatch(&self) -> bool {
+        matches!(self, Self::EventOpenError(EventOpenError::VersionMismatch))
+    }
+}
+
+/// What a process that meets services of another iceoryx2 version is told: a worker crate
+/// outside the workspace that resolved its own dependency versions.
+pub const VERSION_MISMATCH_HINT: &str = "the run's services were created by a process built \
+    with another iceoryx2 version than this one (iceoryx2 connects only the same version, \
+    patch included): build your worker with the pi2cma workspace's Cargo.lock (copy it into \
+    your worker crate) or as a member of the workspace";
+
+/// Opens or creates the run's service `pi2cma/<run>/<tail>` with `open`, again a few times while
+/// it fails only for a moment ([`OpenFailure::interrupted`]); an error names the service, and
+/// one of another iceoryx2 version says what to do about it.
+fn open_or_create<T, E: OpenFailure>(
     run_id: u64,
     tail: &str,
-    retry: impl Fn(&E) -> bool,
     mut open: impl FnMut(&ServiceName) -> Result<T, E>,
 ) -> Result<T, WireError> {
     let name = service_name(run_id, tail)?;
     let mut tries = 0;
     loop {
         match open(&name) {
-            Err(e) if retry(&e) && tries < 20 => {
+            Err(e) if e.interrupted() && tries < 20 => {
                 // Backing off: a service in flux needs its creator to finish, not a hot loop.
                 tries += 1;
                 std::thread::sleep(std::time::Duration::from_micros(100 << tries.min(7)));
+            }
+            Err(e) if e.version_mismatch() => {
+                return Err(WireError::new(
+                    name.as_str(),
+                    format!("{e:?}: {VERSION_MISMATCH_HINT}"),
+                ))
             }
             r => return r.map_err(|e| WireError::new(name.as_str(), format!("{e:?}"))),
         }
@@ -868,7 +901,7 @@ fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
     tail: &str,
     settings: PubSubSettings,
 ) -> Result<SliceService<H>, WireError> {
-    open_or_create(run_id, tail, interrupted, |name| {
+    open_or_create(run_id, tail, |name| {
         let builder = node
             .service_builder(name)
             .publish_subscribe::<[f64]>()
@@ -883,7 +916,7 @@ fn fixed_service<T: std::fmt::Debug + ZeroCopySend>(
     tail: &str,
     settings: PubSubSettings,
 ) -> Result<FixedService<T>, WireError> {
-    open_or_create(run_id, tail, interrupted, |name| {
+    open_or_create(run_id, tail, |name| {
         let builder = node.service_builder(name).publish_subscribe::<T>();
         pubsub_settings(builder, settings).open_or_create()
     })
@@ -1021,7 +1054,7 @@ pub fn doorbell(
 ) -> Result<EventService, WireError> {
     let tail = format!("wake/{owner}");
     let s = l.doorbell_settings();
-    open_or_create(run_id, &tail, event_interrupted, |name| {
+    open_or_create(run_id, &tail, |name| {
         node.service_builder(name)
             .event()
             .max_notifiers(s.notifiers)
@@ -1035,6 +1068,43 @@ pub fn doorbell(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_service_of_another_iceoryx2_version_is_named_with_what_to_do() {
+        let e = open_or_create::<(), _>(0x2a, "costs", |_| {
+            Err(
+                PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                    PublishSubscribeOpenError::VersionMismatch,
+                ),
+            )
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("iceoryx2 service `pi2cma/000000000000002a/costs`: ")
+                && e.ends_with(VERSION_MISMATCH_HINT),
+            "{e}"
+        );
+        let e = open_or_create::<(), _>(0x2a, "wake/sampler", |_| {
+            Err(EventOpenOrCreateError::EventOpenError(
+                EventOpenError::VersionMismatch,
+            ))
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("Cargo.lock"), "{e}");
+        // Other failures are not taken for it.
+        let e = open_or_create::<(), _>(0x2a, "costs", |_| {
+            Err(
+                PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                    PublishSubscribeOpenError::DoesNotExist,
+                ),
+            )
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(!e.contains("Cargo.lock"), "{e}");
+    }
 
     #[test]
     fn layouts_are_stable() {
