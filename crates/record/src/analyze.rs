@@ -12,9 +12,12 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use crate::digest::{TimeBucket, WorkerTimes};
+pub use crate::digest::{TimelineBar, TIMELINE_UPDATES};
 use crate::recompute::verify;
 use crate::{
-    distribution_from_proto, join_resumed, proto, read_recording_slim, RecordError, Recording,
+    distribution_from_proto, join_resumed, proto, read_recording_slim, Decoded, RecordError,
+    Recording, UpdatePoint,
 };
 
 /// `analyze FILES… [--out DIR]`: prints the info summary of every file; with `--out`, writes CSV
@@ -179,13 +182,14 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             // A resumed run's files, or the parts of a split recording (or both).
             let begins: Vec<String> = rec.run.iter().map(|r| r.update.to_string()).collect();
             // Updates a restarted recorder's predecessor had not written.
-            let missing = gaps(rec.updates.iter().map(|u| u.update));
+            let points = &rec.digest.points;
+            let missing = gaps(points.iter().map(|u| u.update));
             let _ = writeln!(
                 out,
                 "{}: one run of {} updates{}, its files beginning at updates {}{}",
                 names.join(" + "),
-                rec.updates.len(),
-                match (rec.updates.first(), rec.updates.last()) {
+                points.len(),
+                match (points.first(), points.last()) {
                     (Some(a), Some(b)) => format!(" ({}..={})", a.update, b.update),
                     _ => String::new(),
                 },
@@ -295,9 +299,6 @@ fn gaps(updates: impl IntoIterator<Item = u64>) -> String {
 }
 
 /// A human-readable summary of one recording.
-/// Warnings and errors listed one by one in [`info`].
-const SERIOUS_LISTED: usize = 10;
-
 pub fn info(rec: &Recording) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{} ({} bytes)", rec.path.display(), rec.file_bytes);
@@ -333,15 +334,17 @@ pub fn info(rec: &Recording) -> String {
             describe_hp(&hp)
         );
     }
-    let n = rec.updates.len();
-    if let (Some(first), Some(last)) = (rec.updates.first(), rec.updates.last()) {
-        let best = rec
-            .updates
+    let points = &rec.digest.points;
+    let n = points.len();
+    if let (Some(first), Some(last)) = (points.first(), points.last()) {
+        let best = points
             .iter()
             .min_by(|a, b| a.eval_cost.total_cmp(&b.eval_cost))
             .map(|u| (u.eval_cost, u.update))
             .unwrap_or((f64::NAN, 0));
-        let missing = gaps(rec.updates.iter().map(|u| u.update));
+        let missing = gaps(points.iter().map(|u| u.update));
+        // λ of the distribution the last update produced: only the last update has it.
+        let lambda_next = rec.updates.last().map_or(f64::NAN, |u| u.lambda_next);
         let _ = writeln!(
             s,
             "  updates: {n} ({}..={}{}), {} bytes per update",
@@ -357,7 +360,7 @@ pub fn info(rec: &Recording) -> String {
         let _ = writeln!(
             s,
             "  eval cost: {:.6} → {:.6} (best {:.6} at update {}); λ: {:.6} → {:.6}",
-            first.eval_cost, last.eval_cost, best.0, best.1, first.lambda, last.lambda_next
+            first.eval_cost, last.eval_cost, best.0, best.1, first.lambda, lambda_next
         );
     } else {
         let _ = writeln!(s, "  updates: 0");
@@ -386,33 +389,29 @@ pub fn info(rec: &Recording) -> String {
             tasks::value_text(c.value)
         );
     }
-    let mut events: BTreeMap<&str, u64> = BTreeMap::new();
-    for l in &rec.logs {
-        *events.entry(l.event.as_str()).or_insert(0) += 1;
-    }
-    if !events.is_empty() {
-        let list: Vec<String> = events.iter().map(|(k, v)| format!("{k} ×{v}")).collect();
+    let digest = &rec.digest;
+    if !digest.events.is_empty() {
+        let list: Vec<String> = digest
+            .events
+            .iter()
+            .map(|(k, v)| format!("{k} ×{v}"))
+            .collect();
         let _ = writeln!(s, "  health events: {}", list.join(", "));
     }
     // Warnings and errors are what a reader of the summary must not miss (a refused task
     // change, a recomputation mismatch, a lost update); the rest are counted above.
-    let serious: Vec<_> = rec
-        .logs
-        .iter()
-        .filter(|l| l.event == "warning" || l.event == "error")
-        .collect();
-    for l in serious.iter().take(SERIOUS_LISTED) {
+    for l in &digest.serious {
         let _ = writeln!(
             s,
             "    {} at update {} ({}): {}",
             l.event, l.update, l.name, l.message
         );
     }
-    if serious.len() > SERIOUS_LISTED {
+    if digest.serious_count > digest.serious.len() {
         let _ = writeln!(
             s,
             "    … and {} more (every event: the /log topic, or `--out` for log.csv)",
-            serious.len() - SERIOUS_LISTED
+            digest.serious_count - digest.serious.len()
         );
     }
     if rec.run.is_empty() {
@@ -421,7 +420,7 @@ pub fn info(rec: &Recording) -> String {
             s,
             "  no update recorded: the run ended before its first; its last events:"
         );
-        for l in rec.logs.iter().rev().take(3).rev() {
+        for l in &digest.last_events {
             let _ = writeln!(s, "    {} {}: {}", l.event, l.name, l.message);
         }
     }
@@ -462,16 +461,19 @@ pub struct UpdateTimes {
 
 /// [`UpdateTimes`] of a recording; `None` without two consecutive timed updates.
 pub fn update_times(rec: &Recording) -> Option<UpdateTimes> {
-    let mut first: BTreeMap<u64, u64> = BTreeMap::new();
-    for r in rec.rollouts.iter().filter(|r| r.start_ns > 0) {
-        let t = first.entry(r.update).or_insert(r.start_ns);
-        *t = (*t).min(r.start_ns);
-    }
-    let mut times: Vec<(u64, u64)> = first
+    let mut first: Vec<(u64, u64)> = rec
+        .digest
+        .points
         .iter()
-        .zip(first.iter().skip(1))
-        .filter(|((u, _), (next, _))| **next == **u + 1)
-        .map(|((u, a), (_, b))| (b.saturating_sub(*a), *u))
+        .filter(|p| p.first_start_ns > 0)
+        .map(|p| (p.update, p.first_start_ns))
+        .collect();
+    first.sort_unstable();
+    first.dedup_by_key(|p| p.0);
+    let mut times: Vec<(u64, u64)> = first
+        .windows(2)
+        .filter(|w| w[1].0 == w[0].0 + 1)
+        .map(|w| (w[1].1.saturating_sub(w[0].1), w[0].0))
         .collect();
     if times.is_empty() {
         return None;
@@ -662,54 +664,9 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
     header.extend(names("theta_", p));
     header.extend(names("cost_step_", steps));
     let mut rol = Csv::new(dir, "update_rollouts.csv", &header)?;
-    // Update by update, streamed from the files for a recording read slim.
-    rec.for_each_update(|u| {
-        let mut row = summary_cells(&crate::reader::curve_row(u));
-        row.extend([u.batch_start_ns.to_string(), u.batch_end_ns.to_string()]);
-        let (b, a) = (
-            u.before.clone().unwrap_or_default(),
-            u.after.clone().unwrap_or_default(),
-        );
-        for v in [&b.mean, &a.mean, &b.covariance, &a.covariance] {
-            row.extend(v.iter().map(|x| f(*x)));
-        }
-        upd.row(row);
-        let (k, pd, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
-        for r in 0..k {
-            let step = u.cost_per_step.get(r * n..(r + 1) * n).unwrap_or(&[]);
-            let terminal = u.cost_terminal.get(r).copied().unwrap_or(f64::NAN);
-            let mut row = vec![
-                u.update.to_string(),
-                r.to_string(),
-                f(u.weights.get(r).copied().unwrap_or(f64::NAN)),
-                f(terminal + step.iter().sum::<f64>()),
-                f(terminal),
-            ];
-            row.extend(
-                u.samples
-                    .get(r * pd..(r + 1) * pd)
-                    .unwrap_or(&[])
-                    .iter()
-                    .map(|x| f(*x)),
-            );
-            row.extend(step.iter().map(|x| f(*x)));
-            rol.row(row);
-        }
-        Ok(())
-    })?;
-    files.push(upd.write()?);
-    files.push(rol.write()?);
-
     let mut header: Vec<String> = SUMMARY_COLUMNS.map(String::from).to_vec();
     header.extend(names("mean_next_", p));
     let mut sum = Csv::new(dir, "summary.csv", &header)?;
-    for s in &rec.summaries {
-        let mut row = summary_cells(s);
-        row.extend(s.mean.iter().map(|x| f(*x)));
-        sum.row(row);
-    }
-    files.push(sum.write()?);
-
     let mut ro = Csv::new(
         dir,
         "rollout.csv",
@@ -724,17 +681,58 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
         ]
         .map(String::from),
     )?;
-    for r in &rec.rollouts {
-        ro.row(vec![
-            ts(&r.timestamp),
-            r.update.to_string(),
-            r.rollout.to_string(),
-            csv_field(&r.worker),
-            r.start_ns.to_string(),
-            r.end_ns.to_string(),
-            f(r.total_cost),
-        ]);
-    }
+    let mut lg = Csv::new(
+        dir,
+        "log.csv",
+        &[
+            "timestamp_ns",
+            "update",
+            "level",
+            "event",
+            "name",
+            "pid",
+            "message",
+        ]
+        .map(String::from),
+    )?;
+    // One pass over the files for a recording read slim: its messages are not in memory.
+    rec.for_each_message(|m| {
+        match m {
+            Decoded::Update(u) => update_rows(u, &mut upd, &mut rol),
+            Decoded::Summary(s) => {
+                let mut row = summary_cells(s);
+                row.extend(s.mean.iter().map(|x| f(*x)));
+                sum.row(row);
+            }
+            Decoded::Rollout(r) => ro.row(vec![
+                ts(&r.timestamp),
+                r.update.to_string(),
+                r.rollout.to_string(),
+                csv_field(&r.worker),
+                r.start_ns.to_string(),
+                r.end_ns.to_string(),
+                f(r.total_cost),
+            ]),
+            Decoded::Log(l) => {
+                let level = proto::foxglove::log::Level::try_from(l.level)
+                    .map(|v| v.as_str_name().to_string())
+                    .unwrap_or_else(|_| l.level.to_string());
+                lg.row(vec![
+                    ts(&l.timestamp),
+                    l.update.to_string(),
+                    level,
+                    csv_field(&l.event),
+                    csv_field(&l.name),
+                    l.pid.to_string(),
+                    csv_field(&l.message),
+                ]);
+            }
+        }
+        Ok(())
+    })?;
+    files.push(upd.write()?);
+    files.push(rol.write()?);
+    files.push(sum.write()?);
     files.push(ro.write()?);
 
     let mut tc = Csv::new(
@@ -751,37 +749,43 @@ pub fn export_csv(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordErr
         ]);
     }
     files.push(tc.write()?);
-
-    let mut lg = Csv::new(
-        dir,
-        "log.csv",
-        &[
-            "timestamp_ns",
-            "update",
-            "level",
-            "event",
-            "name",
-            "pid",
-            "message",
-        ]
-        .map(String::from),
-    )?;
-    for l in &rec.logs {
-        let level = proto::foxglove::log::Level::try_from(l.level)
-            .map(|v| v.as_str_name().to_string())
-            .unwrap_or_else(|_| l.level.to_string());
-        lg.row(vec![
-            ts(&l.timestamp),
-            l.update.to_string(),
-            level,
-            csv_field(&l.event),
-            csv_field(&l.name),
-            l.pid.to_string(),
-            csv_field(&l.message),
-        ]);
-    }
     files.push(lg.write()?);
     Ok(files)
+}
+
+/// The `update.csv` row and the `update_rollouts.csv` rows of one update.
+fn update_rows(u: &proto::Update, upd: &mut Csv, rol: &mut Csv) {
+    let mut row = summary_cells(&crate::reader::curve_row(u));
+    row.extend([u.batch_start_ns.to_string(), u.batch_end_ns.to_string()]);
+    let (b, a) = (
+        u.before.clone().unwrap_or_default(),
+        u.after.clone().unwrap_or_default(),
+    );
+    for v in [&b.mean, &a.mean, &b.covariance, &a.covariance] {
+        row.extend(v.iter().map(|x| f(*x)));
+    }
+    upd.row(row);
+    let (k, pd, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
+    for r in 0..k {
+        let step = u.cost_per_step.get(r * n..(r + 1) * n).unwrap_or(&[]);
+        let terminal = u.cost_terminal.get(r).copied().unwrap_or(f64::NAN);
+        let mut row = vec![
+            u.update.to_string(),
+            r.to_string(),
+            f(u.weights.get(r).copied().unwrap_or(f64::NAN)),
+            f(terminal + step.iter().sum::<f64>()),
+            f(terminal),
+        ];
+        row.extend(
+            u.samples
+                .get(r * pd..(r + 1) * pd)
+                .unwrap_or(&[])
+                .iter()
+                .map(|x| f(*x)),
+        );
+        row.extend(step.iter().map(|x| f(*x)));
+        rol.row(row);
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -856,13 +860,118 @@ fn log_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo / 1.5, hi * 1.5)
 }
 
-/// One line of a learning-curve figure: per update x, a centre value and a ±band.
+/// Up to this many updates, a learning curve is drawn through every update; beyond, through
+/// each of [`CURVE_BUCKETS`] runs of consecutive updates' lowest and highest value.
+pub const CURVE_POINTS: usize = 4000;
+
+/// For a longer curve: into how many runs of consecutive updates (buckets) it is split. Each
+/// line goes through every bucket's lowest and highest value, in the order they occur, and the
+/// band spans each bucket's extremes, so that a spike (the cost after a task change) shows as
+/// it would undecimated, in an SVG that does not grow with the run.
+pub const CURVE_BUCKETS: usize = 1000;
+
+/// One line of a learning-curve figure: per update x, a centre value and a ±band, and λ.
 struct Curve {
     label: String,
-    x: Vec<f64>,
-    y: Vec<f64>,
-    band: Option<Vec<f64>>,
-    lambda: Vec<f64>,
+    /// The last update (a decimated line need not reach it).
+    x_max: f64,
+    /// Each stretch of consecutive updates (a missing update breaks the line).
+    pieces: Vec<Piece>,
+}
+
+/// What a [`Curve`] draws over a stretch of consecutive updates.
+#[derive(Debug, Default, PartialEq)]
+struct Piece {
+    line: Vec<(f64, f64)>,
+    /// The band's outline: its upper edge forward, its lower edge back.
+    band: Option<Vec<(f64, f64)>>,
+    lambda: Vec<(f64, f64)>,
+}
+
+/// A curve's values per update, as [`Curve::new`] takes them.
+struct Values<'a> {
+    x: &'a [f64],
+    y: &'a [f64],
+    band: Option<&'a [f64]>,
+    lambda: Option<&'a [f64]>,
+}
+
+impl Curve {
+    fn new(label: String, v: Values<'_>) -> Self {
+        // Buckets of `width` updates; 1 draws every update.
+        let width = if v.x.len() > CURVE_POINTS {
+            v.x.len().div_ceil(CURVE_BUCKETS)
+        } else {
+            1
+        };
+        let pieces = contiguous(v.x)
+            .into_iter()
+            .map(|r| {
+                let x = &v.x[r.clone()];
+                let y = &v.y[r.clone()];
+                Piece {
+                    line: extremes(x, y, width),
+                    band: v.band.map(|b| band(x, y, &b[r.clone()], width)),
+                    lambda: v
+                        .lambda
+                        .map(|l| extremes(x, &l[r.clone()], width))
+                        .unwrap_or_default(),
+                }
+            })
+            .collect();
+        Self {
+            label,
+            x_max: v.x.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            pieces,
+        }
+    }
+}
+
+/// The points of `y` over `x` a line goes through: every one, or with `width` > 1 per bucket of
+/// `width` its lowest and highest, in the order they occur.
+fn extremes(x: &[f64], y: &[f64], width: usize) -> Vec<(f64, f64)> {
+    if width <= 1 {
+        return x.iter().copied().zip(y.iter().copied()).collect();
+    }
+    let mut out = Vec::new();
+    for (xs, ys) in x.chunks(width).zip(y.chunks(width)) {
+        let lowest = (0..ys.len()).min_by(|a, b| ys[*a].total_cmp(&ys[*b]));
+        let highest = (0..ys.len()).max_by(|a, b| ys[*a].total_cmp(&ys[*b]));
+        if let (Some(lo), Some(hi)) = (lowest, highest) {
+            let (a, b) = (lo.min(hi), lo.max(hi));
+            out.push((xs[a], ys[a]));
+            if b != a {
+                out.push((xs[b], ys[b]));
+            }
+        }
+    }
+    out
+}
+
+/// The outline of the band y ± b: per update, or with `width` > 1 per bucket its highest
+/// y + b and lowest y − b over the bucket's updates.
+fn band(x: &[f64], y: &[f64], b: &[f64], width: usize) -> Vec<(f64, f64)> {
+    let upper: Vec<f64> = y.iter().zip(b).map(|(y, b)| y + b).collect();
+    let lower: Vec<f64> = y.iter().zip(b).map(|(y, b)| y - b).collect();
+    if width <= 1 {
+        let mut pts: Vec<(f64, f64)> = x.iter().copied().zip(upper).collect();
+        pts.extend(x.iter().copied().zip(lower).rev());
+        return pts;
+    }
+    let (mut top, mut bottom) = (Vec::new(), Vec::new());
+    for ((xs, us), ls) in x
+        .chunks(width)
+        .zip(upper.chunks(width))
+        .zip(lower.chunks(width))
+    {
+        let (first, last) = (xs[0], xs[xs.len() - 1]);
+        let u = us.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let l = ls.iter().copied().fold(f64::INFINITY, f64::min);
+        top.extend([(first, u), (last, u)]);
+        bottom.extend([(first, l), (last, l)]);
+    }
+    top.extend(bottom.into_iter().rev());
+    top
 }
 
 /// The index ranges of `x` (update numbers, ascending) without a missing update inside.
@@ -891,16 +1000,12 @@ fn draw_curves(
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
     area.fill(&WHITE).map_err(|x| e(&x))?;
     let (top, bottom) = area.split_vertically((area.dim_in_pixel().1 as f64 * 0.62) as u32);
-    let xmax = curves
-        .iter()
-        .flat_map(|c| c.x.iter().copied())
-        .fold(1.0f64, f64::max);
+    let xmax = curves.iter().map(|c| c.x_max).fold(1.0f64, f64::max);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for c in curves {
-        for (i, y) in c.y.iter().enumerate() {
-            let b = c.band.as_ref().map(|b| b[i]).unwrap_or(0.0);
-            lo = lo.min(y - b);
-            hi = hi.max(y + b);
+    for p in curves.iter().flat_map(|c| &c.pieces) {
+        for (_, y) in p.line.iter().chain(p.band.iter().flatten()) {
+            lo = lo.min(*y);
+            hi = hi.max(*y);
         }
     }
     let (lo, hi) = padded(lo.min(0.0), hi);
@@ -922,24 +1027,18 @@ fn draw_curves(
         let color = PALETTE[i % PALETTE.len()];
         // Updates a recording lacks (a restarted recorder's gap) break the line, rather than
         // being drawn over as if they had been there.
-        for (n, r) in contiguous(&c.x).into_iter().enumerate() {
-            let (x, y) = (&c.x[r.clone()], &c.y[r.clone()]);
-            if let Some(b) = &c.band {
-                let b = &b[r];
-                let mut pts: Vec<(f64, f64)> = x
-                    .iter()
-                    .zip(y)
-                    .zip(b)
-                    .map(|((x, y), b)| (*x, y + b))
-                    .collect();
-                pts.extend(x.iter().zip(y).zip(b).rev().map(|((x, y), b)| (*x, y - b)));
+        for (n, p) in c.pieces.iter().enumerate() {
+            if let Some(b) = &p.band {
                 chart
-                    .draw_series(std::iter::once(Polygon::new(pts, color.mix(0.2).filled())))
+                    .draw_series(std::iter::once(Polygon::new(
+                        b.clone(),
+                        color.mix(0.2).filled(),
+                    )))
                     .map_err(|x| e(&x))?;
             }
             let line = chart
                 .draw_series(LineSeries::new(
-                    x.iter().copied().zip(y.iter().copied()),
+                    p.line.iter().copied(),
                     color.stroke_width(2),
                 ))
                 .map_err(|x| e(&x))?;
@@ -963,7 +1062,12 @@ fn draw_curves(
     }
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
 
-    let (llo, lhi) = log_range(curves.iter().flat_map(|c| c.lambda.iter().copied()));
+    let (llo, lhi) = log_range(
+        curves
+            .iter()
+            .flat_map(|c| &c.pieces)
+            .flat_map(|p| p.lambda.iter().map(|l| l.1)),
+    );
     let mut chart = ChartBuilder::on(&bottom)
         .margin(10)
         .x_label_area_size(30)
@@ -980,14 +1084,10 @@ fn draw_curves(
         .map_err(|x| e(&x))?;
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
-        for r in contiguous(&c.x[..c.lambda.len().min(c.x.len())]) {
+        for p in c.pieces.iter().filter(|p| !p.lambda.is_empty()) {
             chart
                 .draw_series(LineSeries::new(
-                    c.x[r.clone()]
-                        .iter()
-                        .copied()
-                        .zip(c.lambda[r].iter().copied())
-                        .filter(|(_, l)| *l > 0.0),
+                    p.lambda.iter().copied().filter(|(_, l)| *l > 0.0),
                     color.stroke_width(2),
                 ))
                 .map_err(|x| e(&x))?;
@@ -1002,28 +1102,33 @@ fn draw_curves(
 pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let mut files = Vec::new();
-    let curve = rec.curve();
+    let points = &rec.digest.points;
     let changes: Vec<u64> = rec.task_changes.iter().map(|c| c.update).collect();
 
     let path = dir.join("learning_curve.svg");
     {
         let root = SVGBackend::new(&path, (900, 650)).into_drawing_area();
-        let x: Vec<f64> = curve.iter().map(|s| s.update as f64).collect();
+        let column = |v: fn(&UpdatePoint) -> f64| points.iter().map(v).collect::<Vec<f64>>();
+        let x = column(|p| p.update as f64);
         let curves = [
-            Curve {
-                label: "exploration mean ± std".into(),
-                x: x.clone(),
-                y: curve.iter().map(|s| s.exploration_cost_mean).collect(),
-                band: Some(curve.iter().map(|s| s.exploration_cost_std).collect()),
-                lambda: Vec::new(),
-            },
-            Curve {
-                label: "evaluation (rollout 0)".into(),
-                x,
-                y: curve.iter().map(|s| s.eval_cost).collect(),
-                band: None,
-                lambda: curve.iter().map(|s| s.lambda).collect(),
-            },
+            Curve::new(
+                "exploration mean ± std".into(),
+                Values {
+                    x: &x,
+                    y: &column(|p| p.exploration_cost_mean),
+                    band: Some(&column(|p| p.exploration_cost_std)),
+                    lambda: None,
+                },
+            ),
+            Curve::new(
+                "evaluation (rollout 0)".into(),
+                Values {
+                    x: &x,
+                    y: &column(|p| p.eval_cost),
+                    band: None,
+                    lambda: Some(&column(|p| p.lambda)),
+                },
+            ),
         ];
         draw_curves(
             &root,
@@ -1037,7 +1142,7 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
     files.push(path);
 
     let dim = rec.run_info().map(|r| r.dim).unwrap_or(0);
-    if dim == 2 && !rec.updates.is_empty() {
+    if dim == 2 && !points.is_empty() {
         let path = dir.join("distribution.svg");
         plot_ellipses(rec, &path).map_err(perr(&path, "distribution"))?;
         files.push(path);
@@ -1060,46 +1165,20 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
 /// wherever the bar begins.
 const MIN_BAR_PIXELS: f64 = 1.5;
 
-/// How many of the last updates `worker_timeline.svg` shows.
-pub const TIMELINE_UPDATES: usize = 10;
-
 // No two updates of a timeline share a colour.
 const _: () = assert!(PALETTE.len() >= TIMELINE_UPDATES);
 
-/// One rollout on the timeline: its worker's row, update, rollout index and interval (ns).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TimelineBar {
-    pub worker: String,
-    pub update: u64,
-    pub rollout: u32,
-    pub start_ns: u64,
-    pub end_ns: u64,
-}
-
-/// The timed rollouts of the last `updates` updates that have any, in start order: when each
-/// worker ran what (the workers' own clocks in the pipeline), so idle workers, stragglers and
-/// the gaps between updates show.
+/// The timed rollouts of the last `updates` updates that have any (at most
+/// [`TIMELINE_UPDATES`]: what the digest keeps), in start order: when each worker ran what (the
+/// workers' own clocks in the pipeline), so idle workers, stragglers and the gaps between
+/// updates show.
 pub fn timeline(rec: &Recording, updates: usize) -> Vec<TimelineBar> {
-    let timed: Vec<&proto::Rollout> = rec
-        .rollouts
-        .iter()
-        .filter(|r| r.start_ns > 0 && r.end_ns >= r.start_ns)
-        .collect();
+    let timed = &rec.digest.timeline;
     let mut last: Vec<u64> = timed.iter().map(|r| r.update).collect();
     last.sort_unstable();
     last.dedup();
     let from = last.len().checked_sub(updates).map_or(0, |i| last[i]);
-    let mut bars: Vec<TimelineBar> = timed
-        .into_iter()
-        .filter(|r| r.update >= from)
-        .map(|r| TimelineBar {
-            worker: r.worker.clone(),
-            update: r.update,
-            rollout: r.rollout,
-            start_ns: r.start_ns,
-            end_ns: r.end_ns,
-        })
-        .collect();
+    let mut bars: Vec<TimelineBar> = timed.iter().filter(|r| r.update >= from).cloned().collect();
     bars.sort_by_key(|b| (b.start_ns, b.update, b.rollout));
     bars
 }
@@ -1216,18 +1295,16 @@ fn ellipse(m: [f64; 2], c: [[f64; 2]; 2]) -> Vec<(f64, f64)> {
 
 fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
+    // Every update's, or for a long run those the digest kept (DISTRIBUTIONS_SHOWN).
+    let kept = &rec.digest.distributions;
     let mut dists = Vec::new();
-    for u in &rec.updates {
-        if let Some(b) = &u.before {
-            dists.push((u.update, distribution_from_proto(b)?));
-        }
+    for s in &kept.shown {
+        dists.push((s.update, distribution_from_proto(&s.distribution)?));
     }
-    if let Some(last) = rec.updates.last().and_then(|u| u.after.as_ref()) {
-        dists.push((
-            rec.updates.last().map(|u| u.update + 1).unwrap_or(0),
-            distribution_from_proto(last)?,
-        ));
+    if let Some((u, last)) = &kept.last {
+        dists.push((*u, distribution_from_proto(last)?));
     }
+    let thinned = kept.shown.len() < rec.digest.points.len();
     let n = dists.len().max(1);
     let ellipses: Vec<(u64, Vec<(f64, f64)>)> = dists
         .iter()
@@ -1274,20 +1351,26 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     let (y0, y1) = widen(y0, y1, plot_h);
     let root = SVGBackend::new(path, (width, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!(
-                "{}: 2σ ellipses of the search distribution (dark = late; red = first update \
+    let mut chart =
+        ChartBuilder::on(&root)
+            .caption(
+                format!(
+                "{}: 2σ ellipses of the search distribution{} (dark = late; red = first update \
                  after a task change)",
-                rec.name()
+                rec.name(),
+                if thinned {
+                    format!(", {} of {} updates", dists.len(), rec.digest.points.len() + 1)
+                } else {
+                    String::new()
+                }
             ),
-            ("sans-serif", caption),
-        )
-        .margin(margin)
-        .x_label_area_size(x_labels)
-        .y_label_area_size(y_labels)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|x| e(&x))?;
+                ("sans-serif", caption),
+            )
+            .margin(margin)
+            .x_label_area_size(x_labels)
+            .y_label_area_size(y_labels)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
         .x_desc("θ₁")
@@ -1313,7 +1396,11 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
             BLACK.stroke_width(1),
         ))
         .map_err(|x| e(&x))?
-        .label("mean θ per update")
+        .label(if thinned {
+            "mean θ of the updates drawn"
+        } else {
+            "mean θ per update"
+        })
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
     chart
         .draw_series(
@@ -1327,43 +1414,27 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     Ok(())
 }
 
-/// Per worker: (update, rollout duration in ms). Rollouts without their own timing (the
-/// in-process runner) get the update's wall time divided by K, under "`<worker>` (update time / K)".
-pub fn worker_times(rec: &Recording) -> BTreeMap<String, Vec<(u64, f64)>> {
-    let batch: BTreeMap<u64, (u64, u64, u32)> = rec
-        .updates
-        .iter()
-        .map(|u| (u.update, (u.batch_start_ns, u.batch_end_ns, u.rollouts)))
-        .collect();
-    let mut out: BTreeMap<String, Vec<(u64, f64)>> = BTreeMap::new();
-    for r in &rec.rollouts {
-        if r.end_ns > r.start_ns {
-            out.entry(r.worker.clone())
-                .or_default()
-                .push((r.update, (r.end_ns - r.start_ns) as f64 / 1e6));
-        } else if let Some(&(s, e, k)) = batch.get(&r.update) {
-            if e > s && k > 0 {
-                out.entry(format!("{} (update time / K)", r.worker))
-                    .or_default()
-                    .push((r.update, (e - s) as f64 / 1e6 / k as f64));
-            }
-        }
-    }
-    out
-}
-
 fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
-    let times = worker_times(rec);
+    // Rollouts without their own timing (the in-process runner) have the update's wall time
+    // divided by K, under "`<worker>` (update time / K)" (see `Digest::add_rollout`).
+    let times = &rec.digest.worker_times;
     let xmax = rec
-        .updates
+        .digest
+        .points
         .last()
         .map(|u| u.update as f64 + 1.0)
         .unwrap_or(1.0);
-    let ymax = times
-        .values()
-        .flat_map(|v| v.iter().map(|p| p.1))
-        .fold(0.0f64, f64::max);
+    let ymax = match times {
+        WorkerTimes::Each(m) => m
+            .values()
+            .flat_map(|v| v.iter().map(|p| p.1))
+            .fold(0.0f64, f64::max),
+        WorkerTimes::Buckets { per_worker, .. } => per_worker
+            .values()
+            .flat_map(|b| b.values().map(|t| t.max))
+            .fold(0.0f64, f64::max),
+    };
     // In-process via-point rollouts take well under a millisecond: µs then, not "0.000 ms".
     let (scale, unit) = if ymax < 1.0 {
         (1e3, "µs")
@@ -1373,11 +1444,15 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
     let ymax = ymax * scale;
     let root = SVGBackend::new(path, (900, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
+    let caption = match times {
+        WorkerTimes::Each(_) => format!("{}: rollout time per worker", rec.name()),
+        WorkerTimes::Buckets { width, .. } => format!(
+            "{}: rollout time per worker, per {width} updates: mean (dot), range (line)",
+            rec.name()
+        ),
+    };
     let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!("{}: rollout time per worker", rec.name()),
-            ("sans-serif", 20),
-        )
+        .caption(caption, ("sans-serif", 20))
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(70)
@@ -1390,20 +1465,55 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
         .y_desc(format!("rollout time [{unit}]"))
         .draw()
         .map_err(|x| e(&x))?;
-    for (i, (worker, pts)) in times.iter().enumerate() {
-        let color = PALETTE[i % PALETTE.len()];
-        let mean = scale * pts.iter().map(|p| p.1).sum::<f64>() / pts.len().max(1) as f64;
-        chart
-            .draw_series(
-                pts.iter()
-                    .map(|(u, ms)| Circle::new((*u as f64, *ms * scale), 2, color.filled())),
-            )
-            .map_err(|x| e(&x))?
-            .label(format!(
-                "{worker}: {} rollouts, mean {mean:.3} {unit}",
-                pts.len()
-            ))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+    match times {
+        WorkerTimes::Each(m) => {
+            for (i, (worker, pts)) in m.iter().enumerate() {
+                let color = PALETTE[i % PALETTE.len()];
+                let mean = scale * pts.iter().map(|p| p.1).sum::<f64>() / pts.len().max(1) as f64;
+                chart
+                    .draw_series(
+                        pts.iter().map(|(u, ms)| {
+                            Circle::new((*u as f64, *ms * scale), 2, color.filled())
+                        }),
+                    )
+                    .map_err(|x| e(&x))?
+                    .label(format!(
+                        "{worker}: {} rollouts, mean {mean:.3} {unit}",
+                        pts.len()
+                    ))
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+            }
+        }
+        WorkerTimes::Buckets { width, per_worker } => {
+            let w = *width as f64;
+            for (i, (worker, buckets)) in per_worker.iter().enumerate() {
+                let color = PALETTE[i % PALETTE.len()];
+                let (count, sum) = buckets
+                    .values()
+                    .fold((0, 0.0), |(n, s), b| (n + b.count, s + b.sum));
+                let mean = scale * sum / count.max(1) as f64;
+                let middle = |i: u64| (i as f64 + 0.5) * w;
+                chart
+                    .draw_series(buckets.iter().map(|(i, b)| {
+                        PathElement::new(
+                            vec![(middle(*i), b.min * scale), (middle(*i), b.max * scale)],
+                            color.mix(0.5).stroke_width(1),
+                        )
+                    }))
+                    .map_err(|x| e(&x))?;
+                chart
+                    .draw_series(buckets.iter().map(|(i, b): (&u64, &TimeBucket)| {
+                        Circle::new(
+                            (middle(*i), scale * b.sum / b.count.max(1) as f64),
+                            2,
+                            color.filled(),
+                        )
+                    }))
+                    .map_err(|x| e(&x))?
+                    .label(format!("{worker}: {count} rollouts, mean {mean:.3} {unit}"))
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+            }
+        }
     }
     draw_legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
     root.present().map_err(|x| e(&x))?;
@@ -1440,11 +1550,11 @@ impl Segment {
 /// eval cost of the segment is ≤ L + tolerance·(H − L), provided that is at least the last two
 /// updates; otherwise the segment has not settled.
 pub fn reconvergence(rec: &Recording, tolerance: f64) -> Vec<Segment> {
-    let curve = rec.curve();
-    let Some(last) = curve.last().map(|s| s.update + 1) else {
+    let points = &rec.digest.points;
+    let Some(last) = points.last().map(|s| s.update + 1) else {
         return Vec::new();
     };
-    let first = curve.first().map(|s| s.update).unwrap_or(0);
+    let first = points.first().map(|s| s.update).unwrap_or(0);
     let mut bounds: Vec<u64> = std::iter::once(first)
         .chain(rec.task_changes.iter().map(|c| c.update))
         .filter(|u| *u >= first && *u < last)
@@ -1452,13 +1562,17 @@ pub fn reconvergence(rec: &Recording, tolerance: f64) -> Vec<Segment> {
     bounds.sort_unstable();
     bounds.dedup();
     bounds.push(last);
+    // Each segment's updates in file order, in one pass (a continual run has many segments).
+    let mut segments: Vec<Vec<&UpdatePoint>> = vec![Vec::new(); bounds.len() - 1];
+    for p in points {
+        let i = bounds.partition_point(|b| *b <= p.update);
+        if let Some(seg) = i.checked_sub(1).and_then(|i| segments.get_mut(i)) {
+            seg.push(p);
+        }
+    }
     let mut out = Vec::new();
-    for w in bounds.windows(2) {
+    for (w, seg) in bounds.windows(2).zip(segments) {
         let (s, e) = (w[0], w[1]);
-        let seg: Vec<&proto::UpdateSummary> = curve
-            .iter()
-            .filter(|c| c.update >= s && c.update < e)
-            .collect();
         if seg.is_empty() {
             continue;
         }
@@ -1507,6 +1621,69 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
+/// The eval cost over sessions (mean, sample std) and their mean λ at one update.
+struct Common {
+    update: u64,
+    mean: f64,
+    std: f64,
+    lambda: f64,
+}
+
+/// [`Common`] at each update every one of `sessions` has, ascending, in one walk over their
+/// curves (each in update order; a copy is sorted if one is not).
+fn common_updates(sessions: &[&Recording]) -> Vec<Common> {
+    let sorted: Vec<std::borrow::Cow<'_, [UpdatePoint]>> = sessions
+        .iter()
+        .map(|r| {
+            let p = &r.digest.points;
+            if p.is_sorted_by_key(|p| p.update) {
+                std::borrow::Cow::Borrowed(p.as_slice())
+            } else {
+                let mut p = p.clone();
+                p.sort_by_key(|p| p.update);
+                std::borrow::Cow::Owned(p)
+            }
+        })
+        .collect();
+    let Some((lead, others)) = sorted.split_first() else {
+        return Vec::new();
+    };
+    let mut at = vec![0usize; others.len()];
+    let mut out = Vec::new();
+    let (mut costs, mut lambdas) = (Vec::new(), Vec::new());
+    for (i, p) in lead.iter().enumerate() {
+        if i > 0 && lead[i - 1].update == p.update {
+            continue;
+        }
+        costs.clear();
+        lambdas.clear();
+        costs.push(p.eval_cost);
+        lambdas.push(p.lambda);
+        for (o, a) in others.iter().zip(&mut at) {
+            while o.get(*a).is_some_and(|q| q.update < p.update) {
+                *a += 1;
+            }
+            match o.get(*a) {
+                Some(q) if q.update == p.update => {
+                    costs.push(q.eval_cost);
+                    lambdas.push(q.lambda);
+                }
+                _ => break,
+            }
+        }
+        if costs.len() == sessions.len() {
+            let (mean, std) = mean_std(&costs);
+            out.push(Common {
+                update: p.update,
+                mean,
+                std,
+                lambda: mean_std(&lambdas).0,
+            });
+        }
+    }
+    out
+}
+
 /// The runs among `recs`, as `analyze` takes them: copies of a file dropped (with a note in
 /// `out`), and the files of one run (a run and the runs resumed from it, the parts of a split
 /// recording) joined into one recording.
@@ -1520,25 +1697,22 @@ pub fn join_runs(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
 /// Drops recordings that are copies of one given earlier (the same bytes; compared only when
 /// the run name, seed and eval costs match), with a note.
 fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
-    let identity = |r: &Recording| {
-        let curve: Vec<(u64, u64)> = r
-            .curve()
-            .iter()
-            .map(|c| (c.update, c.eval_cost.to_bits()))
-            .collect();
-        (r.name(), r.run_info().map(|i| i.seed), curve)
-    };
     // The same numbers are not enough: runs are bit-identical by design (pipeline and
     // in-process, any worker count). A copy has the same bytes; they are read only for files
     // whose numbers match, and piecewise (see `same_bytes`).
-    let mut kept: Vec<(Recording, _)> = Vec::new();
+    let mut kept: Vec<Recording> = Vec::new();
     for r in recs {
-        let id = identity(&r);
+        let same_numbers = |k: &Recording| {
+            k.name() == r.name()
+                && k.run_info().map(|i| i.seed) == r.run_info().map(|i| i.seed)
+                && !r.digest.points.is_empty()
+                && same_curve(k, &r)
+        };
         match kept
             .iter()
-            .find(|(k, kid)| *kid == id && !id.2.is_empty() && same_bytes(&k.path, &r.path))
+            .find(|k| same_numbers(k) && same_bytes(&k.path, &r.path))
         {
-            Some((first, _)) => {
+            Some(first) => {
                 let _ = writeln!(
                     out,
                     "note: {} is a copy of {} (the same bytes): read once\n",
@@ -1546,10 +1720,19 @@ fn drop_copies(recs: Vec<Recording>, out: &mut String) -> Vec<Recording> {
                     first.path.display()
                 );
             }
-            None => kept.push((r, id)),
+            None => kept.push(r),
         }
     }
-    kept.into_iter().map(|(r, _)| r).collect()
+    kept
+}
+
+/// Whether two recordings have the same eval costs at the same updates, to the bit.
+fn same_curve(a: &Recording, b: &Recording) -> bool {
+    let (a, b) = (&a.digest.points, &b.digest.points);
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| (x.update, x.eval_cost.to_bits()) == (y.update, y.eval_cost.to_bits()))
 }
 
 /// Whether the files at `a` and `b` hold the same bytes; false if either cannot be read. They
@@ -1600,33 +1783,27 @@ fn group_sessions<'a>(
             info.map_or(0, |i| i.steps),
         )
     };
-    // A session's identity for spotting copies: its seed and eval costs, to the bit.
-    type Identity = (u64, Vec<(u64, u64)>);
-    let mut groups: BTreeMap<Key, Vec<(&Recording, Identity)>> = BTreeMap::new();
+    let mut groups: BTreeMap<Key, Vec<&Recording>> = BTreeMap::new();
     for r in recs {
-        let curve = r.curve();
-        let Some(info) = r.run_info().filter(|_| !curve.is_empty()) else {
+        let Some(info) = r.run_info().filter(|_| !r.digest.points.is_empty()) else {
             notes.push(format!(
                 "{} has no recorded update (the run ended before its first): not a session",
                 r.path.display()
             ));
             continue;
         };
-        let identity = (
-            info.seed,
-            curve
-                .iter()
-                .map(|c| (c.update, c.eval_cost.to_bits()))
-                .collect(),
-        );
+        // A session's identity for spotting copies: its seed and eval costs, to the bit.
         let members = groups.entry(key(r)).or_default();
-        match members.iter().find(|(_, id)| *id == identity) {
-            Some((m, _)) => notes.push(format!(
+        match members
+            .iter()
+            .find(|m| m.run_info().map(|i| i.seed) == Some(info.seed) && same_curve(m, r))
+        {
+            Some(m) => notes.push(format!(
                 "{} is the same run as {} (same seed, same eval costs): counted once",
                 r.path.display(),
                 m.path.display()
             )),
-            None => members.push((r, identity)),
+            None => members.push(r),
         }
     }
     // A name shared by groups gets what tells them apart.
@@ -1651,14 +1828,7 @@ fn group_sessions<'a>(
             }
         })
         .collect();
-    labels
-        .into_iter()
-        .zip(
-            groups
-                .into_values()
-                .map(|members| members.into_iter().map(|(r, _)| r).collect()),
-        )
-        .collect()
+    labels.into_iter().zip(groups.into_values()).collect()
 }
 
 /// What begins the re-convergence table's segment at `start`: a task change, or a recording
@@ -1694,8 +1864,22 @@ pub fn experiment(
     let groups = group_sessions(recs, &mut notes);
     let mut report = ExperimentReport::default();
     let mut curves = Vec::new();
-    let mut mean_csv =
-        String::from("run,update,sessions,eval_cost_mean,eval_cost_std,lambda_mean\n");
+    // Streamed to the file: it has a row per update.
+    let mut mean_csv = match out.filter(|_| csv) {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(io(dir))?;
+            let header = [
+                "run",
+                "update",
+                "sessions",
+                "eval_cost_mean",
+                "eval_cost_std",
+                "lambda_mean",
+            ];
+            Some(Csv::new(dir, "mean_curves.csv", &header.map(String::from))?)
+        }
+        None => None,
+    };
     let mut reconv_csv = String::from(
         "run,file,segment_start,segment_end,peak,level,converged_at,updates_to_converge\n",
     );
@@ -1703,53 +1887,45 @@ pub fn experiment(
     for (name, sessions) in &groups {
         // Mean curve over the updates every session has: where fewer sessions contribute, the
         // mean would silently become that of fewer runs.
-        let mut by_update: BTreeMap<u64, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
-        for r in sessions {
-            for s in r.curve() {
-                let e = by_update.entry(s.update).or_default();
-                e.0.push(s.eval_cost);
-                e.1.push(s.lambda);
-            }
-        }
-        let all = by_update.len();
-        by_update.retain(|_, (costs, _)| costs.len() == sessions.len());
-        if by_update.len() < all {
-            let lengths: Vec<usize> = sessions.iter().map(|r| r.curve().len()).collect();
+        let common = common_updates(sessions);
+        let distinct = |r: &Recording| {
+            let mut u: Vec<u64> = r.digest.points.iter().map(|p| p.update).collect();
+            u.sort_unstable();
+            u.dedup();
+            u.len()
+        };
+        if sessions.iter().any(|r| distinct(r) > common.len()) {
+            let lengths: Vec<usize> = sessions.iter().map(|r| r.digest.points.len()).collect();
             notes.push(format!(
                 "{name}: its sessions have {}–{} updates; the mean curve and the eval costs at the \
                  segments' ends are over the {} updates every session has",
                 lengths.iter().min().unwrap_or(&0),
                 lengths.iter().max().unwrap_or(&0),
-                by_update.len()
+                common.len()
             ));
         }
-        let mut c = Curve {
-            label: format!("{name} ({} sessions)", sessions.len()),
-            x: Vec::new(),
-            y: Vec::new(),
-            band: Some(Vec::new()),
-            lambda: Vec::new(),
-        };
-        for (u, (costs, lambdas)) in &by_update {
-            let (m, s) = mean_std(costs);
-            let (lm, _) = mean_std(lambdas);
-            c.x.push(*u as f64);
-            c.y.push(m);
-            if let Some(b) = c.band.as_mut() {
-                b.push(s);
+        if let Some(csv) = mean_csv.as_mut() {
+            for c in &common {
+                csv.row(vec![
+                    csv_field(name),
+                    c.update.to_string(),
+                    sessions.len().to_string(),
+                    f(c.mean),
+                    f(c.std),
+                    f(c.lambda),
+                ]);
             }
-            c.lambda.push(lm);
-            let _ = writeln!(
-                mean_csv,
-                "{},{u},{},{},{},{}",
-                csv_field(name),
-                costs.len(),
-                f(m),
-                f(s),
-                f(lm)
-            );
         }
-        curves.push(c);
+        let column = |v: fn(&Common) -> f64| common.iter().map(v).collect::<Vec<f64>>();
+        curves.push(Curve::new(
+            format!("{name} ({} sessions)", sessions.len()),
+            Values {
+                x: &column(|c| c.update as f64),
+                y: &column(|c| c.mean),
+                band: Some(&column(|c| c.std)),
+                lambda: Some(&column(|c| c.lambda)),
+            },
+        ));
 
         // Re-convergence per session and segment.
         let mut per_segment: BTreeMap<u64, Vec<&Segment>> = BTreeMap::new();
@@ -1779,10 +1955,10 @@ pub fn experiment(
             // Where the segment ended up: its last update every session has. (The run's final
             // cost on every row said nothing of how a segment before a task change ended.)
             let end = ss.iter().map(|s| s.end).min().unwrap_or(*start);
-            let (fm, fs) = by_update
-                .range(*start..end)
-                .next_back()
-                .map_or((f64::NAN, f64::NAN), |(_, (costs, _))| mean_std(costs));
+            let (fm, fs) = common[..common.partition_point(|c| c.update < end)]
+                .last()
+                .filter(|c| c.update >= *start)
+                .map_or((f64::NAN, f64::NAN), |c| (c.mean, c.std));
             let n: Vec<f64> = ss
                 .iter()
                 .filter_map(|s| s.updates_to_converge())
@@ -1844,13 +2020,10 @@ pub fn experiment(
     if let Some(dir) = out {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         // `--no-csv` holds for the experiment's CSV files too; its table stays, as Markdown.
-        let tables = [
-            ("mean_curves.csv", &mean_csv),
-            ("reconvergence.csv", &reconv_csv),
-        ];
-        for (name, text) in tables.into_iter().filter(|_| csv) {
-            let p = dir.join(name);
-            std::fs::write(&p, text).map_err(io(&p))?;
+        if let Some(mean) = mean_csv {
+            report.files.push(mean.write()?);
+            let p = dir.join("reconvergence.csv");
+            std::fs::write(&p, &reconv_csv).map_err(io(&p))?;
             report.files.push(p);
         }
         let p = dir.join("reconvergence.md");
@@ -1890,17 +2063,19 @@ mod tests {
 
     fn rec_with(costs: &[f64], change: Option<u64>) -> Recording {
         let mut r = Recording::default();
+        if let Some(u) = change {
+            let c = proto::TaskChange {
+                update: u,
+                ..Default::default()
+            };
+            r.digest.add_task_change(&c);
+            r.task_changes.push(c);
+        }
         for (u, c) in costs.iter().enumerate() {
-            r.summaries.push(proto::UpdateSummary {
+            r.digest.add_update(&proto::Update {
                 update: u as u64,
                 eval_cost: *c,
                 lambda: 1.0,
-                ..Default::default()
-            });
-        }
-        if let Some(u) = change {
-            r.task_changes.push(proto::TaskChange {
-                update: u,
                 ..Default::default()
             });
         }
@@ -1909,20 +2084,32 @@ mod tests {
 
     #[test]
     fn update_times_come_from_the_first_rollout_starts() {
-        let mut r = Recording::default();
-        // Updates 0..=4 start at 0, 10, 30, 31, 41 µs (their first rollout; the others later);
-        // update 6 follows a gap in the recording and has no interval; update 7 is untimed.
-        for (u, t) in [(0u64, 0u64), (1, 10), (2, 30), (3, 31), (4, 41), (6, 100)] {
-            for k in 0..3 {
-                r.rollouts.push(proto::Rollout {
+        let timed = |updates: &[(u64, u64)]| {
+            let mut r = Recording::default();
+            for &(u, t) in updates {
+                r.digest.add_update(&proto::Update {
                     update: u,
-                    rollout: k,
-                    start_ns: 1_000_000 + t * 1000 + u64::from(2 - k),
                     ..Default::default()
                 });
+                for k in 0..3 {
+                    r.digest.add_rollout(&proto::Rollout {
+                        update: u,
+                        rollout: k,
+                        start_ns: 1_000_000 + t * 1000 + u64::from(2 - k),
+                        ..Default::default()
+                    });
+                }
             }
-        }
-        r.rollouts.push(proto::Rollout {
+            r
+        };
+        // Updates 0..=4 start at 0, 10, 30, 31, 41 µs (their first rollout; the others later);
+        // update 6 follows a gap in the recording and has no interval; update 7 is untimed.
+        let mut r = timed(&[(0, 0), (1, 10), (2, 30), (3, 31), (4, 41), (6, 100)]);
+        r.digest.add_update(&proto::Update {
+            update: 7,
+            ..Default::default()
+        });
+        r.digest.add_rollout(&proto::Rollout {
             update: 7,
             ..Default::default()
         });
@@ -1939,8 +2126,7 @@ mod tests {
         );
         assert!(info(&r)
             .contains("median 0.010 ms, 90 % within 0.020 ms, slowest 0.020 ms (update 1 to 2)"));
-        r.rollouts.retain(|x| x.update == 0);
-        assert_eq!(update_times(&r), None);
+        assert_eq!(update_times(&timed(&[(0, 0)])), None);
     }
 
     #[test]
@@ -1954,8 +2140,8 @@ mod tests {
             message: format!("{event} {update}"),
             ..Default::default()
         };
-        r.logs.push(log("start", 0));
-        r.logs.push(log("warning", 40));
+        r.digest.add_log(&log("start", 0));
+        r.digest.add_log(&log("warning", 40));
         let s = info(&r);
         assert!(s.contains("health events: start ×1, warning ×1"), "{s}");
         assert!(
@@ -1963,7 +2149,9 @@ mod tests {
             "{s}"
         );
         assert!(!s.contains("start 0"), "{s}");
-        r.logs.extend((0..12).map(|u| log("error", u)));
+        for u in 0..12 {
+            r.digest.add_log(&log("error", u));
+        }
         let s = info(&r);
         assert!(s.contains("error at update 8 (workers)"), "{s}");
         assert!(!s.contains("error at update 9 "), "{s}");
@@ -1975,7 +2163,7 @@ mod tests {
         let mut r = Recording::default();
         for u in 0..5u64 {
             for k in 0..2u32 {
-                r.rollouts.push(proto::Rollout {
+                r.digest.add_rollout(&proto::Rollout {
                     update: u,
                     rollout: k,
                     worker: format!("worker-{k}"),
@@ -1986,7 +2174,7 @@ mod tests {
             }
         }
         // An untimed rollout (a worker that does not stamp, before any arrival) is left out.
-        r.rollouts.push(proto::Rollout {
+        r.digest.add_rollout(&proto::Rollout {
             update: 5,
             ..Default::default()
         });
@@ -2016,7 +2204,7 @@ mod tests {
         for u in 0..10u64 {
             for k in 0..15u32 {
                 let start = 1_000_000 + 100_000 * u + 600 * u64::from(k);
-                r.rollouts.push(proto::Rollout {
+                r.digest.add_rollout(&proto::Rollout {
                     update: u,
                     rollout: k,
                     worker: format!("worker-{}", k % 3),
@@ -2061,7 +2249,7 @@ mod tests {
     fn a_segment_is_said_to_begin_at_a_task_change_only_where_one_is() {
         let whole = rec_with(&[5.0, 4.0, 3.0, 3.0, 9.0, 6.0, 4.0, 4.0], Some(4));
         let mut late = rec_with(&[5.0, 4.0, 3.0, 3.0, 9.0, 6.0, 4.0, 4.0], Some(4));
-        late.summaries.retain(|s| s.update >= 6);
+        late.digest.points.retain(|s| s.update >= 6);
         assert_eq!(segment_label(&[&whole], 0), "");
         assert_eq!(segment_label(&[&whole], 4), " (task change)");
         assert_eq!(segment_label(&[&late], 6), " (first recorded update)");

@@ -16,6 +16,7 @@
 pub mod analyze;
 pub mod assemble;
 mod convert;
+pub mod digest;
 mod error;
 pub mod pipeline_recorder;
 mod reader;
@@ -43,8 +44,11 @@ pub mod proto {
 }
 
 pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_proto};
+pub use digest::{Digest, UpdatePoint};
 pub use error::RecordError;
-pub use reader::{join_resumed, read_ends, read_recording, read_recording_slim, Ends, Recording};
+pub use reader::{
+    join_resumed, read_ends, read_recording, read_recording_slim, Decoded, Ends, Recording,
+};
 pub use recorder::McapRecorder;
 pub use split::{
     analyze_command, describe_parts, first_part, last_part, part_number, part_path,

@@ -3,10 +3,11 @@
 //! the damage is reported in [`Recording::truncated`]).
 //!
 //! Every reader streams the file through mcap's sans-io reader ([`stream`]), so none holds the
-//! file in memory. [`read_recording_slim`] also leaves out each update's bulk (samples, step
-//! costs, weights: nine tenths of a T-ball update), which [`Recording::for_each_update`] streams
-//! from the files again for the few uses that need it, so analysing a continual run's recording
-//! takes memory for its curves, not for its size.
+//! file in memory. [`read_recording_slim`] keeps of the updates, rollouts, summaries and events
+//! only their [`Digest`] (per update 48 bytes of scalars, the rest bounded), which
+//! [`Recording::for_each_update`] and its siblings complete by streaming the files again for the
+//! few uses that need every message, so analysing a continual run's recording takes memory for
+//! its learning curve, not for its size or its messages.
 
 use std::collections::BTreeMap;
 use std::io::{Read, Seek};
@@ -14,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use prost::Message;
 
-use crate::{proto, topics, RecordError};
+use crate::{proto, topics, Digest, RecordError};
 
 /// A decoded recording.
 #[derive(Debug, Clone, Default)]
@@ -28,18 +29,25 @@ pub struct Recording {
     /// MCAP metadata records by name.
     pub metadata: BTreeMap<String, BTreeMap<String, String>>,
     pub run: Vec<proto::RunInfo>,
+    /// Every update, read whole; read slim, only the first and the last of each file, without
+    /// their bulk (what joining files into runs compares): `digest` has every update's scalars.
     pub updates: Vec<proto::Update>,
+    /// Empty when read slim (streamed by [`Recording::for_each_message`]).
     pub summaries: Vec<proto::UpdateSummary>,
+    /// Empty when read slim (streamed by [`Recording::for_each_message`]).
     pub rollouts: Vec<proto::Rollout>,
     pub task_changes: Vec<proto::TaskChange>,
+    /// Empty when read slim (streamed by [`Recording::for_each_message`]).
     pub logs: Vec<proto::Log>,
+    /// What analysis keeps of the messages, either way read.
+    pub digest: Digest,
     /// Message counts per topic, including topics this reader does not know.
     pub topic_counts: BTreeMap<String, u64>,
     /// log_time of the first and last message.
     pub time_range: Option<(u64, u64)>,
     /// The files read, in order (more than one for a joined run, [`Recording::join`]).
     pub files: Vec<PathBuf>,
-    /// Whether `updates` were read without their bulk ([`read_recording_slim`]).
+    /// Whether the recording was read slim ([`read_recording_slim`]).
     pub slim: bool,
 }
 
@@ -83,27 +91,101 @@ impl Recording {
     /// read slim, streamed from its files one update at a time.
     pub fn for_each_update(
         &self,
-        mut f: impl FnMut(&proto::Update) -> Result<(), RecordError>,
+        f: impl FnMut(&proto::Update) -> Result<(), RecordError>,
+    ) -> Result<(), RecordError> {
+        self.for_each(topics::UPDATE, "Update", &self.updates, f)
+    }
+
+    /// Calls `f` with every `/update`, `/summary`, `/rollout` and `/log` message: from memory
+    /// (topic by topic), or for a recording read slim, streamed from its files in one pass (in
+    /// file order). Each topic's messages come in their order either way.
+    pub fn for_each_message(
+        &self,
+        mut f: impl FnMut(Decoded<'_>) -> Result<(), RecordError>,
     ) -> Result<(), RecordError> {
         if !self.slim {
-            return self.updates.iter().try_for_each(f);
+            self.updates
+                .iter()
+                .try_for_each(|m| f(Decoded::Update(m)))?;
+            self.summaries
+                .iter()
+                .try_for_each(|m| f(Decoded::Summary(m)))?;
+            self.rollouts
+                .iter()
+                .try_for_each(|m| f(Decoded::Rollout(m)))?;
+            return self.logs.iter().try_for_each(|m| f(Decoded::Log(m)));
+        }
+        for file in &self.files {
+            // Per topic, for the error naming a message that does not decode.
+            let (mut updates, mut summaries, mut rollouts, mut logs) = (0, 0, 0, 0);
+            let next = |count: &mut u64| {
+                *count += 1;
+                *count - 1
+            };
+            stream(file, |item| {
+                let Item::Message { topic, data, .. } = item else {
+                    return Ok(());
+                };
+                match topic {
+                    topics::UPDATE => {
+                        let i = next(&mut updates);
+                        f(Decoded::Update(&decode(file, topic, i, "Update", data)?))
+                    }
+                    topics::SUMMARY => {
+                        let i = next(&mut summaries);
+                        f(Decoded::Summary(&decode(
+                            file,
+                            topic,
+                            i,
+                            "UpdateSummary",
+                            data,
+                        )?))
+                    }
+                    topics::ROLLOUT => {
+                        let i = next(&mut rollouts);
+                        f(Decoded::Rollout(&decode(file, topic, i, "Rollout", data)?))
+                    }
+                    topics::LOG => {
+                        let i = next(&mut logs);
+                        f(Decoded::Log(&decode(file, topic, i, "Log", data)?))
+                    }
+                    _ => Ok(()),
+                }
+            })?;
+        }
+        Ok(())
+    }
+
+    fn for_each<M: Message + Default>(
+        &self,
+        topic: &'static str,
+        schema: &'static str,
+        held: &[M],
+        mut f: impl FnMut(&M) -> Result<(), RecordError>,
+    ) -> Result<(), RecordError> {
+        if !self.slim {
+            return held.iter().try_for_each(f);
         }
         for file in &self.files {
             let mut index = 0;
             stream(file, |item| match item {
-                Item::Message {
-                    topic: topics::UPDATE,
-                    data,
-                    ..
-                } => {
+                Item::Message { topic: t, data, .. } if t == topic => {
                     index += 1;
-                    f(&decode(file, topics::UPDATE, index - 1, "Update", data)?)
+                    f(&decode(file, topic, index - 1, schema, data)?)
                 }
                 _ => Ok(()),
             })?;
         }
         Ok(())
     }
+}
+
+/// A message [`Recording::for_each_message`] hands over.
+pub enum Decoded<'a> {
+    Update(&'a proto::Update),
+    Summary(&'a proto::UpdateSummary),
+    Rollout(&'a proto::Rollout),
+    Log(&'a proto::Log),
 }
 
 /// The learning-curve row of an update: what its `/summary` message holds.
@@ -375,9 +457,13 @@ impl Recording {
     /// the metadata of the first, and the damage of the second (the first's end was resumed
     /// from, so nothing of it is missing).
     pub fn join(mut self, next: Recording) -> Recording {
-        // A part without /summary still has its curve in /update.
-        self.summaries = self.curve();
-        self.summaries.extend(next.curve());
+        // A part without /summary still has its curve in /update (read whole: slim, the digest
+        // has the curve and the summaries are streamed).
+        if !(self.slim || next.slim) {
+            self.summaries = self.curve();
+            self.summaries.extend(next.curve());
+        }
+        self.digest.append(next.digest);
         self.file_bytes += next.file_bytes;
         self.files.extend(next.files);
         self.slim |= next.slim;
@@ -508,26 +594,42 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
             topics::RUN => rec.run.push(decode(path, topic, index, "RunInfo", data)?),
             topics::UPDATE => {
                 let mut u: proto::Update = decode(path, topic, index, "Update", data)?;
+                rec.digest.add_update(&u);
                 if slim {
                     u.samples = Vec::new();
                     u.cost_per_step = Vec::new();
                     u.cost_terminal = Vec::new();
                     u.weights = Vec::new();
+                    // The first and the last: what joining compares.
+                    rec.updates.truncate(1);
                 }
                 rec.updates.push(u);
             }
             topics::SUMMARY => {
-                rec.summaries
-                    .push(decode(path, topic, index, "UpdateSummary", data)?)
+                let s = decode(path, topic, index, "UpdateSummary", data)?;
+                if !slim {
+                    rec.summaries.push(s);
+                }
             }
-            topics::ROLLOUT => rec
-                .rollouts
-                .push(decode(path, topic, index, "Rollout", data)?),
+            topics::ROLLOUT => {
+                let r = decode(path, topic, index, "Rollout", data)?;
+                rec.digest.add_rollout(&r);
+                if !slim {
+                    rec.rollouts.push(r);
+                }
+            }
             topics::TASK_CHANGE => {
-                rec.task_changes
-                    .push(decode(path, topic, index, "TaskChange", data)?)
+                let c = decode(path, topic, index, "TaskChange", data)?;
+                rec.digest.add_task_change(&c);
+                rec.task_changes.push(c);
             }
-            topics::LOG => rec.logs.push(decode(path, topic, index, "Log", data)?),
+            topics::LOG => {
+                let l = decode(path, topic, index, "Log", data)?;
+                rec.digest.add_log(&l);
+                if !slim {
+                    rec.logs.push(l);
+                }
+            }
             _ => {}
         }
         Ok(())
@@ -535,7 +637,7 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
     // A run that ended before its first update (a worker that cannot start) recorded only its
     // health events: still ours (every topic one of ours, events on /log), and what the user
     // wants to read. Anything else without /run is some other file.
-    let only_events = !rec.logs.is_empty()
+    let only_events = !rec.digest.events.is_empty()
         && rec
             .topic_counts
             .keys()
@@ -664,7 +766,8 @@ mod tests {
             // Read slim, the same recording without the bulk, which streams back in full.
             let slim = read_recording_slim(&cut).unwrap();
             assert!(slim.slim && !whole.slim);
-            assert_eq!(slim.updates.len(), whole.updates.len());
+            assert_eq!(slim.digest, whole.digest);
+            assert_eq!(slim.digest.points.len(), whole.updates.len());
             assert_eq!(
                 (
                     slim.indexed,
@@ -680,10 +783,17 @@ mod tests {
                 )
             );
             assert_eq!(
-                (&slim.run, &slim.rollouts, &slim.logs, &slim.metadata),
-                (&whole.run, &whole.rollouts, &whole.logs, &whole.metadata)
+                (&slim.run, &slim.task_changes, &slim.metadata),
+                (&whole.run, &whole.task_changes, &whole.metadata)
             );
-            for (s, w) in slim.updates.iter().zip(&whole.updates) {
+            // Of the updates only the first and the last, without their bulk.
+            let ends: Vec<&proto::Update> = match whole.updates.as_slice() {
+                [] => vec![],
+                [one] => vec![one],
+                [first, .., last] => vec![first, last],
+            };
+            assert_eq!(slim.updates.len(), ends.len());
+            for (s, w) in slim.updates.iter().zip(ends) {
                 assert!(s.samples.is_empty() && s.cost_per_step.is_empty());
                 assert!(s.cost_terminal.is_empty() && s.weights.is_empty());
                 let bulk = proto::Update {
@@ -695,6 +805,8 @@ mod tests {
                 };
                 assert_eq!(&bulk, w);
             }
+            assert!(slim.summaries.is_empty() && slim.rollouts.is_empty() && slim.logs.is_empty());
+            // Streamed back, every message is there, in order.
             let mut streamed = Vec::new();
             slim.for_each_update(|u| {
                 streamed.push(u.clone());
@@ -702,6 +814,31 @@ mod tests {
             })
             .unwrap();
             assert_eq!(streamed, whole.updates);
+            let mut again = Recording::default();
+            slim.for_each_message(|m| {
+                match m {
+                    Decoded::Update(u) => again.updates.push(u.clone()),
+                    Decoded::Summary(s) => again.summaries.push(s.clone()),
+                    Decoded::Rollout(r) => again.rollouts.push(r.clone()),
+                    Decoded::Log(l) => again.logs.push(l.clone()),
+                }
+                Ok(())
+            })
+            .unwrap();
+            assert_eq!(
+                (
+                    &again.updates,
+                    &again.summaries,
+                    &again.rollouts,
+                    &again.logs
+                ),
+                (
+                    &whole.updates,
+                    &whole.summaries,
+                    &whole.rollouts,
+                    &whole.logs
+                )
+            );
         }
         assert!(checked > 25, "the prefixes hold updates");
 
