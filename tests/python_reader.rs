@@ -211,3 +211,68 @@ for case in (SettingsMethod, StepsMethod, SettingsList, NoSettings):
         assert!(text.contains(expected), "{expected:?} not in:\n{text}");
     }
 }
+
+/// A run that ended before its first update (stopped at once, or a worker that could not start)
+/// leaves its /run and events, or its events alone: `analyze` reads both, and so must `--check`
+/// (it failed them: "topic /update is missing", "no /update messages").
+#[test]
+fn python_check_accepts_a_recording_without_updates_as_analyze_does() {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = scratch("python-no-updates");
+    let cfg = session::RunConfig::default_config();
+    let hp = cfg.hyperparameters();
+    let initial = pi2cma::Distribution {
+        mean: nalgebra::DVector::from_vec(vec![0.5, -2.0]),
+        covariance: nalgebra::DMatrix::from_row_slice(2, 2, &[3.0, 0.0, 0.0, 3.0]),
+    };
+    let text = record::config_to_toml(&cfg);
+    let write = |name: &str, with_run: bool| {
+        let path = dir.join(name);
+        let mut w = record::RunWriter::create(&path).expect("create");
+        if with_run {
+            w.write_start(&record::RunStart {
+                name: "A1",
+                seed: 1,
+                update: 0,
+                steps: 101,
+                hyperparameters: &hp,
+                initial: &initial,
+                basis_activations: None,
+                config_toml: &text,
+                executor: "pipeline",
+                task_settings: &[],
+                resumed_from: None,
+                part: None,
+                run_id: None,
+                recorder_restart: None,
+            })
+            .expect("run");
+        }
+        w.write_event(0, record::Event::Crash, "worker-0", 7, "worker-0 crashed")
+            .expect("event");
+        w.finish().expect("finish");
+        path
+    };
+    for file in [write("stopped.mcap", true), write("events.mcap", false)] {
+        let analyze = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+            .arg("analyze")
+            .arg(&file)
+            .output()
+            .expect("pi2cma starts");
+        let summary = String::from_utf8_lossy(&analyze.stdout);
+        assert!(analyze.status.success(), "{summary}");
+        let check = Command::new("python3")
+            .arg(repo.join("tools/plot_learning_curve.py"))
+            .arg("--check")
+            .arg(&file)
+            .output()
+            .expect("python3 starts");
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&check.stdout),
+            String::from_utf8_lossy(&check.stderr)
+        );
+        assert!(check.status.success(), "{}: {text}", file.display());
+        assert!(text.contains("1 passed, 0 failed"), "{text}");
+    }
+}

@@ -11,7 +11,8 @@ cost mean ± std band and λ on a log axis, with task changes marked.
 --check decodes every message of every topic and checks the recording's invariants (one
 /summary and K /rollout messages per /update, an update index on every message, consecutive
 updates, the distribution after one update is the one the next samples from); it exits non-zero
-on any failure. Files whose writer was killed (no summary section) are read as a stream.
+on any failure. A recording without updates (a run that ended before its first: its /run and
+/log, or /log alone) passes, as `analyze` reads it. Files whose writer was killed (no summary section) are read as a stream.
 
 --join takes the files as one run, in order: the parts of a split recording (`recording.split_mb`)
 or a run and the runs resumed from it (`--resume`). It checks that each file goes on exactly where
@@ -71,8 +72,15 @@ def check(path, by_topic):
     def fail(msg):
         failures.append(f"{path}: {msg}")
 
+    # A run that ended before its first update (stopped, or a worker that could not start) is a
+    # recording too, as `analyze` reads it: its /run and events, or its events alone. Only the
+    # topics every update writes are then absent.
+    no_updates = "/update" not in by_topic
+    optional = {"/task_change"} | ({"/update", "/summary", "/rollout"} if no_updates else set())
+    if no_updates and set(by_topic) <= {"/log"} and by_topic:
+        optional.add("/run")
     for topic, schema in EXPECTED_TOPICS.items():
-        if topic not in by_topic and topic != "/task_change":
+        if topic not in by_topic and topic not in optional:
             fail(f"topic {topic} is missing")
         for name, _ in by_topic.get(topic, []):
             if name != schema:
@@ -87,7 +95,10 @@ def check(path, by_topic):
     summaries = [m for _, m in by_topic.get("/summary", [])]
     rollouts = [m for _, m in by_topic.get("/rollout", [])]
     if not updates:
-        fail("no /update messages")
+        # Nothing an update would make may be there without one.
+        for topic in ("/summary", "/rollout"):
+            if by_topic.get(topic):
+                fail(f"{len(by_topic[topic])} {topic} messages but no /update")
         return failures
     if [u.update for u in updates] != list(range(updates[0].update, updates[0].update + len(updates))):
         fail("update indices are not consecutive")
