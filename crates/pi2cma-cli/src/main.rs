@@ -123,6 +123,9 @@ impl Observer for Progress {
             self.total.map_or("∞".to_string(), |t| t.to_string())
         );
     }
+    fn on_rerun(&mut self, rerun: &session::Rerun<'_>) {
+        say!("{}", rerun.message());
+    }
     fn on_update(&mut self, r: &UpdateRecord<'_>) {
         let s = r.summary;
         let total = self.total.map_or("∞".to_string(), |t| t.to_string());

@@ -138,6 +138,12 @@ impl CostBatch {
         }
     }
 
+    /// The first non-finite cost of rollout `k` (terminal first) as an error naming it: a
+    /// runner that reruns such a rollout checks each one as it comes in, before the update.
+    pub fn check_rollout(&self, k: usize) -> Result<(), CostError> {
+        check_finite(k, self.per_step(k), self.terminal[k])
+    }
+
     /// Re-checks every value; used after in-place writes through [`CostBatch::slot_mut`].
     pub fn validate_filled(&self) -> Result<(), CostError> {
         if let Some(k) = self.missing().next() {
@@ -209,6 +215,27 @@ mod tests {
         let e = b.insert(0, &[0.0, 0.0, 1.0], f64::INFINITY).unwrap_err();
         assert!(e.to_string().contains("terminal"), "{e}");
         assert!(!b.is_complete());
+    }
+
+    #[test]
+    fn one_rollout_is_checked_in_place_naming_its_first_non_finite_cost() {
+        let mut b = CostBatch::new(2, 3);
+        let (per_step, terminal) = b.slot_mut(1);
+        per_step.copy_from_slice(&[0.0, f64::INFINITY, f64::NAN]);
+        *terminal = 1.0;
+        assert_eq!(
+            b.check_rollout(1),
+            Err(CostError::NonFinite {
+                rollout: 1,
+                step: Some(1),
+                value: f64::INFINITY
+            })
+        );
+        b.slot_mut(1).0.fill(2.0);
+        assert_eq!(b.check_rollout(1), Ok(()));
+        *b.slot_mut(0).1 = f64::NEG_INFINITY;
+        let e = b.check_rollout(0).unwrap_err();
+        assert!(e.to_string().contains("(terminal) is -inf"), "{e}");
     }
 
     #[test]

@@ -37,6 +37,14 @@ pub struct RunResult {
     /// force before. Not in `task_changes`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub refused_changes: Vec<RecordedChange>,
+    /// Executions of rollouts whose costs were not finite and that were run again
+    /// (`run.nonfinite_reruns`); their costs are in no update.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub nonfinite_reruns: u64,
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 /// A task change and the update index it took effect at.

@@ -6,9 +6,10 @@
 //! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
 //! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
-//! restarts it.
+//! restarts it. A rollout the updater asks for again (`Control::RERUN`: its costs were not
+//! finite) goes back to the front of the queue.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::notifier::Notifier;
@@ -77,6 +78,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
     let mut idle: VecDeque<u32> = VecDeque::new();
     let mut pending: VecDeque<u32> = VecDeque::new();
+    // Rollouts of the current update the updater asked for again (Control::RERUN): their work
+    // items say so (WorkHeader::RERUN).
+    let mut reruns: BTreeSet<u32> = BTreeSet::new();
     let mut current: Option<Current> = None;
     let mut next_chunk: u64 = 0;
     let mut finished = false;
@@ -93,8 +97,24 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         let mut lost: Vec<(u32, u32)> = Vec::new();
         while let Some(msg) = iox(control.receive(), "receive control")? {
             let m = *msg.payload();
-            if m.run_id == ctx.run_id && m.kind == Control::WORKER_LOST {
+            if m.run_id != ctx.run_id {
+                continue;
+            }
+            if m.kind == Control::WORKER_LOST {
                 lost.push((m.worker, m.incarnation));
+            }
+            // A rollout whose costs were not finite: the update waits for it, so it is still
+            // the current one (a request for another is stale).
+            if let Some((update, k)) = m.rerun_of() {
+                if current.as_ref().is_some_and(|c| c.update == update) && (k as usize) < k_total {
+                    reruns.insert(k);
+                    if !pending.contains(&k) {
+                        pending.push_front(k);
+                    }
+                    if trace {
+                        eprintln!("{} rerun {update}/{k}", us());
+                    }
+                }
             }
         }
         if last_scan.elapsed() >= DEAD_SCAN {
@@ -161,6 +181,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 settings_len: h.settings_len,
             });
             pending = (0..k_total as u32).collect();
+            reruns.clear();
             if trace {
                 eprintln!("{} dist {} idle {:?}", us(), h.update, idle);
             }
@@ -322,7 +343,11 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     worker: id,
                     steps: steps as u32,
                     settings_len: cur.settings_len,
-                    flags,
+                    flags: if reruns.contains(&k) {
+                        flags | WorkHeader::RERUN
+                    } else {
+                        flags
+                    },
                     settings: cur.settings,
                     previous_settings: cur.previous_settings,
                 };

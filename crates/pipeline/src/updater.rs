@@ -10,6 +10,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use pi2cma::CostError;
+use session::reruns::{after_reruns, rerun_message, NonfiniteReruns, Verdict};
 use tasks::TaskChange;
 use wire::{Control, DistributionHeader, Progress, RecorderAck, Service};
 
@@ -64,6 +65,14 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let sampler_bell = ctx.notifier("sampler")?;
     let supervisor_bell = ctx.notifier("supervisor")?;
     let mut recorder = RecorderLink::new(&ctx)?;
+    // Asks the sampler for a rollout again (Control::RERUN); only a run that allows reruns
+    // opens it, so one that does not takes no more shared memory than before.
+    let rerun_requests = match cfg.run.nonfinite_reruns {
+        0 => None,
+        _ => Some(wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("control")?),
+    };
+    let mut reruns = NonfiniteReruns::new(cfg.run.nonfinite_reruns, k_total);
+    let mut reruns_done: u64 = 0;
     let _announced = announce_ready(&ctx, wire::role::UPDATER, 0, 0)?;
 
     let mut batch = optimizer.cost_batch();
@@ -299,16 +308,44 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 if h.run_id != ctx.run_id || h.update != u {
                     continue; // a re-executed rollout of an earlier update
                 }
-                match batch.insert(h.rollout as usize, sample.payload(), h.terminal) {
-                    Ok(()) => RanWith::check(&mut ran_with, &h, &published, &*task)?,
-                    Err(CostError::Duplicate { .. }) => {} // re-executed after a worker was lost
-                    Err(e) => bail!(
-                        "update {u}: {e} (reported by worker-{} for rollout {}{})",
-                        h.worker,
-                        h.rollout,
-                        ran_with_text(&h, &published, &*task)
-                    ),
-                }
+                let e = match batch.insert(h.rollout as usize, sample.payload(), h.terminal) {
+                    Ok(()) => {
+                        RanWith::check(&mut ran_with, &h, &published, &*task)?;
+                        continue;
+                    }
+                    // Re-executed after a worker was lost, or a rerun's late twin.
+                    Err(CostError::Duplicate { .. }) => continue,
+                    Err(e) => e,
+                };
+                let tried = match (&e, &rerun_requests) {
+                    (CostError::NonFinite { .. }, Some(requests)) => {
+                        match reruns.reject(h.rollout as usize) {
+                            Verdict::Rerun { attempt } => {
+                                let by = format!("worker-{}", h.worker);
+                                let limit = reruns.limit();
+                                println!("{}", rerun_message(u, &e, attempt, limit, &by));
+                                let again =
+                                    Control::rerun(ctx.run_id, u, h.rollout, h.worker, attempt);
+                                iox(requests.send_copy(again), "send rerun request")?;
+                                iox(
+                                    sampler_bell.notify_with_custom_event_id(wire::WAKE),
+                                    "notify sampler",
+                                )?;
+                                reruns_done += 1;
+                                continue;
+                            }
+                            Verdict::Fail { reruns } => reruns,
+                        }
+                    }
+                    _ => 0,
+                };
+                bail!(
+                    "update {u}: {e} (reported by worker-{} for rollout {}{}){}",
+                    h.worker,
+                    h.rollout,
+                    ran_with_text(&h, &published, &*task),
+                    after_reruns(tried)
+                );
             }
             if !batch.is_complete() {
                 return Ok(Flow::Continue);
@@ -321,6 +358,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 .tell(&batch)
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
+            reruns.clear();
             // A refusal is reported at once: `supervisor status` shows it.
             let news = RanWith::settle(
                 &mut ran_with,
@@ -435,6 +473,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         covariance_bits: bits(d.covariance.as_slice()),
         task_changes: recorded,
         refused_changes,
+        nonfinite_reruns: reruns_done,
     };
     result.write(&ctx.result_path())?;
     Ok(())

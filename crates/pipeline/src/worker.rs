@@ -233,8 +233,15 @@ fn slot<T: Task>(
                 );
                 return Ok(Flow::Stop);
             }
-            if nan_from.is_some_and(|n| h.update >= n) {
-                // Fault injection (pipeline.fault_nan_from_update): a task returning NaN.
+            let rerun = h.flags & WorkHeader::RERUN != 0;
+            if nan_from.is_some_and(|n| h.update >= n)
+                || ctx
+                    .config
+                    .run
+                    .fault_nan(h.update, h.rollout as usize, rerun)
+            {
+                // Fault injection (pipeline.fault_nan_from_update, run.fault_nan_first_attempt):
+                // a task returning NaN, from an update on or once.
                 terminal = f64::NAN;
             }
             *sample.user_header_mut() = CostHeader {

@@ -156,6 +156,18 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
     if let Some(n) = cfg.run.updates {
         run.insert("updates".into(), int(n));
     }
+    if cfg.run.nonfinite_reruns > 0 {
+        run.insert(
+            "nonfinite_reruns".into(),
+            int(u64::from(cfg.run.nonfinite_reruns)),
+        );
+    }
+    if let Some(f) = cfg.run.fault_nan_first_attempt {
+        let mut t = Table::new();
+        t.insert("update".into(), int(f.update));
+        t.insert("rollout".into(), int(f.rollout as u64));
+        run.insert("fault_nan_first_attempt".into(), Value::Table(t));
+    }
     root.insert("run".into(), Value::Table(run));
 
     let o = &cfg.optimizer;
@@ -303,6 +315,14 @@ mod tests {
         let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
         assert_eq!(back, cfg, "{text}");
         cfg.optimizer.covariance = CovarianceName::PerDimension;
+        let text = config_to_toml(&cfg);
+        let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
+        assert_eq!(back, cfg, "{text}");
+        cfg.run.nonfinite_reruns = 3;
+        cfg.run.fault_nan_first_attempt = Some(session::RolloutAt {
+            update: 7,
+            rollout: 2,
+        });
         let text = config_to_toml(&cfg);
         let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
         assert_eq!(back, cfg, "{text}");

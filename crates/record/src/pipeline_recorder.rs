@@ -28,7 +28,9 @@ use std::path::PathBuf;
 use crate::assemble::{Assembler, CostOutcome};
 use crate::{now_ns, Event, RolloutTiming, RunFiles, RunStart, UpdateData};
 use anyhow::Context as _;
+use pi2cma::CostError;
 use pipeline::{announce_ready, iox, Context, Ports as _};
+use session::reruns::{after_reruns, rerun_message, NonfiniteReruns, Verdict};
 use wire::{Control, CostHeader, DistributionHeader, Lifecycle, RunNote};
 
 /// The `lifecycle` role this process announces.
@@ -300,6 +302,10 @@ struct WriterState {
     /// Events a restarted recorder took in before its first distribution ([`Self::log`]).
     deferred: Vec<(Event, String, u32, String)>,
     slots: WorkerSlots,
+    /// The rejected executions of each update's rollouts whose costs were not finite, counted
+    /// as the updater counts them (`run.nonfinite_reruns`): a rejected execution it runs again
+    /// is a warning, the one that fails the run an error.
+    reruns: std::collections::BTreeMap<u64, NonfiniteReruns>,
 }
 
 /// Why a worker incarnation was started, as far as the recorder can tell ([`WorkerSlots`]).
@@ -406,6 +412,7 @@ impl WriterState {
             restart: None,
             deferred: Vec::new(),
             slots: WorkerSlots::default(),
+            reruns: Default::default(),
         })
     }
 
@@ -553,13 +560,7 @@ impl WriterState {
                 ) {
                     Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
                     // Before a restarted recorder's first distribution, it has no part yet.
-                    Err(e) => self.log_at(
-                        h.update,
-                        Event::Error,
-                        &format!("worker-{}", h.worker),
-                        0,
-                        &format!("cost of update {} rejected: {e}", h.update),
-                    )?,
+                    Err(e) => self.cost_rejected(&h, &e)?,
                 }
             }
             Msg::Control(c) => match c.kind {
@@ -647,6 +648,40 @@ impl WriterState {
             }
         }
         Ok(())
+    }
+
+    /// The event for costs the assembler rejected: a warning for an execution with non-finite
+    /// costs that the updater runs again, otherwise (the run fails on it) an error.
+    fn cost_rejected(&mut self, h: &CostHeader, e: &CostError) -> anyhow::Result<()> {
+        let by = format!("worker-{}", h.worker);
+        let limit = self.config.run.nonfinite_reruns;
+        let tried = match e {
+            CostError::NonFinite { .. } if limit > 0 => {
+                if let Some(first) = self.assembler.first_update() {
+                    self.reruns.retain(|&u, _| u >= first);
+                }
+                let rollouts = self.config.optimizer.rollouts;
+                let verdict = self
+                    .reruns
+                    .entry(h.update)
+                    .or_insert_with(|| NonfiniteReruns::new(limit, rollouts))
+                    .reject(h.rollout as usize);
+                match verdict {
+                    Verdict::Rerun { attempt } => {
+                        let message = rerun_message(h.update, e, attempt, limit, &by);
+                        return self.log_at(h.update, Event::Warning, &by, 0, &message);
+                    }
+                    Verdict::Fail { reruns } => reruns,
+                }
+            }
+            _ => 0,
+        };
+        let message = format!(
+            "cost of update {} rejected: {e}{}",
+            h.update,
+            after_reruns(tried)
+        );
+        self.log_at(h.update, Event::Error, &by, 0, &message)
     }
 
     /// An event on /log at the update at hand. A restarted recorder keeps what comes before

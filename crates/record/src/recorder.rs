@@ -11,7 +11,7 @@ use std::sync::mpsc::{channel, Receiver, Sender};
 use std::thread::JoinHandle;
 
 use pi2cma::{CostBatch, Distribution, Hyperparameters, Optimizer, ParameterBatch, UpdateSummary};
-use session::{Observer, RunConfig, UpdateRecord};
+use session::{Observer, Rerun, RunConfig, UpdateRecord};
 use tasks::TaskChange;
 
 use crate::writer::{now_ns, Event, RolloutTiming, RunStart, UpdateData};
@@ -19,7 +19,7 @@ use crate::RunFiles;
 use crate::{config_to_toml, RecordError};
 
 /// Worker name of every rollout of the in-process runner.
-pub const IN_PROCESS: &str = "in-process";
+pub const IN_PROCESS: &str = session::IN_PROCESS;
 
 struct StartJob {
     name: String,
@@ -373,6 +373,10 @@ impl Observer for McapRecorder {
 
     fn on_task_change(&mut self, update: u64, change: &TaskChange) {
         self.send(Job::TaskChange(update, change.name.clone(), change.value));
+    }
+
+    fn on_rerun(&mut self, rerun: &Rerun<'_>) {
+        self.send(Job::Event(rerun.update, Event::Warning, rerun.message()));
     }
 
     fn on_update(&mut self, r: &UpdateRecord<'_>) {

@@ -62,6 +62,43 @@ fn every_update_recomputes_bit_identically() {
     }
 }
 
+/// A rollout whose first execution reported NaN was rerun (`run.nonfinite_reruns`): the
+/// recording logs the rejected execution as a warning, and holds the accepted costs, from which
+/// every update recomputes; the run is the one without the fault.
+#[test]
+fn a_rerun_rollout_is_logged_and_its_accepted_costs_recompute() {
+    let text = session::DEFAULT_CONFIG.replace(
+        "seed = 1\n",
+        "seed = 1\nnonfinite_reruns = 1\nfault_nan_first_attempt = { update = 5, rollout = 3 }\n",
+    );
+    let cfg = RunConfig::parse(&text, std::path::Path::new("rerun.toml")).unwrap();
+    let rec = read_recording(&record(&cfg, 7, "rerun.mcap")).unwrap();
+    let warnings: Vec<(u64, &str, &str)> = rec
+        .logs
+        .iter()
+        .filter(|l| l.event == "warning")
+        .map(|l| (l.update, l.name.as_str(), l.message.as_str()))
+        .collect();
+    assert_eq!(
+        warnings,
+        [(
+            5,
+            "in-process",
+            "update 5: cost of rollout 3 (terminal) is NaN; costs must be finite (attempt 1 of at \
+             most 2, by in-process): rerunning it with the same parameters \
+             (run.nonfinite_reruns = 1)"
+        )]
+    );
+    assert_eq!(rec.rollouts.len(), 40 * 15, "one interval per rollout");
+    let report = verify(&rec).unwrap();
+    assert_eq!(report.updates, 40);
+    assert!(report.mismatches.is_empty(), "{report:?}");
+    let (_, without_fault) =
+        run_session(&RunConfig::default_config(), 7, &mut session::NoObserver).unwrap();
+    let last = recompute_update(&rec, rec.updates.last().unwrap()).unwrap();
+    assert_eq!(last.after, without_fault);
+}
+
 #[test]
 fn recompute_covers_every_update_rule() {
     let variants = [

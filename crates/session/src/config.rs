@@ -56,6 +56,34 @@ pub struct RunSection {
     pub seed: u64,
     /// Number of updates; absent means unbounded (continual learning, stopped from outside).
     pub updates: Option<u64>,
+    /// How often a rollout that reports a non-finite cost (NaN, ±∞: a sensor dropout, a
+    /// diverged simulator step) is run again with the same parameters before the run fails; the
+    /// update waits for it. 0: the first such cost fails the run.
+    #[serde(default)]
+    pub nonfinite_reruns: u32,
+    /// FAULT INJECTION, for tests only: the first execution of this rollout reports a NaN
+    /// terminal cost, its reruns what the task computes (a transient fault; both executors).
+    #[serde(default)]
+    pub fault_nan_first_attempt: Option<RolloutAt>,
+}
+
+/// One rollout of one update (`{ update = 3, rollout = 2 }`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RolloutAt {
+    pub update: u64,
+    pub rollout: usize,
+}
+
+impl RunSection {
+    /// Whether the fault injection `fault_nan_first_attempt` turns this execution of rollout
+    /// `rollout` of update `update` (`rerun`: not its first) into a NaN terminal cost.
+    pub fn fault_nan(&self, update: u64, rollout: usize, rerun: bool) -> bool {
+        !rerun
+            && self
+                .fault_nan_first_attempt
+                .is_some_and(|f| f.update == update && f.rollout == rollout)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -279,6 +307,8 @@ impl Default for PipelineSection {
     }
 }
 
+/// The most reruns of a rollout whose costs are not finite (`run.nonfinite_reruns`).
+pub const MAX_NONFINITE_RERUNS: u32 = 100;
 /// The most rollouts per update: the update keeps four K×K matrices (3.2 GB at K = 10000).
 pub const MAX_ROLLOUTS: usize = 10_000;
 /// The most policy parameters: the update keeps several P×P covariances and eigen-decomposes
@@ -651,6 +681,26 @@ impl RunConfig {
         }
         if self.run.updates == Some(0) {
             return Err(self.invalid("run.updates", 0, "must be at least 1 (omit for unbounded)"));
+        }
+        if self.run.nonfinite_reruns > MAX_NONFINITE_RERUNS {
+            return Err(self.invalid(
+                "run.nonfinite_reruns",
+                self.run.nonfinite_reruns,
+                &format!(
+                    "must be at most {MAX_NONFINITE_RERUNS}: a rerun repeats the rollout (on a \
+                     robot, for real), and a cost that is still not finite after that many is no \
+                     transient fault"
+                ),
+            ));
+        }
+        if let Some(f) = self.run.fault_nan_first_attempt {
+            if f.rollout >= o.rollouts {
+                return Err(self.invalid(
+                    "run.fault_nan_first_attempt.rollout",
+                    f.rollout,
+                    &format!("must be below optimizer.rollouts = {}", o.rollouts),
+                ));
+            }
         }
         let shape = self.task_shape()?;
         self.check_memory(&shape)?;
@@ -1712,6 +1762,51 @@ mod tests {
             parse(&text).unwrap().pipeline().rollout_timeout_ms,
             Some(500)
         );
+    }
+
+    #[test]
+    fn nonfinite_reruns_are_a_bounded_count_and_the_fault_names_a_rollout_of_the_update() {
+        assert_eq!(RunConfig::default_config().run.nonfinite_reruns, 0);
+        let with = |line: &str| {
+            parse(&DEFAULT_CONFIG.replace("seed = 1\n", &format!("seed = 1\n{line}\n")))
+        };
+        assert_eq!(
+            with("nonfinite_reruns = 100").unwrap().run.nonfinite_reruns,
+            100
+        );
+        assert_eq!(
+            with("nonfinite_reruns = 101").unwrap_err().to_string(),
+            "test.toml: run.nonfinite_reruns = 101: must be at most 100: a rerun repeats the \
+             rollout (on a robot, for real), and a cost that is still not finite after that many \
+             is no transient fault"
+        );
+        for bad in [
+            "nonfinite_reruns = -1",
+            "nonfinite_reruns = 1.5",
+            "nonfinite_reruns = \"2\"",
+        ] {
+            let e = with(bad).unwrap_err().to_string();
+            assert!(e.starts_with("test.toml: run.nonfinite_reruns: "), "{e}");
+            assert!(e.contains(bad), "the line is shown: {e}");
+        }
+        let e = with("nonfinite_rerun = 2").unwrap_err().to_string();
+        assert!(e.contains("unknown field `nonfinite_rerun`"), "{e}");
+
+        let cfg = with("fault_nan_first_attempt = { update = 3, rollout = 14 }").unwrap();
+        assert!(cfg.run.fault_nan(3, 14, false));
+        assert!(!cfg.run.fault_nan(3, 14, true), "a rerun is not hit");
+        assert!(!cfg.run.fault_nan(3, 13, false) && !cfg.run.fault_nan(4, 14, false));
+        assert_eq!(
+            with("fault_nan_first_attempt = { update = 3, rollout = 15 }")
+                .unwrap_err()
+                .to_string(),
+            "test.toml: run.fault_nan_first_attempt.rollout = 15: must be below \
+             optimizer.rollouts = 15"
+        );
+        let e = with("fault_nan_first_attempt = { update = 3, rollout = 1, attempts = 2 }")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown field `attempts`"), "{e}");
     }
 
     #[test]

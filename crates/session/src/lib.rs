@@ -6,14 +6,15 @@
 //! drives the same core with the same builders, so both give the same result for the same seed.
 
 mod config;
+pub mod reruns;
 mod start;
 
 pub use config::{
     executable_file, ConfigError, CovarianceName, ExternalConfig, MemoryNeed, MemoryPart, Method,
-    OptimizerSection, PipelineSection, RecordingSection, RunConfig, RunSection, ScheduleEntry,
-    TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG, LAMBDA_RANGE,
-    MAX_DMP_WORK, MAX_ELITENESS, MAX_EXTERNAL_SETTINGS, MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS,
-    MEMORY_LIMIT_BYTES,
+    OptimizerSection, PipelineSection, RecordingSection, RolloutAt, RunConfig, RunSection,
+    ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
+    LAMBDA_RANGE, MAX_DMP_WORK, MAX_ELITENESS, MAX_EXTERNAL_SETTINGS, MAX_NONFINITE_RERUNS,
+    MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
 };
 
 pub use start::{scheduled_at, Start, StartFileError};
@@ -30,6 +31,14 @@ pub enum SessionError {
     /// (`update 4: cost … is NaN: cost … is NaN`).
     #[error("update {update}: {error}")]
     Cost { update: u64, error: CostError },
+    /// A rollout whose costs were still not finite after `reruns` reruns
+    /// (`run.nonfinite_reruns`).
+    #[error("update {update}: {error}{}", reruns::after_reruns(*reruns))]
+    CostAfterReruns {
+        update: u64,
+        error: CostError,
+        reruns: u32,
+    },
     #[error(transparent)]
     Task(#[from] TaskError),
     #[error(transparent)]
@@ -225,8 +234,39 @@ pub trait Observer {
     ) {
     }
     fn on_task_change(&mut self, _update: u64, _change: &TaskChange) {}
+    /// An execution of a rollout whose costs were not finite, which is run again
+    /// (`run.nonfinite_reruns`); its costs are not in the update.
+    fn on_rerun(&mut self, _rerun: &Rerun<'_>) {}
     fn on_update(&mut self, _record: &UpdateRecord<'_>) {}
     fn on_finish(&mut self, _optimizer: &Optimizer) {}
+}
+
+/// A rejected execution of a rollout that is run again ([`Observer::on_rerun`]).
+pub struct Rerun<'a> {
+    pub update: u64,
+    /// The first non-finite cost of the execution ([`CostError::NonFinite`]: rollout, step or
+    /// terminal, value).
+    pub error: &'a CostError,
+    /// The execution rejected: 1 for the first.
+    pub attempt: u32,
+    /// `run.nonfinite_reruns`.
+    pub limit: u32,
+}
+
+/// Who ran a rollout of the in-process runner, in messages and recordings.
+pub const IN_PROCESS: &str = "in-process";
+
+impl Rerun<'_> {
+    /// [`reruns::rerun_message`], by [`IN_PROCESS`].
+    pub fn message(&self) -> String {
+        reruns::rerun_message(
+            self.update,
+            self.error,
+            self.attempt,
+            self.limit,
+            IN_PROCESS,
+        )
+    }
 }
 
 /// An observer that observes nothing.
@@ -255,6 +295,9 @@ impl Observer for Observers<'_> {
             .iter_mut()
             .for_each(|o| o.on_task_change(update, change));
     }
+    fn on_rerun(&mut self, rerun: &Rerun<'_>) {
+        self.0.iter_mut().for_each(|o| o.on_rerun(rerun));
+    }
     fn on_update(&mut self, record: &UpdateRecord<'_>) {
         self.0.iter_mut().for_each(|o| o.on_update(record));
     }
@@ -272,6 +315,7 @@ pub struct InProcess {
     start: Option<Start>,
     costs: CostBatch,
     rollout_times: Vec<(u64, u64)>,
+    reruns: reruns::NonfiniteReruns,
 }
 
 /// Wall-clock time in ns since the Unix epoch (0 before it).
@@ -338,6 +382,7 @@ impl InProcess {
         let optimizer = build_optimizer_at(config, shape, seed, start.as_ref())?;
         let initial_settings = shape.settings();
         let costs = optimizer.cost_batch();
+        let reruns = reruns::NonfiniteReruns::new(config.run.nonfinite_reruns, costs.rollouts());
         Ok(Self {
             config: config.clone(),
             task,
@@ -346,6 +391,7 @@ impl InProcess {
             start,
             costs,
             rollout_times: Vec::new(),
+            reruns,
         })
     }
 
@@ -403,26 +449,61 @@ impl InProcess {
         Ok(())
     }
 
-    /// One update: ask, run the K rollouts, tell.
+    /// One update: ask, run the K rollouts (each one whose costs are not finite again, up to
+    /// `run.nonfinite_reruns` times), tell.
     pub fn step(&mut self, observer: &mut dyn Observer) -> Result<UpdateSummary, SessionError> {
         let before = self.optimizer.distribution().clone();
         let samples = self.optimizer.ask().clone();
+        let update = self.optimizer.update_index();
         self.costs.clear();
+        self.reruns.clear();
         self.rollout_times.clear();
         let timed = observer.wants_rollout_times();
         for k in 0..samples.rollouts {
-            let start = if timed { wall_ns() } else { 0 };
-            let (per_step, terminal) = self.costs.slot_mut(k);
-            // As a pipeline worker hands them (a fresh cost sample): a task that writes only
-            // the steps that cost something, or adds to them, must not find the previous
-            // update's costs there, or it runs another run in-process than in the pipeline.
-            per_step.fill(0.0);
-            *terminal = self.task.rollout(samples.row(k), per_step);
-            if timed {
-                self.rollout_times.push((start, wall_ns()));
+            let mut rerun = false;
+            loop {
+                let start = if timed { wall_ns() } else { 0 };
+                let (per_step, terminal) = self.costs.slot_mut(k);
+                // As a pipeline worker hands them (a fresh cost sample): a task that writes
+                // only the steps that cost something, or adds to them, must not find the
+                // previous update's (or attempt's) costs there, or it runs another run
+                // in-process than in the pipeline.
+                per_step.fill(0.0);
+                *terminal = self.task.rollout(samples.row(k), per_step);
+                if self.config.run.fault_nan(update, k, rerun) {
+                    *terminal = f64::NAN;
+                }
+                // The accepted execution's interval, as the pipeline records it.
+                let end = if timed { wall_ns() } else { 0 };
+                // Without reruns the core's check in `tell` reports it, as it always has.
+                let checked = match self.reruns.limit() {
+                    0 => Ok(()),
+                    _ => self.costs.check_rollout(k),
+                };
+                let Err(error) = checked else {
+                    if timed {
+                        self.rollout_times.push((start, end));
+                    }
+                    break;
+                };
+                match self.reruns.reject(k) {
+                    reruns::Verdict::Rerun { attempt } => observer.on_rerun(&Rerun {
+                        update,
+                        error: &error,
+                        attempt,
+                        limit: self.reruns.limit(),
+                    }),
+                    reruns::Verdict::Fail { reruns } => {
+                        return Err(SessionError::CostAfterReruns {
+                            update,
+                            error,
+                            reruns,
+                        })
+                    }
+                }
+                rerun = true;
             }
         }
-        let update = self.optimizer.update_index();
         let summary = self
             .optimizer
             .tell(&self.costs)
@@ -460,6 +541,9 @@ pub fn run_session(
         }
         fn on_task_change(&mut self, u: u64, c: &TaskChange) {
             self.inner.on_task_change(u, c)
+        }
+        fn on_rerun(&mut self, r: &Rerun<'_>) {
+            self.inner.on_rerun(r)
         }
         fn on_update(&mut self, r: &UpdateRecord<'_>) {
             self.out.push(r.summary.clone());
@@ -772,6 +856,124 @@ mod tests {
         fn set(&mut self, _: &str, _: f64) -> Result<(), TaskError> {
             Ok(())
         }
+    }
+
+    /// The default config with `lines` added to its `[run]` table.
+    fn default_with_run(lines: &str) -> RunConfig {
+        let text = DEFAULT_CONFIG.replace("seed = 1\n", &format!("seed = 1\n{lines}\n"));
+        RunConfig::parse(&text, std::path::Path::new("reruns.toml")).unwrap()
+    }
+
+    /// The messages of the reruns an observer was told of.
+    #[derive(Default)]
+    struct Reruns(Vec<String>);
+    impl Observer for Reruns {
+        fn on_rerun(&mut self, r: &Rerun<'_>) {
+            self.0.push(r.message());
+        }
+    }
+
+    #[test]
+    fn a_transient_non_finite_cost_is_rerun_and_the_run_is_the_one_without_it() {
+        let reference = capture(InProcess::new(&RunConfig::default_config(), 1).unwrap());
+        let cfg = default_with_run(
+            "nonfinite_reruns = 2\nfault_nan_first_attempt = { update = 3, rollout = 7 }",
+        );
+        let mut told = Reruns::default();
+        let mut exec = InProcess::new(&cfg, 1).unwrap();
+        exec.run(&mut told, &|| false).unwrap();
+        assert_eq!(
+            told.0,
+            ["update 3: cost of rollout 7 (terminal) is NaN; costs must be finite (attempt 1 of \
+              at most 3, by in-process): rerunning it with the same parameters \
+              (run.nonfinite_reruns = 2)"]
+        );
+        assert_eq!(capture(InProcess::new(&cfg, 1).unwrap()), reference);
+
+        // Without reruns the same fault fails the run as a non-finite cost always has.
+        let cfg = default_with_run("fault_nan_first_attempt = { update = 3, rollout = 7 }");
+        let mut told = Reruns::default();
+        let e = InProcess::new(&cfg, 1)
+            .unwrap()
+            .run(&mut told, &|| false)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite"
+        );
+        assert!(told.0.is_empty());
+    }
+
+    #[test]
+    fn a_cost_that_stays_non_finite_fails_the_run_after_the_reruns_saying_so() {
+        /// The via-point task whose rollouts of a negative first parameter cost +∞ at step 4.
+        struct Diverges(Box<dyn Task>);
+        impl Task for Diverges {
+            fn name(&self) -> &'static str {
+                "diverges"
+            }
+            fn parameters(&self) -> usize {
+                self.0.parameters()
+            }
+            fn steps(&self) -> usize {
+                self.0.steps()
+            }
+            fn initial_mean(&self) -> Vec<f64> {
+                self.0.initial_mean()
+            }
+            fn rollout(&mut self, theta: &[f64], c: &mut [f64]) -> f64 {
+                let terminal = self.0.rollout(theta, c);
+                if theta[0] < 0.0 {
+                    c[4] = f64::INFINITY;
+                }
+                terminal
+            }
+            fn settings(&self) -> Vec<(&'static str, f64)> {
+                self.0.settings()
+            }
+            fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+                self.0.set(name, value)
+            }
+        }
+        let cfg = default_with_run("nonfinite_reruns = 2");
+        let task = Box::new(Diverges(build_task(&cfg).unwrap()));
+        let mut told = Reruns::default();
+        let e = InProcess::with_task(&cfg, 1, task)
+            .unwrap()
+            .run(&mut told, &|| false)
+            .unwrap_err();
+        let SessionError::CostAfterReruns { update, error, .. } = &e else {
+            panic!("{e}");
+        };
+        let CostError::NonFinite { rollout, .. } = error else {
+            panic!("{e}");
+        };
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "update {update}: cost of rollout {rollout} at step 4 is inf; costs must be \
+                 finite, still after 2 reruns with the same parameters (run.nonfinite_reruns = 2)"
+            )
+        );
+        let attempts: Vec<&str> = told
+            .0
+            .iter()
+            .map(|m| {
+                m.split(" (attempt ")
+                    .nth(1)
+                    .unwrap()
+                    .split(',')
+                    .next()
+                    .unwrap()
+            })
+            .collect();
+        assert_eq!(
+            attempts,
+            ["1 of at most 3", "2 of at most 3"],
+            "{:?}",
+            told.0
+        );
     }
 
     #[test]

@@ -510,6 +510,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             "pipeline.workers"
         },
         recorder: recording.is_some(),
+        reruns: cfg.run.nonfinite_reruns > 0,
         p_field,
         n_field,
     };
@@ -1658,7 +1659,9 @@ impl Supervisor {
                 }
                 let was = self.target_workers;
                 if n > was && !self.no_shm_check {
-                    shm::check_scale(&self.limits, self.recording.is_some(), was, n)?;
+                    let reruns = self.cfg.run.nonfinite_reruns > 0;
+                    let ports = (self.recording.is_some(), reruns);
+                    shm::check_scale(&self.limits, ports, was, n)?;
                 }
                 self.target_workers = n;
                 if matches!(self.phase, Phase::StartWorkers | Phase::Running) {
@@ -2323,6 +2326,13 @@ impl Supervisor {
                     tasks::value_text(c.value),
                     c.from_update,
                     c.source
+                ));
+            }
+            if r.nonfinite_reruns > 0 {
+                say(&format!(
+                    "  {} rollout execution(s) with non-finite costs run again \
+                     (run.nonfinite_reruns = {})",
+                    r.nonfinite_reruns, self.cfg.run.nonfinite_reruns
                 ));
             }
         }

@@ -70,6 +70,8 @@ pub(crate) struct RunSizes<'a> {
     /// `pipeline.workers`, or `--workers` when the command line set it.
     pub workers_field: &'static str,
     pub recorder: bool,
+    /// Whether the updater publishes on `control` (`run.nonfinite_reruns` > 0).
+    pub reruns: bool,
     /// The fields that set P and N (`session::RunConfig::size_fields`).
     pub p_field: String,
     pub n_field: String,
@@ -101,19 +103,24 @@ pub(crate) fn describe(run: &RunSizes) -> Option<String> {
     let space = space(Path::new(SHM_DIR))?;
     match judge(run, &space) {
         Verdict::Fits => None,
-        Verdict::Warn(_) | Verdict::Refuse(_) => {
-            Some(format!(
+        Verdict::Warn(_) | Verdict::Refuse(_) => Some(format!(
             "not checking that this run's iceoryx2 services fit in {SHM_DIR}: the estimate is up \
              to {} with {} free",
-            size(run.limits.shared_memory(run.workers, run.recorder, space.block).total()),
+            size(
+                run.limits
+                    .shared_memory(run.workers, run.recorder, run.reruns, space.block)
+                    .total()
+            ),
             size(space.free)
-        ))
-        }
+        )),
     }
 }
 
 pub(crate) fn judge(run: &RunSizes, space: &Space) -> Verdict {
-    let need_of = |workers| run.limits.shared_memory(workers, run.recorder, space.block);
+    let need_of = |workers| {
+        run.limits
+            .shared_memory(workers, run.recorder, run.reruns, space.block)
+    };
     let need = need_of(run.workers);
     if need.total() > space.free {
         return Verdict::Refuse(refusal(run, &need, space));
@@ -155,24 +162,28 @@ pub(crate) fn judge(run: &RunSizes, space: &Space) -> Verdict {
 /// from it). `Err` is the refusal; nothing to say if /dev/shm cannot be inspected.
 pub(crate) fn check_scale(
     limits: &Limits,
-    recorder: bool,
+    (recorder, reruns): (bool, bool),
     from: usize,
     to: usize,
 ) -> Result<(), String> {
     match space(Path::new(SHM_DIR)) {
-        Some(space) => judge_scale(limits, recorder, from, to, &space),
+        Some(space) => judge_scale(limits, (recorder, reruns), from, to, &space),
         None => Ok(()),
     }
 }
 
 fn judge_scale(
     limits: &Limits,
-    recorder: bool,
+    (recorder, reruns): (bool, bool),
     from: usize,
     to: usize,
     space: &Space,
 ) -> Result<(), String> {
-    let need_of = |workers| limits.shared_memory(workers, recorder, space.block).total();
+    let need_of = |workers| {
+        limits
+            .shared_memory(workers, recorder, reruns, space.block)
+            .total()
+    };
     let more = need_of(to).saturating_sub(need_of(from));
     if more <= space.free {
         return Ok(());
@@ -257,6 +268,7 @@ mod tests {
             workers: 8,
             workers_field: "pipeline.workers",
             recorder: true,
+            reruns: false,
             p_field: "task.tball.basis_functions".into(),
             n_field: "task.tball.dt".into(),
         };
@@ -271,7 +283,7 @@ mod tests {
     #[test]
     fn a_run_that_does_not_fit_is_refused_naming_the_need_the_space_and_the_fields() {
         let (run, space) = tball_large(8 << 20);
-        let need = run.limits.shared_memory(8, true, 4096).total();
+        let need = run.limits.shared_memory(8, true, false, 4096).total();
         assert!(need > space.free, "{need}");
         let Verdict::Refuse(e) = judge(&run, &space) else {
             panic!("not refused");
@@ -300,7 +312,7 @@ mod tests {
     fn a_run_close_to_the_free_space_is_warned_about_and_one_with_room_is_not() {
         let (mut run, space) = tball_large(0);
         run.limits.max_workers = run.workers;
-        let need = run.limits.shared_memory(8, true, 4096).total();
+        let need = run.limits.shared_memory(8, true, false, 4096).total();
         let close = Space {
             free: need + need / 20,
             ..space
@@ -334,7 +346,7 @@ mod tests {
     fn room_for_fewer_workers_than_max_workers_is_said() {
         let (mut run, space) = tball_large(0);
         run.workers = 2;
-        let need = |w| run.limits.shared_memory(w, true, 4096).total();
+        let need = |w| run.limits.shared_memory(w, true, false, 4096).total();
         let free = Space {
             free: (need(12) + need(13)) / 2,
             ..space
@@ -361,15 +373,18 @@ mod tests {
     #[test]
     fn scaling_up_is_refused_when_the_new_workers_do_not_fit() {
         let (run, _) = tball_large(0);
-        let need = |w| run.limits.shared_memory(w, true, 4096).total();
+        let need = |w| run.limits.shared_memory(w, true, false, 4096).total();
         let more = need(12) - need(8);
         let space = |free| Space {
             free,
             total: 64 << 20,
             block: 4096,
         };
-        assert_eq!(judge_scale(&run.limits, true, 8, 12, &space(more)), Ok(()));
-        let e = judge_scale(&run.limits, true, 8, 12, &space(more - 1)).unwrap_err();
+        assert_eq!(
+            judge_scale(&run.limits, (true, false), 8, 12, &space(more)),
+            Ok(())
+        );
+        let e = judge_scale(&run.limits, (true, false), 8, 12, &space(more - 1)).unwrap_err();
         assert!(
             e.starts_with("cannot scale to 12 workers: they need about")
                 && e.contains("SIGBUS")
@@ -378,6 +393,9 @@ mod tests {
             "{e}"
         );
         // Scaling down never needs room.
-        assert_eq!(judge_scale(&run.limits, true, 8, 2, &space(0)), Ok(()));
+        assert_eq!(
+            judge_scale(&run.limits, (true, false), 8, 2, &space(0)),
+            Ok(())
+        );
     }
 }

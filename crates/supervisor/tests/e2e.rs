@@ -1577,6 +1577,136 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert_nothing_left(&run);
 }
 
+/// Config edit: `run.nonfinite_reruns = 2`, and the lines `more` in `[run]` too.
+fn reruns(more: &str) -> (&'static str, String) {
+    (
+        "seed = 1\n",
+        format!("seed = 1\nnonfinite_reruns = 2\n{more}"),
+    )
+}
+
+/// The warnings a recording logged.
+fn warnings(rec: &record::Recording) -> Vec<(u64, String, String)> {
+    rec.logs
+        .iter()
+        .filter(|l| l.event == "warning")
+        .map(|l| (l.update, l.name.clone(), l.message.clone()))
+        .collect()
+}
+
+/// A rollout whose first execution reports NaN (a sensor dropout) is run again, by whichever
+/// worker, with the same parameters: the run goes on, ends bit for bit where the in-process
+/// run with the same fault does (and the run without it), logs the rejected execution as a
+/// warning, and records the accepted costs, from which every update recomputes.
+#[test]
+fn a_transient_non_finite_cost_is_rerun_and_the_run_stays_bit_identical() {
+    let scratch = Scratch::new("rerun");
+    let (from, to) = reruns("fault_nan_first_attempt = { update = 3, rollout = 7 }\n");
+    let text = config(&[(from, to.as_str()), DELAYED]);
+    let cfg = write_config(&scratch, "rerun.toml", &text);
+    let (mcap, result) = (
+        scratch.path("rerun.mcap"),
+        scratch.path("rerun.toml.result"),
+    );
+    let args = [
+        cfg.to_str().unwrap(),
+        "--workers",
+        "2",
+        "--quiet",
+        "--record",
+        mcap.to_str().unwrap(),
+        "--result",
+        result.to_str().unwrap(),
+    ];
+    let mut run = Run::start(&scratch, 1100, &args);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(
+        out.contains(
+            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite (attempt 1 of \
+             at most 3, by worker-"
+        ),
+        "{out}"
+    );
+    assert!(
+        out.contains(
+            "1 rollout execution(s) with non-finite costs run again (run.nonfinite_reruns = 2)"
+        ),
+        "{out}"
+    );
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!((r.updates, r.complete, r.nonfinite_reruns), (40, true, 1));
+    assert_bit_identical(&text, &result);
+    // The fault changes nothing once rerun: the run without it.
+    assert_bit_identical(&config(&[DELAYED]), &result);
+
+    let rec = record::read_recording(&mcap).unwrap();
+    assert_recorded(&rec, 40);
+    assert_recording_matches_in_process(&text, &rec);
+    let logged = warnings(&rec);
+    assert_eq!(logged.len(), 1, "{logged:?}");
+    let (update, name, message) = &logged[0];
+    assert_eq!(*update, 3);
+    assert!(name == "worker-0" || name == "worker-1", "{name}");
+    assert_eq!(
+        *message,
+        format!(
+            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite (attempt 1 of \
+             at most 3, by {name}): rerunning it with the same parameters \
+             (run.nonfinite_reruns = 2)"
+        )
+    );
+    // One accepted execution of each rollout.
+    let of_update_3 = rec.rollouts.iter().filter(|r| r.update == 3).count();
+    assert_eq!(of_update_3, 15);
+    assert_nothing_left(&run);
+}
+
+/// A cost that stays non-finite is no transient fault: after `run.nonfinite_reruns` reruns the
+/// run fails as without them, and says how many were tried.
+#[test]
+fn a_cost_that_stays_non_finite_fails_the_run_after_the_reruns() {
+    let scratch = Scratch::new("rerun-fails");
+    let (from, to) = reruns("");
+    let text = config(&[
+        (from, to.as_str()),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nfault_nan_from_update = 3",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "persists.toml", &text);
+    let mcap = scratch.path("persists.mcap");
+    let args = [
+        cfg.to_str().unwrap(),
+        "--workers",
+        "2",
+        "--record",
+        mcap.to_str().unwrap(),
+    ];
+    let mut run = Run::start(&scratch, 1101, &args);
+    run.wait_exit(Duration::from_secs(30), 1);
+    let out = run.text();
+    assert!(
+        out.contains("NaN; costs must be finite (reported by worker-")
+            && out.contains(
+                "), still after 2 reruns with the same parameters (run.nonfinite_reruns = 2)"
+            ),
+        "{out}"
+    );
+    assert!(out.contains("update 3: cost of rollout "), "{out}");
+    let rec = record::read_recording(&mcap).unwrap();
+    assert_eq!(update_indices(&rec), (0..3).collect::<Vec<_>>());
+    let logged = warnings(&rec);
+    assert!(
+        logged
+            .iter()
+            .any(|(u, _, m)| *u == 3 && m.contains("(attempt 2 of at most 3, by worker-")),
+        "{logged:?}"
+    );
+    assert_nothing_left(&run);
+}
+
 /// `--result` is written when the run ends, maybe days later: a place it cannot be written is
 /// refused before anything starts, and one that goes away during the run still gets the
 /// summary and leaves nothing behind.

@@ -23,7 +23,7 @@
 //! | `progress` | [`Progress`] | – | updater → supervisor |
 //! | `recorded` | [`RecorderAck`] | – | recorder → updater |
 //! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
-//! | `control` | [`Control`] | – | supervisor → sampler, updater |
+//! | `control` | [`Control`] | – | supervisor → sampler, updater; updater → sampler ([`Control::RERUN`], only with `run.nonfinite_reruns` > 0) |
 //! | `overdue` | [`Overdue`] | – | sampler → supervisor |
 //!
 //! Every receiving process owns one event service, its doorbell: `wake/updater`,
@@ -56,6 +56,10 @@
 //!    sends [`Ready`] with [`Ready::NO_CHUNK`] and rings `wake/sampler`.
 //! 4. The updater stores cost (u, k) (duplicates and other updates are ignored, so a rollout may
 //!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
+//!    A cost that is not finite fails the run, unless `run.nonfinite_reruns` allows another
+//!    execution of rollout k: then the updater publishes [`Control::RERUN`] on `control` and
+//!    rings `wake/sampler`, which hands rollout k out again (same θ, [`WorkHeader::RERUN`]
+//!    set), and the update waits for it.
 //!
 //! # The recorder
 //!
@@ -189,7 +193,7 @@ pub struct WorkHeader {
     pub steps: u32,
     /// Valid entries of `settings`.
     pub settings_len: u32,
-    /// [`WorkHeader::QUEUE_EMPTY`] or 0.
+    /// [`WorkHeader::QUEUE_EMPTY`], [`WorkHeader::RERUN`], or 0.
     pub flags: u32,
     /// Task settings for `update` (see [`DistributionHeader::settings`]).
     pub settings: [f64; MAX_SETTINGS],
@@ -205,6 +209,10 @@ impl WorkHeader {
     /// next distribution or a lost worker wakes it anyway. A worker that ignores the flag and
     /// always rings is still correct, only slower.
     pub const QUEUE_EMPTY: u32 = 1;
+    /// An execution of this rollout reported costs that were not finite, and the updater asked
+    /// for it again ([`Control::RERUN`]). Information for the worker (a robot may want to reset
+    /// before it tries again); the parameters are the same.
+    pub const RERUN: u32 = 2;
 }
 
 /// Header of a `costs` sample. Payload: the N immediate costs q_i.
@@ -449,10 +457,13 @@ pub struct Overdue {
 pub struct Control {
     pub run_id: u64,
     pub kind: u32,
-    /// For [`Control::WORKER_LOST`].
+    /// For [`Control::WORKER_LOST`]; for [`Control::RERUN`], the worker whose costs were not
+    /// finite.
     pub worker: u32,
+    /// For [`Control::WORKER_LOST`]; for [`Control::RERUN`], the execution rejected (1: the
+    /// first).
     pub incarnation: u32,
-    /// For [`Control::WORKER_LOST`]: one of [`lost`].
+    /// For [`Control::WORKER_LOST`]: one of [`lost`]; for [`Control::RERUN`], the rollout.
     pub reason: u32,
     /// Length of `name` in bytes (UTF-8).
     pub name_len: u32,
@@ -463,7 +474,7 @@ pub struct Control {
     pub name: [u8; MAX_NAME],
     pub value: f64,
     /// For [`Control::SET_TASK`]: the sender's number for the change (from 1), echoed in
-    /// [`Progress::last_change_seq`].
+    /// [`Progress::last_change_seq`]; for [`Control::RERUN`], the update.
     pub seq: u64,
 }
 
@@ -494,6 +505,10 @@ impl Control {
     /// A restarted recorder is subscribed: hold back for its acknowledgements again, counted
     /// from the update at hand (updater).
     pub const RECORDER_BACK: u32 = 5;
+    /// From the updater, when `run.nonfinite_reruns` > 0: an execution of a rollout reported
+    /// costs that were not finite; hand the rollout out again (sampler), with
+    /// [`WorkHeader::RERUN`]. Made by [`Control::rerun`], read by [`Control::rerun_of`].
+    pub const RERUN: u32 = 6;
 
     /// A message of `kind` without arguments.
     pub fn plain(run_id: u64, kind: u32) -> Self {
@@ -521,6 +536,23 @@ impl Control {
             reason,
             ..Self::plain(run_id, Self::WORKER_LOST).with_name(how)
         }
+    }
+
+    /// [`Control::RERUN`] of rollout `rollout` of update `update`, whose execution number
+    /// `attempt` by worker `worker` was rejected.
+    pub fn rerun(run_id: u64, update: u64, rollout: u32, worker: u32, attempt: u32) -> Self {
+        Self {
+            seq: update,
+            reason: rollout,
+            worker,
+            incarnation: attempt,
+            ..Self::plain(run_id, Self::RERUN)
+        }
+    }
+
+    /// (update, rollout) of a [`Control::RERUN`]; `None` for other kinds.
+    pub fn rerun_of(&self) -> Option<(u64, u32)> {
+        (self.kind == Self::RERUN).then_some((self.seq, self.reason))
     }
 
     /// Change number `seq`; `None` if the name is longer than [`MAX_NAME`] bytes.
@@ -1034,7 +1066,8 @@ pub fn notes(
     fixed_service(node, run_id, "notes", l.settings(PubSub::Notes))
 }
 
-/// `control`: 2 publishers, 4 subscribers, a buffer of 2·max_workers + 16.
+/// `control`: 2 publishers (the supervisor; the updater, with `run.nonfinite_reruns` > 0), 4
+/// subscribers, a buffer of 2·max_workers + 16.
 pub fn control(
     node: &Node<Service>,
     run_id: u64,
@@ -1188,5 +1221,15 @@ mod tests {
         let long = format!("{}é", "x".repeat(MAX_NAME - 1));
         let c = Control::worker_lost(7, 0, 0, 42, lost::EXITED, &long);
         assert_eq!(c.name(), "x".repeat(MAX_NAME - 1));
+    }
+
+    #[test]
+    fn a_rerun_names_its_update_and_rollout_and_only_a_rerun_does() {
+        let c = Control::rerun(7, u64::MAX - 1, 14, 3, 2);
+        assert_eq!(c.rerun_of(), Some((u64::MAX - 1, 14)));
+        assert_eq!((c.run_id, c.worker, c.incarnation), (7, 3, 2));
+        let lost = Control::worker_lost(7, 14, 2, 42, lost::CRASHED, "");
+        assert_eq!(lost.rerun_of(), None);
+        assert_eq!(Control::plain(7, Control::START).rerun_of(), None);
     }
 }

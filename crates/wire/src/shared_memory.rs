@@ -65,8 +65,9 @@ const FREE_LIST_PER_SAMPLE: usize = 4;
 
 impl Limits {
     /// The bytes of `/dev/shm` a run with `workers` worker processes (and the recorder, if
-    /// `recorder`) takes at its peak, on a file system that allocates `page` bytes at a time:
-    /// an upper estimate. Counted are the files iceoryx2 creates for the run's ports (see the
+    /// `recorder`; and the updater's publisher on `control`, if `reruns`, as with a positive
+    /// `run.nonfinite_reruns`) takes at its peak, on a file system that allocates `page` bytes
+    /// at a time: an upper estimate. Counted are the files iceoryx2 creates for the run's ports (see the
     /// service functions and the crate documentation's table for who publishes and subscribes
     /// what):
     ///
@@ -92,7 +93,13 @@ impl Limits {
     /// Every file takes whole pages. Not counted: the segments of a crashed worker until they
     /// are cleaned up (within a second), and workers beyond `workers` that join or are scaled
     /// to (with `workers` = [`Limits::max_workers`], what the most would take).
-    pub fn shared_memory(&self, workers: usize, recorder: bool, page: u64) -> SharedMemoryNeed {
+    pub fn shared_memory(
+        &self,
+        workers: usize,
+        recorder: bool,
+        reruns: bool,
+        page: u64,
+    ) -> SharedMemoryNeed {
         let page = page.max(1) as usize;
         let w = workers.max(1);
         let rec = usize::from(recorder);
@@ -149,7 +156,12 @@ impl Limits {
                 2 + w + rec,
                 1 + rec,
             ),
-            (PubSub::Control, size_of::<Control>(), 1, 2 + rec),
+            (
+                PubSub::Control,
+                size_of::<Control>(),
+                1 + usize::from(reruns),
+                2 + rec,
+            ),
             (PubSub::Overdue, size_of::<Overdue>(), 1, 1),
             (PubSub::Notes, size_of::<RunNote>(), 1, rec),
         ];
@@ -289,7 +301,10 @@ mod tests {
     #[test]
     fn the_estimate_bounds_what_real_runs_took_and_not_by_much_more() {
         for m in MEASURED {
-            let estimate = m.limits.shared_memory(m.workers, m.recorder, PAGE).total();
+            let estimate = m
+                .limits
+                .shared_memory(m.workers, m.recorder, false, PAGE)
+                .total();
             let ratio = estimate as f64 / m.bytes as f64;
             println!(
                 "{}: estimate {estimate}, measured {}, ratio {ratio:.2}",
@@ -298,6 +313,21 @@ mod tests {
             // Below the peak of a real run is what must never happen; well above it refuses
             // runs that would fit.
             assert!((1.0..3.0).contains(&ratio), "{}: {ratio}", m.run);
+        }
+    }
+
+    /// The updater's publisher on `control` (reruns of non-finite costs): a small segment and
+    /// its connections, counted only when the run has it.
+    #[test]
+    fn the_updaters_control_publisher_is_counted_when_reruns_are_on() {
+        let a1 = MEASURED[0].limits;
+        for recorder in [false, true] {
+            let without = a1.shared_memory(3, recorder, false, PAGE).total();
+            let with = a1.shared_memory(3, recorder, true, PAGE).total();
+            assert!(
+                with > without && with - without <= 32 * 1024,
+                "{without} → {with}"
+            );
         }
     }
 
