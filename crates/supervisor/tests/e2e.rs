@@ -3153,6 +3153,10 @@ fn a_change_refused_in_the_update_a_run_stops_in_is_not_resumed_with() {
         &format!("update {from}: the task refused target_y = 5"),
         Instant::now() + Duration::from_secs(30),
     );
+    // Until one of the update's rollouts has reported (each takes 300 ms, the update 1.5 s): a
+    // stop abandons the rollouts under way (`pipeline::worker::stop_requested()`), and a change
+    // is known to be refused only from a cost that ran without it.
+    std::thread::sleep(Duration::from_millis(700));
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
     let out = run.text();
