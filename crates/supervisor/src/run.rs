@@ -2010,7 +2010,9 @@ impl Supervisor {
                     ));
                     return;
                 }
-                if status.success() {
+                // One that exits before it has announced itself ran nothing: a start that
+                // failed, restarted as such (taken for a stop, it ended the run with exit 0).
+                if status.success() && p.ready {
                     self.exited_on_purpose(w, pid, &cause);
                     return;
                 }
@@ -2132,7 +2134,8 @@ impl Supervisor {
         }
     }
 
-    /// Worker `w` (pid `pid`) exited with status 0 unasked: a task that ended its worker on
+    /// Worker `w` (pid `pid`) exited with status 0 unasked, after it had announced itself: a
+    /// task that ended its worker on
     /// purpose (`sys.exit(0)` in a Python rollout, `std::process::exit(0)`, an operator's
     /// `kill` of the worker, which ends it in order). Restarting it would undo that and spend
     /// the restart limit on it, so it is taken as a scale-down by one: its slot is freed, its

@@ -4408,6 +4408,32 @@ fn a_recorder_stopped_before_it_created_its_file_is_not_said_to_leave_one() {
     assert_nothing_left(&run);
 }
 
+/// A worker that exits with status 0 before it has announced itself ran nothing: that is a
+/// failed start, restarted as a crash (and with `restart_limit = 0` it fails the run), not a
+/// stop on purpose, which would end the run with exit 0 as if all were well.
+#[test]
+fn a_worker_that_exits_0_before_announcing_itself_is_a_failed_start() {
+    use std::os::unix::fs::PermissionsExt;
+    let scratch = Scratch::new("exit-0-early");
+    let script = scratch.path("quits.sh");
+    std::fs::write(&script, "#!/bin/sh\nexit 0\n").unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let text = external_config_from(
+        "external-reach.toml",
+        "../target/release/examples/reach-worker",
+        &script,
+        &[("workers = 2", "workers = 1\nrestart_limit = 0")],
+    );
+    assert_run_fails_saying_not(
+        &scratch,
+        1304,
+        "quits.toml",
+        &text,
+        &["worker-0 died (exit status: 0) after 0 restarts"],
+        &["taken as stopped on purpose"],
+    );
+}
+
 /// A Python worker without iceoryx2 (the tools' requirements not installed) says so and is not
 /// restarted: every restart would meet the same (it was restarted up to the limit).
 #[test]
