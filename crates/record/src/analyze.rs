@@ -209,7 +209,11 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
                 }
             }
             if !args.no_plots {
-                for p in plot(rec, &sub)? {
+                let figures = plot(rec, &sub)?;
+                if figures.is_empty() {
+                    let _ = writeln!(out, "  {NOTHING_TO_PLOT}");
+                }
+                for p in figures {
                     let _ = writeln!(out, "  wrote {}", p.display());
                 }
             }
@@ -1001,6 +1005,16 @@ fn draw_curves(
     area.fill(&WHITE).map_err(|x| e(&x))?;
     let (top, bottom) = area.split_vertically((area.dim_in_pixel().1 as f64 * 0.62) as u32);
     let xmax = curves.iter().map(|c| c.x_max).fold(1.0f64, f64::max);
+    // A single update would sit on the axis at update 0: centred instead.
+    let lone = curves
+        .iter()
+        .all(|c| c.pieces.iter().map(|p| p.line.len()).sum::<usize>() <= 1);
+    let last = curves.iter().map(|c| c.x_max).fold(0.0f64, f64::max);
+    let (xmin, xmax) = if lone {
+        (last - 1.0, last + 1.0)
+    } else {
+        (0.0, xmax)
+    };
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for p in curves.iter().flat_map(|c| &c.pieces) {
         for (_, y) in p.line.iter().chain(p.band.iter().flatten()) {
@@ -1014,7 +1028,7 @@ fn draw_curves(
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(70)
-        .build_cartesian_2d(0f64..xmax, lo..hi)
+        .build_cartesian_2d(xmin..xmax, lo..hi)
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
@@ -1028,20 +1042,35 @@ fn draw_curves(
         // Updates a recording lacks (a restarted recorder's gap) break the line, rather than
         // being drawn over as if they had been there.
         for (n, p) in c.pieces.iter().enumerate() {
+            // A line and a band through one update (a run of one update, or one between two
+            // missing ones) are invisible: that update is a dot with a bar instead.
+            let single = p.line.len() == 1;
             if let Some(b) = &p.band {
-                chart
-                    .draw_series(std::iter::once(Polygon::new(
-                        b.clone(),
-                        color.mix(0.2).filled(),
-                    )))
-                    .map_err(|x| e(&x))?;
+                if single {
+                    chart
+                        .draw_series(std::iter::once(PathElement::new(
+                            b.clone(),
+                            color.mix(0.5).stroke_width(3),
+                        )))
+                        .map_err(|x| e(&x))?;
+                } else {
+                    chart
+                        .draw_series(std::iter::once(Polygon::new(
+                            b.clone(),
+                            color.mix(0.2).filled(),
+                        )))
+                        .map_err(|x| e(&x))?;
+                }
             }
-            let line = chart
-                .draw_series(LineSeries::new(
+            let line = if single {
+                chart.draw_series(p.line.iter().map(|pt| Circle::new(*pt, 3, color.filled())))
+            } else {
+                chart.draw_series(LineSeries::new(
                     p.line.iter().copied(),
                     color.stroke_width(2),
                 ))
-                .map_err(|x| e(&x))?;
+            }
+            .map_err(|x| e(&x))?;
             if n == 0 {
                 line.label(c.label.clone()).legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
@@ -1072,7 +1101,7 @@ fn draw_curves(
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(70)
-        .build_cartesian_2d(0f64..xmax, (llo..lhi).log_scale())
+        .build_cartesian_2d(xmin..xmax, (llo..lhi).log_scale())
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
@@ -1085,24 +1114,36 @@ fn draw_curves(
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         for p in c.pieces.iter().filter(|p| !p.lambda.is_empty()) {
-            chart
-                .draw_series(LineSeries::new(
-                    p.lambda.iter().copied().filter(|(_, l)| *l > 0.0),
-                    color.stroke_width(2),
-                ))
-                .map_err(|x| e(&x))?;
+            let positive = p.lambda.iter().copied().filter(|(_, l)| *l > 0.0);
+            if p.lambda.len() == 1 {
+                chart
+                    .draw_series(positive.map(|pt| Circle::new(pt, 3, color.filled())))
+                    .map_err(|x| e(&x))?;
+            } else {
+                chart
+                    .draw_series(LineSeries::new(positive, color.stroke_width(2)))
+                    .map_err(|x| e(&x))?;
+            }
         }
     }
     area.present().map_err(|x| e(&x))?;
     Ok(())
 }
 
+/// What `analyze` says for a recording without updates instead of drawing figures.
+pub const NOTHING_TO_PLOT: &str = "no figures: no update recorded, nothing to plot";
+
 /// Draws the figures of one recording into `dir`: `learning_curve.svg`, `worker_time.svg`, and
-/// for 2-D policies `distribution.svg`.
+/// for 2-D policies `distribution.svg`; none (an empty list) for a recording without updates
+/// ([`NOTHING_TO_PLOT`]).
 pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
+    let points = &rec.digest.points;
+    if points.is_empty() {
+        // Empty axes presented as figures; the callers say there is nothing to plot.
+        return Ok(Vec::new());
+    }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let mut files = Vec::new();
-    let points = &rec.digest.points;
     let changes: Vec<u64> = rec.task_changes.iter().map(|c| c.update).collect();
 
     let path = dir.join("learning_curve.svg");
@@ -1988,6 +2029,15 @@ pub fn experiment(
             );
         }
     }
+    // Mean curves without a point (no session with an update, or sessions without a common
+    // update) are empty axes: not drawn.
+    let drawable = curves.iter().any(|c| !c.pieces.is_empty());
+    if figures && out.is_some() && !drawable {
+        notes.push(
+            "mean_curves.svg not drawn: no update every session of a run has, nothing to plot"
+                .to_string(),
+        );
+    }
     let t = &mut report.table;
     let _ = writeln!(
         t,
@@ -2029,7 +2079,7 @@ pub fn experiment(
         let p = dir.join("reconvergence.md");
         std::fs::write(&p, &report.table).map_err(io(&p))?;
         report.files.push(p);
-        if figures {
+        if figures && drawable {
             let p = dir.join("mean_curves.svg");
             {
                 let root = SVGBackend::new(&p, (900, 650)).into_drawing_area();
@@ -2194,6 +2244,33 @@ mod tests {
         );
         assert_eq!(timeline(&r, 100).len(), 10);
         assert!(timeline(&Recording::default(), 10).is_empty());
+    }
+
+    /// A recording without updates gets no figures (they were empty axes) and says so; one
+    /// of a single update gets that update drawn (a line through one point was invisible).
+    #[test]
+    fn a_recording_of_0_or_1_update_has_no_empty_figures() {
+        let dir = std::env::temp_dir().join(format!("pi2cma-0-1-updates-{}", std::process::id()));
+        let mut none = rec_with(&[], None);
+        none.run.push(proto::RunInfo::default());
+        assert!(plot(&none, &dir.join("none")).unwrap().is_empty());
+        assert!(!dir.join("none").exists());
+        let report = experiment(&[none], Some(&dir), 0.05, true, false).unwrap();
+        assert!(
+            report.table.contains("mean_curves.svg not drawn"),
+            "{}",
+            report.table
+        );
+        assert!(!dir.join("mean_curves.svg").exists());
+
+        let mut one = rec_with(&[3.0], None);
+        one.run.push(proto::RunInfo::default());
+        let files = plot(&one, &dir.join("one")).unwrap();
+        assert!(files.iter().any(|f| f.ends_with("learning_curve.svg")));
+        let svg = std::fs::read_to_string(dir.join("one/learning_curve.svg")).unwrap();
+        // The eval cost and λ as dots, the exploration band as a bar with its dot.
+        assert_eq!(svg.matches("<circle").count(), 3, "{svg}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// Rollouts of a microsecond on a timeline of milliseconds (pipelined via-point runs): every

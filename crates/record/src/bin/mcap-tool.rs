@@ -149,7 +149,11 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Command::Plot { file, out } => {
-            for p in analyze::plot(&read_recording_slim(&file)?, &out)? {
+            let figures = analyze::plot(&read_recording_slim(&file)?, &out)?;
+            if figures.is_empty() {
+                println!("{}: {}", file.display(), analyze::NOTHING_TO_PLOT);
+            }
+            for p in figures {
                 println!("wrote {}", p.display());
             }
             Ok(())
