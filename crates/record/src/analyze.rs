@@ -1662,6 +1662,13 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
+/// The task a run's config names (`[task.<kind>]`), if its recording has the config.
+fn task_of(r: &Recording) -> Option<String> {
+    let config: toml::Table = r.run_info()?.config_toml.parse().ok()?;
+    let task = config.get("task")?.as_table()?;
+    task.keys().next().cloned()
+}
+
 /// The eval cost over sessions (mean, sample std) and their mean λ at one update.
 struct Common {
     update: u64,
@@ -1958,14 +1965,21 @@ pub fn experiment(
             }
         }
         let column = |v: fn(&Common) -> f64| common.iter().map(v).collect::<Vec<f64>>();
-        curves.push(Curve::new(
-            format!("{name} ({} sessions)", sessions.len()),
-            Values {
-                x: &column(|c| c.update as f64),
-                y: &column(|c| c.mean),
-                band: Some(&column(|c| c.std)),
-                lambda: Some(&column(|c| c.lambda)),
-            },
+        let task = sessions
+            .first()
+            .and_then(|r| task_of(r))
+            .unwrap_or_default();
+        curves.push((
+            task,
+            Curve::new(
+                format!("{name} ({} sessions)", sessions.len()),
+                Values {
+                    x: &column(|c| c.update as f64),
+                    y: &column(|c| c.mean),
+                    band: Some(&column(|c| c.std)),
+                    lambda: Some(&column(|c| c.lambda)),
+                },
+            ),
         ));
 
         // Re-convergence per session and segment.
@@ -2029,14 +2043,44 @@ pub fn experiment(
             );
         }
     }
+    // One figure per task: a via-point cost of hundreds and a T-ball cost of a few on one axis
+    // flattened the one into the other (and a λ of 2000 beside one of 0.02).
+    let mut tasks: Vec<(String, Vec<Curve>)> = Vec::new();
+    for (task, c) in curves {
+        match tasks.iter_mut().find(|(t, _)| *t == task) {
+            Some((_, cs)) => cs.push(c),
+            None => tasks.push((task, vec![c])),
+        }
+    }
+    let one_task = tasks.len() <= 1;
+    let figure_name = |task: &str| {
+        if one_task {
+            "mean_curves.svg".to_string()
+        } else {
+            format!(
+                "mean_curves-{}.svg",
+                if task.is_empty() { "unknown" } else { task }
+            )
+        }
+    };
     // Mean curves without a point (no session with an update, or sessions without a common
     // update) are empty axes: not drawn.
-    let drawable = curves.iter().any(|c| !c.pieces.is_empty());
-    if figures && out.is_some() && !drawable {
-        notes.push(
-            "mean_curves.svg not drawn: no update every session of a run has, nothing to plot"
-                .to_string(),
-        );
+    let drawable = |cs: &[Curve]| cs.iter().any(|c| !c.pieces.is_empty());
+    if figures && out.is_some() {
+        if tasks.iter().all(|(_, cs)| !drawable(cs)) {
+            notes.push(
+                "mean_curves.svg not drawn: no update every session of a run has, nothing to plot"
+                    .to_string(),
+            );
+        }
+        if !one_task {
+            let names: Vec<String> = tasks.iter().map(|(t, _)| figure_name(t)).collect();
+            notes.push(format!(
+                "the runs are of {} tasks: their mean curves are drawn per task, in {}",
+                tasks.len(),
+                names.join(", ")
+            ));
+        }
     }
     let t = &mut report.table;
     let _ = writeln!(
@@ -2058,9 +2102,11 @@ pub fn experiment(
     let _ = writeln!(t, "| run | segment from update | sessions | converged | updates to converge (mean ± std) | converged at (mean) | eval cost at the segment's end (mean ± std) |");
     let _ = writeln!(t, "|---|---|---|---|---|---|---|");
     t.push_str(&rows);
-    let changes: Vec<u64> = {
+    // The task changes of the runs of `task` (of every run given, for one task).
+    let changes = |task: &str| {
         let mut c: Vec<u64> = recs
             .iter()
+            .filter(|r| one_task || task_of(r).unwrap_or_default() == task)
             .flat_map(|r| r.task_changes.iter().map(|c| c.update))
             .collect();
         c.sort_unstable();
@@ -2079,18 +2125,17 @@ pub fn experiment(
         let p = dir.join("reconvergence.md");
         std::fs::write(&p, &report.table).map_err(io(&p))?;
         report.files.push(p);
-        if figures && drawable {
-            let p = dir.join("mean_curves.svg");
+        for (task, cs) in tasks.iter().filter(|(_, cs)| figures && drawable(cs)) {
+            let p = dir.join(figure_name(task));
+            let title = if one_task {
+                "eval cost: mean ± std over sessions".to_string()
+            } else {
+                format!("{task}: eval cost, mean ± std over sessions")
+            };
             {
                 let root = SVGBackend::new(&p, (900, 650)).into_drawing_area();
-                draw_curves(
-                    &root,
-                    "eval cost: mean ± std over sessions",
-                    &curves,
-                    &changes,
-                    "eval cost",
-                )
-                .map_err(perr(&p, "mean_curves"))?;
+                draw_curves(&root, &title, cs, &changes(task), "eval cost")
+                    .map_err(perr(&p, "mean_curves"))?;
             }
             report.files.push(p);
         }
@@ -2503,6 +2548,35 @@ mod tests {
             t.contains("| A1 (h = 20,") && t.contains("| 8.0000 ± 0.0000 |"),
             "{t}"
         );
+    }
+
+    /// Via-point and T-ball sessions in one experiment: a figure per task, not both on one
+    /// axis (costs of hundreds beside costs of a few).
+    #[test]
+    fn mean_curves_of_different_tasks_are_drawn_apart() {
+        let dir = std::env::temp_dir().join(format!("pi2cma-tasks-{}", std::process::id()));
+        let of_task = |name: &str, seed, task: &str, costs: &[f64]| {
+            let mut r = session(name, seed, 10.0, costs);
+            r.run[0].config_toml = format!("[task.{task}]\nduration = 1.0\n");
+            r
+        };
+        let recs = [
+            of_task("A1", 1, "via-point", &[400.0, 300.0, 200.0]),
+            of_task("A1", 2, "via-point", &[500.0, 350.0, 250.0]),
+            of_task("tball", 1, "tball", &[4.0, 2.0, 1.0]),
+        ];
+        let report = experiment(&recs, Some(&dir), 0.05, true, false).unwrap();
+        assert!(!dir.join("mean_curves.svg").exists(), "{}", report.table);
+        let via = std::fs::read_to_string(dir.join("mean_curves-via-point.svg")).unwrap();
+        let tball = std::fs::read_to_string(dir.join("mean_curves-tball.svg")).unwrap();
+        assert!(via.contains("A1 (2 sessions)") && !via.contains("tball (1 sessions)"));
+        assert!(tball.contains("tball (1 sessions)") && !tball.contains("A1 (2 sessions)"));
+        assert!(report.table.contains("drawn per task"), "{}", report.table);
+        // One task: one mean_curves.svg, as before.
+        std::fs::remove_dir_all(&dir).unwrap();
+        experiment(&recs[..2], Some(&dir), 0.05, true, false).unwrap();
+        assert!(dir.join("mean_curves.svg").is_file());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
