@@ -36,6 +36,7 @@ EXPECTED_TOPICS = {
     "/rollout": "pi2cma.record.Rollout",
     "/task_change": "pi2cma.record.TaskChange",
     "/log": "foxglove.Log",
+    "/unfinished_update": "pi2cma.record.UnfinishedUpdate",
 }
 
 
@@ -76,7 +77,7 @@ def check(path, by_topic):
     # recording too, as `analyze` reads it: its /run and events, or its events alone. Only the
     # topics every update writes are then absent.
     no_updates = "/update" not in by_topic
-    optional = {"/task_change"} | ({"/update", "/summary", "/rollout"} if no_updates else set())
+    optional = {"/task_change", "/unfinished_update"} | ({"/update", "/summary", "/rollout"} if no_updates else set())
     if no_updates and set(by_topic) <= {"/log"} and by_topic:
         optional.add("/run")
     for topic, schema in EXPECTED_TOPICS.items():

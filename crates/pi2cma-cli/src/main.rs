@@ -212,7 +212,7 @@ fn run_resumed(
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let recorder = (!no_record)
-        .then(|| recorder(&mcap, text).map(|r| r.with_resumed_from(start.origin.clone())))
+        .then(|| recorder(&mcap, text).map(|r| r.resuming(&start)))
         .transpose()?;
     let origin = start.origin.clone();
     let origin_update = start.update;

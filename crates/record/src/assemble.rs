@@ -84,6 +84,9 @@ pub struct Ahead {
     /// (setting, value published, value the rollouts in so far ran with): changes the
     /// workers' task refused.
     pub refused: Vec<(String, f64, f64)>,
+    /// Every setting's value as `update` runs with it, in the order of the setting names: as
+    /// published, with the refused changes at the value run with.
+    pub settings: Vec<f64>,
 }
 
 /// What happened to a cost message.
@@ -273,6 +276,7 @@ impl Assembler {
             update: u,
             changed: Vec::new(),
             refused: Vec::new(),
+            settings: next.settings.clone(),
         };
         for (i, ((name, v), p)) in self
             .setting_names
@@ -287,6 +291,7 @@ impl Assembler {
             match ran.map(|r| r[i]) {
                 Some(r) if r.to_bits() != v.to_bits() => {
                     ahead.refused.push((name.clone(), *v, r));
+                    ahead.settings[i] = r;
                 }
                 _ => ahead.changed.push((name.clone(), *v)),
             }
@@ -505,6 +510,7 @@ mod tests {
                 update: 8,
                 changed: vec![("viapoint".to_string(), 0.9)],
                 refused: Vec::new(),
+                settings: vec![0.9],
             })
         );
         // A rollout of update 8 that ran with the old value: the change is refused.
@@ -515,6 +521,7 @@ mod tests {
                 update: 8,
                 changed: Vec::new(),
                 refused: vec![("viapoint".to_string(), 0.9, 0.3)],
+                settings: vec![0.3],
             })
         );
 

@@ -76,15 +76,17 @@ pub mod topics {
     pub const ROLLOUT: &str = "/rollout";
     pub const TASK_CHANGE: &str = "/task_change";
     pub const LOG: &str = "/log";
+    pub const UNFINISHED_UPDATE: &str = "/unfinished_update";
 
     /// (topic, schema name) of every channel a recording has, in the order they are created.
-    pub const ALL: [(&str, &str); 6] = [
+    pub const ALL: [(&str, &str); 7] = [
         (RUN, "pi2cma.record.RunInfo"),
         (UPDATE, "pi2cma.record.Update"),
         (SUMMARY, "pi2cma.record.UpdateSummary"),
         (ROLLOUT, "pi2cma.record.Rollout"),
         (TASK_CHANGE, "pi2cma.record.TaskChange"),
         (LOG, "foxglove.Log"),
+        (UNFINISHED_UPDATE, "pi2cma.record.UnfinishedUpdate"),
     ];
 
     /// Name of the MCAP metadata record with the run's config, seed and versions.

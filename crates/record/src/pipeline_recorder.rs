@@ -441,6 +441,19 @@ impl WriterState {
             for (name, asked, ran) in &ahead.refused {
                 self.write_refusal(u, ", which the run stopped in,", name, *asked, *ran)?;
             }
+            // All the settings the update was to run with: a `set` that overrode a scheduled
+            // change back to the value in force is no change above, and `--resume` would
+            // apply the schedule's change again without them. The FINAL distribution's update
+            // does not run, and its settings hold no change due at it.
+            if self.final_update != Some(u) {
+                let settings: Vec<(&str, f64)> = self
+                    .names
+                    .iter()
+                    .map(String::as_str)
+                    .zip(ahead.settings.iter().copied())
+                    .collect();
+                self.writer.write_unfinished_update(u, &settings)?;
+            }
         }
         // A restarted recorder stopped before its first distribution has no part (it is
         // created with its `/run`): what it took in goes to its output only.
@@ -487,12 +500,18 @@ impl WriterState {
                         mean: nalgebra::DVector::from_column_slice(mean),
                         covariance: nalgebra::DMatrix::from_column_slice(p, p, cov),
                     };
-                    let task_settings: Vec<(&str, f64)> = self
-                        .names
-                        .iter()
-                        .map(String::as_str)
-                        .zip(settings.iter().copied())
-                        .collect();
+                    let named = |values: &[f64]| -> Vec<(&str, f64)> {
+                        self.names
+                            .iter()
+                            .map(String::as_str)
+                            .zip(values.iter().copied())
+                            .collect()
+                    };
+                    let task_settings = named(settings);
+                    // So that `--resume` from a part that holds no update knows what a worker
+                    // refusing a change at its first update falls back to.
+                    let n = (h.settings_len as usize).min(h.previous_settings.len());
+                    let previous_task_settings = named(&h.previous_settings[..n]);
                     self.writer.write_start(&RunStart {
                         name: &self.config.run.name,
                         seed: h.seed,
@@ -504,6 +523,7 @@ impl WriterState {
                         config_toml: &self.text,
                         executor: "pipeline",
                         task_settings: &task_settings,
+                        previous_task_settings: &previous_task_settings,
                         resumed_from: self.resumed_from.as_deref(),
                         part: None,
                         run_id: Some(self.run_id),

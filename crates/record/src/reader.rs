@@ -343,6 +343,11 @@ pub struct Ends {
     /// The `/task_change` messages after the last `/update`: changes that take effect at the
     /// update after it (a run stopped right after a task change).
     pub changes_after: Vec<proto::TaskChange>,
+    /// The `/unfinished_update` after the last `/update`: all the settings the update after
+    /// it was to run with, if the run stopped in that update.
+    pub unfinished: Option<proto::UnfinishedUpdate>,
+    /// The file's metadata record `pi2cma.run` (`resumed_from`, `previous_part`, …).
+    pub metadata: BTreeMap<String, String>,
     /// Why reading stopped early (a file whose writer was killed), if it did.
     pub truncated: Option<String>,
 }
@@ -372,7 +377,22 @@ pub fn read_ends(path: &Path) -> Result<Ends, RecordError> {
                 last_update.clear();
                 last_update.extend_from_slice(data);
                 ends.changes_after.clear();
+                ends.unfinished = None;
             }
+            Item::Message {
+                topic: topics::UNFINISHED_UPDATE,
+                data,
+                ..
+            } => {
+                ends.unfinished = Some(decode(
+                    path,
+                    topics::UNFINISHED_UPDATE,
+                    0,
+                    "UnfinishedUpdate",
+                    data,
+                )?);
+            }
+            Item::Metadata(m) if m.name == topics::METADATA => ends.metadata = m.metadata,
             Item::Message {
                 topic: topics::TASK_CHANGE,
                 data,

@@ -31,6 +31,8 @@ struct StartJob {
     basis: Option<Vec<f64>>,
     config_toml: String,
     settings: Vec<(String, f64)>,
+    /// What the update before `update` ran with (a resumed run's); empty at update 0.
+    previous_settings: Vec<(String, f64)>,
     resumed_from: Option<String>,
     /// `recording.split_mb`.
     split_mb: Option<u64>,
@@ -69,6 +71,8 @@ pub struct McapRecorder {
     path: PathBuf,
     config_text: Option<String>,
     resumed_from: Option<String>,
+    /// A resumed run's settings of the update before its first ([`McapRecorder::resuming`]).
+    previous_settings: Vec<(String, f64)>,
     hp: Option<Hyperparameters>,
     error: Option<RecordError>,
     /// An update handed to the writer whose flush has not been confirmed.
@@ -91,8 +95,10 @@ fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordErr
     match job {
         Job::Start(s) => {
             w.split_at_mb(s.split_mb);
-            let settings: Vec<(&str, f64)> =
-                s.settings.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+            fn named(list: &[(String, f64)]) -> Vec<(&str, f64)> {
+                list.iter().map(|(n, v)| (n.as_str(), *v)).collect()
+            }
+            let (settings, previous) = (named(&s.settings), named(&s.previous_settings));
             w.write_start(&RunStart {
                 name: &s.name,
                 seed: s.seed,
@@ -104,6 +110,7 @@ fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordErr
                 config_toml: &s.config_toml,
                 executor: IN_PROCESS,
                 task_settings: &settings,
+                previous_task_settings: &previous,
                 resumed_from: s.resumed_from.as_deref(),
                 part: None,
                 run_id: None,
@@ -208,6 +215,7 @@ impl McapRecorder {
             path: path.to_path_buf(),
             config_text: None,
             resumed_from: None,
+            previous_settings: Vec::new(),
             hp: None,
             error: None,
             in_flight: false,
@@ -224,9 +232,18 @@ impl McapRecorder {
         self
     }
 
-    /// Names the recording this run resumes (metadata `resumed_from`).
-    pub fn with_resumed_from(mut self, recording: impl Into<String>) -> Self {
-        self.resumed_from = Some(recording.into());
+    /// Records a run resumed at `start`: names the recording it resumes (metadata
+    /// `resumed_from`) and, in `/run`, what the update before its first ran with, so that a
+    /// resume from this recording before it holds an update goes on as this run would.
+    pub fn resuming(mut self, start: &session::Start) -> Self {
+        self.resumed_from = Some(start.origin.clone());
+        let names: Vec<&str> = start.settings.iter().map(|(n, _)| n.as_str()).collect();
+        let in_force: Vec<f64> = start.settings.iter().map(|(_, v)| *v).collect();
+        self.previous_settings = names
+            .iter()
+            .map(|n| n.to_string())
+            .zip(start.ran_with_values(&names, &in_force))
+            .collect();
         self
     }
 
@@ -364,6 +381,7 @@ impl Observer for McapRecorder {
             basis,
             config_toml: text,
             settings: settings.iter().map(|(n, v)| (n.to_string(), *v)).collect(),
+            previous_settings: self.previous_settings.clone(),
             resumed_from: self.resumed_from.clone(),
             split_mb: config.recording_split_mb(),
         })));

@@ -60,6 +60,15 @@ pub struct ResumePoint {
 /// Reads the state after the last update recorded in `path`; of a recording split into parts
 /// (`recording.split_mb`), in its last part, whichever part `path` names.
 pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
+    resume_point_within(path, RESUMED_FROM_DEPTH)
+}
+
+/// How many recordings back (`resumed_from`) a recording without updates is followed for what
+/// the update before its first ran with: enough for a resumed run stopped before its first
+/// update, resumed again and stopped again, and bounded should files name each other.
+const RESUMED_FROM_DEPTH: u32 = 8;
+
+fn resume_point_within(path: &Path, depth: u32) -> Result<ResumePoint, RecordError> {
     let last = last_part(path);
     let path = last.as_path();
     if crate::being_written(path) {
@@ -72,8 +81,8 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
     // Streamed: the recording of a long continual run may not fit in memory.
     let rec = read_ends(path)?;
     let from = match &rec.last_update {
-        Some(last) => after_update(last, &rec.changes_after),
-        None => at_start(path, rec.run.as_ref())?,
+        Some(last) => after_update(last, &rec.changes_after, rec.unfinished.as_ref()),
+        None => at_start(path, &rec, depth)?,
     };
     let bad = |what: String| RecordError::Update {
         file: path.to_path_buf(),
@@ -96,6 +105,7 @@ pub fn resume_point(path: &Path) -> Result<ResumePoint, RecordError> {
             distribution,
             settings: from.settings,
             ran_with: from.ran_with,
+            published: from.published,
             origin: path.display().to_string(),
         },
         seed: from.seed,
@@ -133,17 +143,32 @@ struct Recorded<'a> {
     steps: u32,
     settings: Vec<(String, f64)>,
     ran_with: Vec<(String, f64)>,
+    /// [`Start::published`].
+    published: bool,
 }
 
 /// The state after the last recorded update: its `after` distribution.
-fn after_update<'a>(last: &'a proto::Update, changes_after: &[proto::TaskChange]) -> Recorded<'a> {
+fn after_update<'a>(
+    last: &'a proto::Update,
+    changes_after: &[proto::TaskChange],
+    unfinished: Option<&proto::UnfinishedUpdate>,
+) -> Recorded<'a> {
     let ran_with = by_name(&last.task_settings);
     let mut settings = ran_with.clone();
-    // Changes recorded for the update after the last (the run stopped right after them) are
-    // what that update runs with: the distribution it samples from already carried them.
-    for c in changes_after.iter().filter(|c| c.update == last.update + 1) {
-        if let Some(s) = settings.iter_mut().find(|(n, _)| *n == c.name) {
-            s.1 = c.value;
+    let next = last.update + 1;
+    let unfinished = unfinished.filter(|u| u.update == next);
+    match unfinished {
+        // The run stopped in the next update: every setting as it was to run with, also one a
+        // `set` kept at its value over the schedule's change, which no change record shows.
+        Some(u) => settings = by_name(&u.task_settings),
+        // Changes recorded for the update after the last (the run stopped right after them)
+        // are what that update runs with: the distribution it samples from carried them.
+        None => {
+            for c in changes_after.iter().filter(|c| c.update == next) {
+                if let Some(s) = settings.iter_mut().find(|(n, _)| *n == c.name) {
+                    s.1 = c.value;
+                }
+            }
         }
     }
     Recorded {
@@ -158,18 +183,29 @@ fn after_update<'a>(last: &'a proto::Update, changes_after: &[proto::TaskChange]
         steps: last.steps,
         settings,
         ran_with,
+        published: unfinished.is_some(),
     }
 }
 
 /// The state a recording without updates begins with: its `/run`, the distribution of its
-/// first update. A part begun by a restarted recorder has no update when the run stopped before
-/// it wrote one, and is still where the run had got to (the updates between it and the part
-/// before were not recorded). A recording of a run's update 0 has nothing to resume: the run
-/// starts anew.
-fn at_start<'a>(path: &Path, run: Option<&'a proto::RunInfo>) -> Result<Recorded<'a>, RecordError> {
-    let run = run
+/// first update and the settings that distribution was published with. A part begun by a
+/// restarted recorder has no update when the run stopped before it wrote one, and is still
+/// where the run had got to (the updates between it and the part before were not recorded). A
+/// recording of a run's update 0 has nothing to resume: the run starts anew.
+fn at_start<'a>(
+    path: &Path,
+    rec: &'a crate::Ends,
+    depth: u32,
+) -> Result<Recorded<'a>, RecordError> {
+    let run = rec
+        .run
+        .as_ref()
         .filter(|r| r.update > 0)
         .ok_or_else(|| RecordError::invalid(path, "has no recorded update to resume from"))?;
+    // The distribution of a run's last update (`run.updates`) is published without the
+    // changes due at it: that update does not run. Any other holds them.
+    let ended_there =
+        RunConfig::parse(&run.config_toml, path).is_ok_and(|c| c.run.updates == Some(run.update));
     Ok(Recorded {
         update: run.update,
         place: "/run: ",
@@ -181,10 +217,42 @@ fn at_start<'a>(path: &Path, run: Option<&'a proto::RunInfo>) -> Result<Recorded
         dim: run.dim,
         steps: run.steps,
         settings: by_name(&run.task_settings),
-        // What update `run.update` − 1 ran with was not recorded: its rollouts fall back to
-        // the settings in force.
-        ran_with: Vec::new(),
+        ran_with: ran_before(path, rec, run, depth),
+        published: !ended_there,
     })
+}
+
+/// What update `run.update` − 1 ran with, for a recording that holds no update: its `/run`
+/// says so; a recording made before it did is helped by the recording its run resumed
+/// (metadata `resumed_from`) when it resumed at the same update, or by the part before it
+/// when that part's last update is the one before. Empty when none of them knows: a change
+/// refused at the first update then has the settings in force to fall back to.
+fn ran_before(
+    path: &Path,
+    rec: &crate::Ends,
+    run: &proto::RunInfo,
+    depth: u32,
+) -> Vec<(String, f64)> {
+    if !run.previous_task_settings.is_empty() {
+        return by_name(&run.previous_task_settings);
+    }
+    let resumed = rec
+        .metadata
+        .get("resumed_from")
+        .filter(|_| depth > 0)
+        .and_then(|from| resume_point_within(Path::new(from), depth - 1).ok())
+        .filter(|p| p.start.update == run.update)
+        .map(|p| p.start);
+    if let Some(start) = resumed {
+        return start.ran_with;
+    }
+    let n = crate::part_number(path);
+    let before = (n >= 2)
+        .then(|| crate::part_path_or_first(&first_part(path), n - 1))
+        .and_then(|p| read_ends(&p).ok())
+        .and_then(|e| e.last_update)
+        .filter(|u| u.update + 1 == run.update);
+    before.map_or_else(Vec::new, |u| by_name(&u.task_settings))
 }
 
 fn by_name(settings: &[proto::Setting]) -> Vec<(String, f64)> {
@@ -501,7 +569,10 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    /// A part a restarted recorder began just before the run stopped: its `/run` only.
+    /// A part a restarted recorder began just before the run stopped: its `/run` only. The
+    /// settings there are those its first update was published with; what the update before
+    /// ran with (what a refused change falls back to) comes from `/run` too, or, in a recording
+    /// made before `/run` held it, from the recording it resumed or the part before.
     #[test]
     fn a_recording_without_updates_resumes_where_its_run_message_begins() {
         let dir = std::env::temp_dir().join(format!("resume-run-only-{}", std::process::id()));
@@ -513,8 +584,12 @@ mod tests {
             covariance: nalgebra::DMatrix::from_row_slice(2, 2, &[3.0, 0.25, 0.25, 1.5]),
         };
         let text = crate::config_to_toml(&cfg);
-        let write = |update: u64| {
-            let path = dir.join(format!("at-{update}.mcap"));
+        let write = |name: &str,
+                     update: u64,
+                     previous: &[(&str, f64)],
+                     resumed_from: Option<&str>,
+                     text: &str| {
+            let path = dir.join(name);
             let mut w = crate::RunWriter::create(&path).unwrap();
             w.write_start(&crate::RunStart {
                 name: "A1",
@@ -524,10 +599,11 @@ mod tests {
                 hyperparameters: &hp,
                 initial: &initial,
                 basis_activations: None,
-                config_toml: &text,
+                config_toml: text,
                 executor: "pipeline",
                 task_settings: &[("viapoint", 0.1)],
-                resumed_from: None,
+                previous_task_settings: previous,
+                resumed_from,
                 part: None,
                 run_id: Some(7),
                 recorder_restart: Some(1),
@@ -536,16 +612,48 @@ mod tests {
             w.finish().unwrap();
             path
         };
-        let point = resume_point(&write(12)).unwrap();
+        let viapoint = |v: f64| vec![("viapoint".to_string(), v)];
+        let point =
+            resume_point(&write("at-12.mcap", 12, &[("viapoint", 0.3)], None, &text)).unwrap();
         assert_eq!(point.start.update, 12);
         assert_eq!(point.start.distribution, initial);
-        assert_eq!(point.start.settings, [("viapoint".to_string(), 0.1)]);
-        assert!(point.start.ran_with.is_empty());
+        assert_eq!(point.start.settings, viapoint(0.1));
+        assert_eq!(point.start.ran_with, viapoint(0.3));
+        assert!(point.start.published);
         assert_eq!((point.seed, point.dim, point.steps), (1, 2, 101));
         assert_eq!(point.hyperparameters, hp);
         point.check(&cfg).unwrap();
+        // Recorded before `/run` held the settings of the update before, with nothing else
+        // that knows them.
+        let older = resume_point(&write("older.mcap", 12, &[], None, &text)).unwrap();
+        assert!(older.start.ran_with.is_empty() && older.start.published);
+        // The distribution of the run's last update holds no change due at it.
+        let ended = config(&[("updates = 40", "updates = 12")]);
+        let ended = crate::config_to_toml(&ended);
+        let ended = resume_point(&write("ended.mcap", 12, &[], None, &ended)).unwrap();
+        assert!(!ended.start.published);
+
+        // Older recordings: a run of updates 0..=11 (viapoint 0.3 until the schedule's 0.1 at
+        // 20), then a part, and a resumed run's file, beginning at 12 without the settings.
+        let twelve = config(&[("updates = 40", "updates = 12")]);
+        let mut rec = McapRecorder::create(&dir.join("run.mcap")).unwrap();
+        session::run_session(&twelve, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        std::fs::copy(dir.join("run.mcap"), dir.join("day1.mcap")).unwrap();
+        let part = write("run.part-2.mcap", 12, &[], None, &text);
+        assert_eq!(resume_point(&part).unwrap().start.ran_with, viapoint(0.3));
+        let day1 = dir.join("day1.mcap").display().to_string();
+        let day2 = write("day2.mcap", 12, &[], Some(&day1), &text);
+        assert_eq!(resume_point(&day2).unwrap().start.ran_with, viapoint(0.3));
+        // A part whose part before does not end with the update before its first (a restarted
+        // recorder's: updates missing).
+        let gap = write("run.part-3.mcap", 14, &[], None, &text);
+        assert!(resume_point(&gap).unwrap().start.ran_with.is_empty());
+
         // Update 0 of a run: nothing to resume.
-        let e = resume_point(&write(0)).unwrap_err().to_string();
+        let e = resume_point(&write("at-0.mcap", 0, &[], None, &text))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("has no recorded update to resume from"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

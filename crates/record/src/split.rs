@@ -263,6 +263,9 @@ pub struct RunFiles {
     /// A restarted recorder's part ([`RunFiles::continue_in_part`]) is created by
     /// [`RunFiles::write_start`], not before.
     create_at_start: bool,
+    /// The settings the last update written ran with: the next part's `/run` names them as
+    /// what the update before its first ran with.
+    last_settings: Vec<(String, f64)>,
 }
 
 impl RunFiles {
@@ -290,6 +293,7 @@ impl RunFiles {
             full: false,
             pending_changes: Vec::new(),
             create_at_start: false,
+            last_settings: Vec::new(),
         })
     }
 
@@ -322,6 +326,7 @@ impl RunFiles {
             full: false,
             pending_changes: Vec::new(),
             create_at_start: true,
+            last_settings: Vec::new(),
         })
     }
 
@@ -386,6 +391,11 @@ impl RunFiles {
             None
         };
         self.writer()?.write_update(u)?;
+        self.last_settings = u
+            .task_settings
+            .iter()
+            .map(|(n, v)| (n.to_string(), *v))
+            .collect();
         // Decided here, after the update, so that what comes before the next one (its task
         // changes) knows which part it belongs to.
         self.full = self.split_bytes.is_some_and(|max| {
@@ -410,6 +420,11 @@ impl RunFiles {
         let path = self.file();
         let mut w = RunWriter::create(&path)?;
         let previous = previous.display().to_string();
+        let ran_before: Vec<(&str, f64)> = self
+            .last_settings
+            .iter()
+            .map(|(n, v)| (n.as_str(), *v))
+            .collect();
         w.write_start(&RunStart {
             name: &run.name,
             seed: run.seed,
@@ -421,6 +436,7 @@ impl RunFiles {
             config_toml: &run.config_toml,
             executor: &run.executor,
             task_settings: u.task_settings,
+            previous_task_settings: &ran_before,
             resumed_from: run.resumed_from.as_deref(),
             part: Some((self.part, &previous)),
             run_id: run.run_id,
@@ -454,6 +470,17 @@ impl RunFiles {
             return Ok(());
         }
         self.writer()?.write_task_change(update, name, value)
+    }
+
+    /// As [`RunWriter::write_unfinished_update`], into the part being written: the update it
+    /// names comes after that part's last.
+    pub fn write_unfinished_update(
+        &mut self,
+        update: u64,
+        task_settings: &[(&str, f64)],
+    ) -> Result<(), RecordError> {
+        self.writer()?
+            .write_unfinished_update(update, task_settings)
     }
 
     pub fn write_event(

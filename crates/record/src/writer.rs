@@ -53,7 +53,10 @@ pub struct RunStart<'a> {
     pub config_toml: &'a str,
     /// "in-process" or "pipeline".
     pub executor: &'a str,
+    /// What update `update` runs with (its distribution's settings).
     pub task_settings: &'a [(&'a str, f64)],
+    /// What update `update` − 1 ran with; empty when there is none or it is not known.
+    pub previous_task_settings: &'a [(&'a str, f64)],
     /// The recording a resumed run continues (metadata `resumed_from`).
     pub resumed_from: Option<&'a str>,
     /// For a part after the first of a split recording ([`crate::RunFiles`]): its number (2, 3,
@@ -132,8 +135,8 @@ impl Event {
 /// zstd as `i32`, so −1 is written as `u32::MAX`.
 const ZSTD_LEVEL_FAST_1: u32 = u32::MAX;
 
-/// Channel ids of the six topics, in [`topics::ALL`] order.
-struct Channels([u16; 6]);
+/// Channel ids of the topics, in [`topics::ALL`] order.
+struct Channels([u16; topics::ALL.len()]);
 
 /// `/update`'s place in [`topics::ALL`].
 const CHANNEL_UPDATE: usize = 1;
@@ -216,7 +219,7 @@ impl<W: Write + Seek> RunWriter<W> {
         let mut mcap = opts
             .create(w)
             .map_err(|e| RecordError::mcap(file.clone(), e))?;
-        let mut ids = [0u16; 6];
+        let mut ids = [0u16; topics::ALL.len()];
         for (i, (topic, schema)) in topics::ALL.iter().enumerate() {
             let schema_id = mcap
                 .add_schema(schema, "protobuf", DESCRIPTORS)
@@ -359,6 +362,7 @@ impl<W: Write + Seek> RunWriter<W> {
             config_toml: start.config_toml.to_string(),
             executor: start.executor.to_string(),
             task_settings: settings(start.task_settings),
+            previous_task_settings: settings(start.previous_task_settings),
             versions: versions
                 .into_iter()
                 .map(|(key, value)| proto::KeyValue { key, value })
@@ -457,6 +461,22 @@ impl<W: Write + Seek> RunWriter<W> {
             value,
         };
         self.put(4, now, &msg)
+    }
+
+    /// `/unfinished_update`: the settings update `update` was to run with, its distribution
+    /// published but the update not complete when the run stopped.
+    pub fn write_unfinished_update(
+        &mut self,
+        update: u64,
+        task_settings: &[(&str, f64)],
+    ) -> Result<(), RecordError> {
+        let now = now_ns();
+        let msg = proto::UnfinishedUpdate {
+            timestamp: Some(timestamp(now)),
+            update,
+            task_settings: settings(task_settings),
+        };
+        self.put(6, now, &msg)
     }
 
     /// `/log`: a health event about process `name` during update `update`.

@@ -644,6 +644,7 @@ mod tests {
                 distribution: full[at - 1].after.clone(),
                 settings: full[at - 1].settings.clone(),
                 ran_with: Vec::new(),
+                published: false,
                 origin: "test".into(),
             };
             let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
@@ -655,6 +656,7 @@ mod tests {
             distribution: full[29].after.clone(),
             settings: vec![("viapoint".into(), 0.2)],
             ran_with: Vec::new(),
+            published: false,
             origin: "test".into(),
         };
         let resumed = capture(InProcess::resume(&cfg, 1, start).unwrap());
@@ -668,6 +670,7 @@ mod tests {
             distribution: Distribution::isotropic(nalgebra::DVector::zeros(3), 1.0).unwrap(),
             settings: Vec::new(),
             ran_with: Vec::new(),
+            published: false,
             origin: "test".into(),
         };
         let e = InProcess::resume(&cfg, 1, wrong).err().unwrap().to_string();
@@ -721,6 +724,7 @@ mod tests {
                 distribution: reference[at - 1].after.clone(),
                 settings: reference[at - 1].settings.clone(),
                 ran_with: Vec::new(),
+                published: false,
                 origin: "test".into(),
             };
             let resumed = capture(InProcess::resume_with_task(&cfg, 1, own(), start).unwrap());

@@ -41,6 +41,12 @@ pub struct Start {
     /// The settings update `update − 1` ran with, by name: what a worker whose task refuses a
     /// change of `settings` runs update `update` with. Empty: the same as `settings`.
     pub ran_with: Vec<(String, f64)>,
+    /// Whether `settings` are those the distribution of `update` was published with (the run
+    /// stopped in that update, or its recording's part begins there): the schedule's changes
+    /// at `update`, and `supervisor set`s over them, are in them already, so none is applied
+    /// again. A `set` that overrode a scheduled change back to the value in force is in them
+    /// only as that value, which the schedule's change would otherwise replace.
+    pub published: bool,
     /// Where the state came from (a recording's path), for messages and recordings.
     pub origin: String,
 }
@@ -66,6 +72,8 @@ struct StartFile {
     settings: Vec<SettingBits>,
     #[serde(default)]
     ran_with: Vec<SettingBits>,
+    #[serde(default)]
+    published: bool,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -106,12 +114,16 @@ impl Start {
         Ok(())
     }
 
-    /// The schedule's changes at `self.update` that the recording does not override. A change
+    /// The schedule's changes at `self.update` that the recording does not override: none when
+    /// the settings are the published ones ([`Start::published`]). Otherwise a change
     /// recorded for that update (the run stopped right after publishing its distribution) is
     /// what the update was to run with: the schedule's change, or a `supervisor set` over it at
     /// the same update, which overrode it. Applied again on top, the schedule's would undo the
     /// set, and the resumed run would go on with a value the run it continues had replaced.
     pub fn scheduled_at_start<'a>(&self, schedule: &'a TaskSchedule) -> Vec<&'a TaskChange> {
+        if self.published {
+            return Vec::new();
+        }
         let bits = |list: &[(String, f64)], name: &str| {
             list.iter()
                 .find(|(n, _)| n == name)
@@ -148,6 +160,7 @@ impl Start {
                 .collect(),
             settings: setting_bits(&self.settings),
             ran_with: setting_bits(&self.ran_with),
+            published: self.published,
         };
         let err = |reason: String| StartFileError {
             file: path.display().to_string(),
@@ -196,6 +209,7 @@ impl Start {
             },
             settings,
             ran_with,
+            published: file.published,
             origin: file.origin,
         })
     }
@@ -243,6 +257,7 @@ mod tests {
             },
             settings: vec![("viapoint_y".into(), 0.1 + 0.7), ("other".into(), -0.0)],
             ran_with: vec![("viapoint_y".into(), 0.3)],
+            published: true,
             origin: "runs/a.mcap".into(),
         };
         let dir = std::env::temp_dir().join(format!("start-{}", std::process::id()));
@@ -254,6 +269,7 @@ mod tests {
         assert_eq!(back.settings[1].1.to_bits(), (-0.0f64).to_bits());
         assert_eq!(back.settings[0], start.settings[0]);
         assert_eq!(back.ran_with, start.ran_with);
+        assert!(back.published);
         // What the update before ran with, by name; the rest as in force.
         assert_eq!(
             back.ran_with_values(&["other", "viapoint_y", "new"], &[1.0, 2.0, 3.0]),
@@ -289,6 +305,7 @@ mod tests {
             },
             settings: vec![("a".into(), 0.5), ("b".into(), 2.0), ("c".into(), 4.0)],
             ran_with: vec![("a".into(), 0.7), ("b".into(), 1.0), ("c".into(), 4.0)],
+            published: false,
             origin: "runs/a.mcap".into(),
         };
         let due: Vec<(&str, f64)> = start
@@ -297,5 +314,12 @@ mod tests {
             .map(|c| (c.name.as_str(), c.value))
             .collect();
         assert_eq!(due, [("b", 2.0), ("c", 5.0)]);
+        // The settings the distribution of update 40 was published with: c stayed at 4 there
+        // (a `set` undid the schedule's change), and nothing is applied over them.
+        let published = Start {
+            published: true,
+            ..start
+        };
+        assert!(published.scheduled_at_start(&schedule).is_empty());
     }
 }

@@ -4325,6 +4325,213 @@ fn a_set_to_the_value_in_force_is_no_task_change() {
     assert_nothing_left(&run);
 }
 
+/// A1 with its via-point change (0.3 → 0.1) at update `at`, `edits` applied, and rollouts of
+/// `delay_ms` (0: none).
+fn a1_changing_at(at: u64, delay_ms: f64, edits: &[(&str, &str)]) -> String {
+    let at = format!("from_update = {at}");
+    let delay = format!("viapoint_weight = 1000.0\nrollout_delay_ms = {delay_ms:?}");
+    let mut all = vec![("from_update = 20", at.as_str())];
+    if delay_ms > 0.0 {
+        all.push(("viapoint_weight = 1000.0", delay.as_str()));
+    }
+    all.extend_from_slice(edits);
+    config(&all)
+}
+
+/// Resumes `recording` with `config` to `updates` (recording to `to`), and checks that the
+/// pipeline and the in-process runner, resumed from it, both end exactly where the
+/// uninterrupted run of `reference` (a config text) does.
+fn assert_resumes_to(
+    scratch: &Scratch,
+    id: u64,
+    recording: &Path,
+    config: &Path,
+    to: &Path,
+    reference: &str,
+) -> record::Recording {
+    let result = scratch.path(&format!("resumed-{id}.result.toml"));
+    let mut resumed = Run::start(
+        scratch,
+        id,
+        &[
+            config.to_str().unwrap(),
+            "--resume",
+            recording.to_str().unwrap(),
+            "--updates",
+            "8",
+            "--quiet",
+            "--record",
+            to.to_str().unwrap(),
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    resumed.wait_exit(Duration::from_secs(60), 0);
+    assert_bit_identical(reference, &result);
+    let point = record::resume::resume_point(recording).unwrap();
+    let mut cfg = RunConfig::load(config).unwrap();
+    cfg.run.updates = Some(8);
+    let mut exec = session::InProcess::resume(&cfg, 1, point.start).unwrap();
+    exec.run(&mut session::NoObserver, &|| false).unwrap();
+    let (mean, _) = RunResult::read(&result).unwrap().exact().unwrap();
+    assert_eq!(
+        bits(&mean),
+        bits(exec.optimizer().distribution().mean.as_slice())
+    );
+    assert_nothing_left(&resumed);
+    let rec = record::read_recording(to).unwrap();
+    assert_recomputes(&rec);
+    rec
+}
+
+/// The via-point values the updates of a recording ran with.
+fn viapoints(rec: &record::Recording) -> Vec<(u64, f64)> {
+    rec.updates
+        .iter()
+        .map(|u| (u.update, u.task_settings[0].value))
+        .collect()
+}
+
+/// A `set` that overrides the schedule's change at update 3 back to the value in force is no
+/// task change, so nothing in the recording showed it: a run stopped in update 3 was resumed
+/// with the schedule's change applied again, and went on as a run that had never been given
+/// the `set`. The recorder now writes the settings the update was to run with
+/// (`/unfinished_update`), and the resume goes on with them.
+#[test]
+fn a_set_back_to_the_value_in_force_over_a_scheduled_change_is_resumed_with() {
+    let scratch = Scratch::new("override-back-resume");
+    let cfg = write_config(&scratch, "slow.toml", &a1_changing_at(3, 300.0, &[]));
+    let first = scratch.path("first.mcap");
+    let result = scratch.path("first.result.toml");
+    let mut run = Run::start(
+        &scratch,
+        1400,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            first.to_str().unwrap(),
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let reply = run.ctl_ok(&["set", "viapoint", "0.3"]);
+    assert_eq!(
+        takes_effect_from(&reply),
+        3,
+        "an update takes 1.5 s: {reply}"
+    );
+    run.wait_output(
+        "task change: viapoint = 0.3 (runtime) from update 3 leaves it as update 2 ran with it",
+        Instant::now() + Duration::from_secs(30),
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(30), 0);
+    let out = run.text();
+    assert_eq!(RunResult::read(&result).unwrap().updates, 3, "{out}");
+    let rec = record::read_recording(&first).unwrap();
+    assert!(rec.task_changes.is_empty(), "{:?}", rec.task_changes);
+    assert_nothing_left(&run);
+
+    // Uninterrupted, the via-point stays at 0.3: the schedule's change was overridden.
+    let reference = a1_changing_at(3, 0.0, &[("value = 0.1", "value = 0.3")]);
+    let fast = write_config(&scratch, "fast.toml", &a1_changing_at(3, 0.0, &[]));
+    let second = scratch.path("second.mcap");
+    let resumed = assert_resumes_to(&scratch, 1401, &first, &fast, &second, &reference);
+    assert_eq!(
+        viapoints(&resumed),
+        (3..8).map(|u| (u, 0.3)).collect::<Vec<_>>()
+    );
+}
+
+/// A part a restarted recorder began at the first update that a `set` over the schedule's
+/// change ran with, and the run stopped in that update: the part holds its `/run` only. Its
+/// settings are the ones the update was published with, so the schedule's change is not
+/// applied again over the `set` (before, the resume did: its `/run` did not say what the update
+/// before ran with, and the schedule's change looked due); and `/run` now says what the update
+/// before ran with, which a change refused there falls back to.
+#[test]
+fn a_part_without_updates_resumes_as_the_run_went_on() {
+    let scratch = Scratch::new("run-only-part-resume");
+    let text = a1_changing_at(
+        4,
+        300.0,
+        &[(
+            "max_workers = 16",
+            "max_workers = 16\nfault_hang_at_update = 4\nshutdown_timeout_ms = 1000",
+        )],
+    );
+    let cfg = write_config(&scratch, "hang-at-4.toml", &text);
+    let first = scratch.path("first.mcap");
+    let mut run = Run::start(
+        &scratch,
+        1402,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            first.to_str().unwrap(),
+        ],
+    );
+    let status = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    // Update 3 is held while the recorder is replaced, so the new one begins at update 4.
+    let workers: Vec<u32> = pids_in(&status)
+        .into_iter()
+        .filter(|(n, _)| n.starts_with("worker-"))
+        .map(|(_, pid)| pid)
+        .collect();
+    for &w in &workers {
+        signal(w, "-STOP");
+    }
+    let status = run.ctl_ok(&["status"]);
+    assert_eq!(updates_in(&status), 3, "update 3 took 1.5 s:\n{status}");
+    let reply = run.ctl_ok(&["set", "viapoint", "0.2"]);
+    assert_eq!(takes_effect_from(&reply), 4, "{reply}");
+    sigkill_recorder(&status);
+    run.wait_output(
+        "recorder restarted: recording to",
+        Instant::now() + Duration::from_secs(30),
+    );
+    for &w in &workers {
+        signal(w, "-CONT");
+    }
+    // The workers' first incarnations stop answering at update 4: the run stays in it.
+    let part = record::part_path(&first, 2);
+    let end = Instant::now() + Duration::from_secs(30);
+    while !record::read_ends(&part).is_ok_and(|e| e.run.is_some()) {
+        assert!(Instant::now() < end, "no part 2:\n{}", run.text());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(30), 0);
+    let out = run.text();
+    let rec = record::read_recording(&part).unwrap();
+    let info = rec.run_info().unwrap();
+    assert!(rec.updates.is_empty() && info.update == 4, "{out}");
+    let named = |s: &[record::proto::Setting]| -> Vec<(String, f64)> {
+        s.iter().map(|s| (s.name.clone(), s.value)).collect()
+    };
+    let viapoint = |v: f64| vec![("viapoint".to_string(), v)];
+    assert_eq!(named(&info.task_settings), viapoint(0.2), "{out}");
+    assert_eq!(named(&info.previous_task_settings), viapoint(0.3), "{out}");
+    let point = record::resume::resume_point(&first).unwrap();
+    assert_eq!(point.start.update, 4);
+    assert_eq!(point.start.ran_with, viapoint(0.3));
+    assert_nothing_left(&run);
+
+    // Uninterrupted, update 4 and on run with the `set`'s 0.2, not the schedule's 0.1.
+    let reference = a1_changing_at(4, 0.0, &[("value = 0.1", "value = 0.2")]);
+    let fast = write_config(&scratch, "fast.toml", &a1_changing_at(4, 0.0, &[]));
+    let second = scratch.path("second.mcap");
+    let resumed = assert_resumes_to(&scratch, 1403, &first, &fast, &second, &reference);
+    assert_eq!(
+        viapoints(&resumed),
+        (4..8).map(|u| (u, 0.2)).collect::<Vec<_>>()
+    );
+}
+
 /// `--run` takes the id as `supervisor run --run-id` was given it (`2222` for the run
 /// 0000000000002222), as well as the start of the whole id.
 #[test]
