@@ -181,9 +181,10 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
             let names: Vec<String> = parts.iter().map(|p| p.display().to_string()).collect();
             // A resumed run's files, or the parts of a split recording (or both).
             let begins: Vec<String> = rec.run.iter().map(|r| r.update.to_string()).collect();
-            // Updates a restarted recorder's predecessor had not written.
+            // Updates a restarted recorder's predecessor had not written, also those before a
+            // last part that holds none.
             let points = &rec.digest.points;
-            let missing = gaps(points.iter().map(|u| u.update));
+            let missing = missing_updates(rec);
             let _ = writeln!(
                 out,
                 "{}: one run of {} updates{}, its files beginning at updates {}{}",
@@ -197,7 +198,7 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
                 if missing.is_empty() {
                     String::new()
                 } else {
-                    format!("; missing {missing} (not recorded: the recorder was restarted)")
+                    format!("; missing {missing} ({})", why_missing(rec))
                 }
             );
         }
@@ -289,17 +290,103 @@ fn io(file: &Path) -> impl FnOnce(std::io::Error) -> RecordError + '_ {
 /// The update numbers missing between the first and the last of ascending `updates`, as
 /// "3, 7–9" (a recovered file without its damaged chunks' updates); empty if none are.
 fn gaps(updates: impl IntoIterator<Item = u64>) -> String {
+    gaps_within(updates, None, None)
+}
+
+/// [`gaps`] from update `from` on (when given) and up to before `until` (when it lies beyond
+/// the last update: the update a later file begins at, which the run had reached).
+fn gaps_within(
+    updates: impl IntoIterator<Item = u64>,
+    from: Option<u64>,
+    until: Option<u64>,
+) -> String {
     let mut out = Vec::new();
-    let mut prev: Option<u64> = None;
+    let mut push = |a: u64, b: u64| {
+        out.push(if a == b {
+            format!("{a}")
+        } else {
+            format!("{a}–{b}")
+        })
+    };
+    let mut next = from;
     for u in updates {
-        match prev {
-            Some(p) if u == p + 2 => out.push(format!("{}", p + 1)),
-            Some(p) if u > p + 2 => out.push(format!("{}–{}", p + 1, u - 1)),
+        match next {
+            Some(n) if u > n => push(n, u - 1),
             _ => {}
         }
-        prev = Some(prev.map_or(u, |p| p.max(u)));
+        next = Some(next.map_or(u + 1, |n| n.max(u + 1)));
+    }
+    if let (Some(n), Some(until)) = (next, until) {
+        if until > n {
+            push(n, until - 1);
+        }
     }
     out.join(", ")
+}
+
+/// The updates a run's files lack: between its first file's start and its last update, and
+/// after that up to where a later file begins without an update (a part a restarted recorder
+/// began just before the run stopped, when the run had got there).
+fn missing_updates(rec: &Recording) -> String {
+    let from = rec.run.first().map(|r| r.update);
+    let until = rec.run.iter().map(|r| r.update).max();
+    gaps_within(rec.digest.points.iter().map(|u| u.update), from, until)
+}
+
+/// Why a run's files lack updates: a restarted recorder's predecessor had not written them, or
+/// (with no restart logged) they were lost with the damaged part of a recovered file.
+fn why_missing(rec: &Recording) -> &'static str {
+    if rec.digest.recorder_restarts > 0 {
+        "not recorded: the recorder was restarted"
+    } else {
+        "not in the files"
+    }
+}
+
+/// For the part at `path` if a restarted recorder began it: the updates between it and the
+/// part before (read beside it, as `previous_part` names it), which neither holds.
+pub fn missing_before_restart(path: &Path) -> Option<String> {
+    let ends = crate::read_ends(path).ok()?;
+    missing_before(path, &ends.metadata, ends.run?.update)
+}
+
+/// [`missing_before_restart`] of the part at `path` with metadata `meta`, beginning at update
+/// `begins`.
+fn missing_before(path: &Path, meta: &BTreeMap<String, String>, begins: u64) -> Option<String> {
+    let restart = meta.get("recorder_restart")?;
+    let name = meta.get("previous_part")?;
+    let before = path.with_file_name(Path::new(name).file_name()?);
+    let ends = match crate::read_ends(&before) {
+        Ok(e) => e,
+        Err(_) => {
+            return Some(format!(
+                "begins at update {begins} after a recorder restart (restart {restart}); the \
+                 part before, {}, is not there to tell which updates are missing",
+                before.display()
+            ))
+        }
+    };
+    // Where the part before ends: after its last update, or where it began without one.
+    let end = match (&ends.last_update, &ends.run) {
+        (Some(u), _) => u.update + 1,
+        (None, Some(r)) => r.update,
+        (None, None) => return None,
+    };
+    let missing = gaps_within(std::iter::empty(), Some(end), Some(begins));
+    Some(format!(
+        "begins at update {begins} after a recorder restart (restart {restart}); {}, after {} \
+         (which ends {})",
+        if missing.is_empty() {
+            "no update is missing".to_string()
+        } else {
+            format!("missing {missing} (not recorded)")
+        },
+        before.display(),
+        match &ends.last_update {
+            Some(u) => format!("with update {}", u.update),
+            None => format!("at update {end}, without one"),
+        }
+    ))
 }
 
 /// A human-readable summary of one recording.
@@ -367,7 +454,22 @@ pub fn info(rec: &Recording) -> String {
             first.eval_cost, last.eval_cost, best.0, best.1, first.lambda, lambda_next
         );
     } else {
-        let _ = writeln!(s, "  updates: 0");
+        let begins = rec.run_info().map(|r| r.update).filter(|u| *u > 0);
+        let _ = writeln!(
+            s,
+            "  updates: 0{}",
+            begins.map_or(String::new(), |u| format!(
+                " (the file begins at update {u} and holds none)"
+            ))
+        );
+    }
+    let restart = rec
+        .metadata
+        .get(crate::topics::METADATA)
+        .zip(rec.run_info())
+        .and_then(|(meta, run)| missing_before(&rec.path, meta, run.update));
+    if let Some(restart) = restart {
+        let _ = writeln!(s, "  {restart}");
     }
     if let Some((a, b)) = rec.time_range {
         let _ = writeln!(s, "  time span: {:.3} s", (b - a) as f64 / 1e9);
@@ -2491,6 +2593,78 @@ mod tests {
         assert_eq!(gaps([0, 1, 3, 4, 8, 9]), "2, 5–7");
         assert_eq!(gaps([5]), "");
         assert_eq!(gaps([]), "");
+        // From the first file's start, and up to a last file that begins without an update.
+        assert_eq!(gaps_within([3, 4, 5], Some(0), Some(9)), "0–2, 6–8");
+        assert_eq!(gaps_within([3, 4, 5], Some(3), Some(6)), "");
+        assert_eq!(gaps_within([3, 4, 5], Some(3), Some(4)), "");
+        assert_eq!(gaps_within([], Some(7), Some(8)), "7");
+    }
+
+    /// A recorder restarted just before the run stopped leaves a part without updates: the
+    /// joined run's updates end where the part before ends, and those up to where the last part
+    /// begins were not named as missing (nothing came after them). `info` of the part names
+    /// them too, from the part before beside it.
+    #[test]
+    fn the_updates_before_a_part_without_updates_are_named_missing() {
+        let dir = std::env::temp_dir().join(format!("analyze-gap-end-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("a.mcap");
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(10);
+        let mut rec = crate::McapRecorder::create(&first).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        let part = dir.join("a.part-2.mcap");
+        let hp = cfg.hyperparameters();
+        let initial = pi2cma::Distribution {
+            mean: nalgebra::DVector::from_vec(vec![0.5, -2.0]),
+            covariance: nalgebra::DMatrix::identity(2, 2),
+        };
+        let mut w = crate::RunWriter::create(&part).unwrap();
+        let previous = first.display().to_string();
+        w.write_start(&crate::RunStart {
+            name: "A1",
+            seed: 1,
+            update: 13,
+            steps: 101,
+            hyperparameters: &hp,
+            initial: &initial,
+            basis_activations: None,
+            config_toml: "",
+            executor: "pipeline",
+            task_settings: &[("viapoint", 0.3)],
+            previous_task_settings: &[],
+            resumed_from: None,
+            part: Some((2, &previous)),
+            run_id: None,
+            recorder_restart: Some(1),
+        })
+        .unwrap();
+        w.finish().unwrap();
+
+        let read = |p: &Path| crate::read_recording(p).unwrap();
+        let (a, b) = (read(&first), read(&part));
+        let joined = a.clone().join(b.clone());
+        assert_eq!(missing_updates(&joined), "10–12");
+        assert_eq!(missing_updates(&a), "");
+        let said = info(&b);
+        assert!(
+            said.contains("updates: 0 (the file begins at update 13 and holds none)"),
+            "{said}"
+        );
+        let expected = format!(
+            "begins at update 13 after a recorder restart (restart 1); missing 10–12 (not \
+             recorded), after {} (which ends with update 9)",
+            first.display()
+        );
+        assert!(said.contains(&expected), "{said}");
+        std::fs::remove_file(&first).unwrap();
+        let said = info(&b);
+        assert!(
+            said.contains("is not there to tell which updates are missing"),
+            "{said}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -34,6 +34,9 @@ pub const SERIOUS_LISTED: usize = 10;
 
 /// Health events the summary of a run without any update shows: its last ones.
 pub const LAST_EVENTS: usize = 3;
+/// How the warning a restarted recorder writes at the start of its part begins
+/// (`pipeline_recorder`); analysis counts these to say why updates are missing.
+pub const RECORDER_RESTARTED: &str = "the recorder was restarted";
 
 /// The learning-curve scalars of one update, and when its first rollout started.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -323,6 +326,8 @@ pub struct Digest {
     pub serious_count: usize,
     /// The last [`LAST_EVENTS`] health events.
     pub last_events: VecDeque<proto::Log>,
+    /// How many times a restarted recorder began a part (its warning on `/log`).
+    pub recorder_restarts: u64,
     /// The updates `timeline` holds rollouts of.
     timeline_updates: BTreeSet<u64>,
     /// Updates task changes apply from, as far as read.
@@ -421,6 +426,9 @@ impl Digest {
             }
             self.serious_count += 1;
         }
+        if l.name == "recorder" && l.message.starts_with(RECORDER_RESTARTED) {
+            self.recorder_restarts += 1;
+        }
         self.last_events.push_back(l.clone());
         if self.last_events.len() > LAST_EVENTS {
             self.last_events.pop_front();
@@ -441,6 +449,7 @@ impl Digest {
         let room = SERIOUS_LISTED.saturating_sub(self.serious.len());
         self.serious.extend(next.serious.into_iter().take(room));
         self.serious_count += next.serious_count;
+        self.recorder_restarts += next.recorder_restarts;
         self.last_events.extend(next.last_events);
         while self.last_events.len() > LAST_EVENTS {
             self.last_events.pop_front();

@@ -2400,10 +2400,15 @@ impl Supervisor {
             if rec.restarted > 0 {
                 say(&format!(
                     "  the recorder died and was restarted {} time(s); each restart began a new \
-                     part, and the updates a dead recorder had not written are missing (`analyze` \
-                     lists them)",
+                     part, and the updates a dead recorder had not written are missing:",
                     rec.restarted
                 ));
+                // Read after the recoveries ended: a part before a restart is complete then.
+                for part in record::recording_parts(&rec.path) {
+                    if let Some(gap) = record::analyze::missing_before_restart(&part) {
+                        say(&format!("    {}: {gap}", part.display()));
+                    }
+                }
             }
             for (part, done) in &recoveries {
                 match done {

@@ -2240,6 +2240,21 @@ fn a_killed_recorder_is_restarted_into_a_new_part_and_only_its_unwritten_updates
             pair[1].updates.first().unwrap().update,
         );
         assert!(begin >= end && begin - end <= lag + 2, "{end}..{begin}");
+        // The summary names the updates between the parts, as the parts hold them.
+        let missing = match begin - end {
+            0 => "no update is missing".to_string(),
+            1 => format!("missing {end} (not recorded)"),
+            _ => format!("missing {end}–{} (not recorded)", begin - 1),
+        };
+        let said = format!(
+            "{}: begins at update {begin} after a recorder restart",
+            pair[1].path.file_name().unwrap().to_string_lossy()
+        );
+        let line = out.lines().find(|l| l.contains(&said));
+        assert!(
+            line.is_some_and(|l| l.contains(&missing)),
+            "{said} … {missing}:\n{out}"
+        );
         assert!(
             pair[1]
                 .logs
