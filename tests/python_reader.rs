@@ -241,6 +241,7 @@ fn python_check_accepts_a_recording_without_updates_as_analyze_does() {
                 config_toml: &text,
                 executor: "pipeline",
                 task_settings: &[],
+                previous_task_settings: &[],
                 resumed_from: None,
                 part: None,
                 run_id: None,
