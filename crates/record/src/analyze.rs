@@ -1436,6 +1436,41 @@ fn ellipse(m: [f64; 2], c: [[f64; 2]; 2]) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The smallest half-axis, in pixels, the ellipse of the first update after a task change is
+/// drawn with: with λ small at the change (the run had converged), its 2σ ellipse was under a
+/// pixel, and the red mark of the change was invisible.
+pub const MIN_CHANGE_ELLIPSE_PIXELS: f64 = 6.0;
+
+/// The ellipse `pts` around `centre`, scaled up about it to a largest half-axis of `least` if
+/// smaller (a circle of that radius if it has none).
+fn at_least(pts: &[(f64, f64)], centre: (f64, f64), least: f64) -> Vec<(f64, f64)> {
+    let radius = pts
+        .iter()
+        .map(|p| (p.0 - centre.0).hypot(p.1 - centre.1))
+        .fold(0.0f64, f64::max);
+    if radius >= least {
+        return pts.to_vec();
+    }
+    if radius > 0.0 {
+        let k = least / radius;
+        return pts
+            .iter()
+            .map(|p| {
+                (
+                    centre.0 + k * (p.0 - centre.0),
+                    centre.1 + k * (p.1 - centre.1),
+                )
+            })
+            .collect();
+    }
+    (0..=64)
+        .map(|i| {
+            let a = f64::from(i) / 64.0 * std::f64::consts::TAU;
+            (centre.0 + least * a.cos(), centre.1 + least * a.sin())
+        })
+        .collect()
+}
+
 fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
     // Every update's, or for a long run those the digest kept (DISTRIBUTIONS_SHOWN).
@@ -1521,16 +1556,23 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
         .draw()
         .map_err(|x| e(&x))?;
     let changes: Vec<u64> = rec.task_changes.iter().map(|c| c.update).collect();
-    for (i, (u, pts)) in ellipses.iter().enumerate() {
+    for (i, ((u, pts), (_, d))) in ellipses.iter().zip(&dists).enumerate() {
         let t = i as f64 / n as f64;
-        let color = if changes.contains(u) {
-            RGBColor(214, 39, 40).stroke_width(2)
+        let (color, pts) = if changes.contains(u) {
+            let centre = (d.mean[0], d.mean[1]);
+            (
+                RGBColor(214, 39, 40).stroke_width(2),
+                at_least(pts, centre, MIN_CHANGE_ELLIPSE_PIXELS * per_pixel),
+            )
         } else {
             let g = (200.0 * (1.0 - t)) as u8;
-            RGBColor(g, g, 255u8.saturating_sub((100.0 * t) as u8)).stroke_width(1)
+            (
+                RGBColor(g, g, 255u8.saturating_sub((100.0 * t) as u8)).stroke_width(1),
+                pts.clone(),
+            )
         };
         chart
-            .draw_series(LineSeries::new(pts.iter().copied(), color))
+            .draw_series(LineSeries::new(pts, color))
             .map_err(|x| e(&x))?;
     }
     chart
@@ -2418,6 +2460,68 @@ mod tests {
         // The eval cost and λ as dots, the exploration band as a bar with its dot.
         assert_eq!(svg.matches("<circle").count(), 3, "{svg}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The first update after a task change is marked by a red ellipse; with λ small there it
+    /// was under a pixel. It is drawn at least MIN_CHANGE_ELLIPSE_PIXELS in half-axis.
+    #[test]
+    fn the_ellipse_after_a_task_change_stays_visible_when_lambda_is_small() {
+        let mut r = Recording::default();
+        r.run.push(proto::RunInfo {
+            dim: 2,
+            ..Default::default()
+        });
+        let change = proto::TaskChange {
+            update: 3,
+            ..Default::default()
+        };
+        r.digest.add_task_change(&change);
+        r.task_changes.push(change);
+        let d = |m: f64, var: f64| proto::Distribution {
+            dim: 2,
+            mean: vec![m, -m],
+            covariance: vec![var, 0.0, 0.0, var],
+        };
+        for u in 0..6u64 {
+            // Converged before the change: a variance of 1e-12 against 1 at the start.
+            let var = if u < 2 { 1.0 } else { 1e-12 };
+            r.digest.add_update(&proto::Update {
+                update: u,
+                dim: 2,
+                before: Some(d(u as f64, var)),
+                after: Some(d(u as f64 + 1.0, var)),
+                ..Default::default()
+            });
+        }
+        let dir = std::env::temp_dir().join(format!("pi2cma-red-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("distribution.svg");
+        plot_ellipses(&r, &path).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let red = svg
+            .split("<polyline")
+            .find(|p| p.contains("stroke=\"#D62728\""))
+            .expect("a red ellipse");
+        let pts: Vec<(f64, f64)> = red
+            .split("points=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .split_whitespace()
+            .filter_map(|p| {
+                let (x, y) = p.split_once(',')?;
+                Some((x.parse().ok()?, y.parse().ok()?))
+            })
+            .collect();
+        let span = |f: fn(&(f64, f64)) -> f64| {
+            let v: Vec<f64> = pts.iter().map(f).collect();
+            v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
+        };
+        // Whole pixels: 2 × 6 px across, give or take the rounding of each end.
+        assert!(span(|p| p.0) >= 10.0 && span(|p| p.1) >= 10.0, "{red}");
     }
 
     /// Rollouts of a microsecond on a timeline of milliseconds (pipelined via-point runs): every
