@@ -38,6 +38,25 @@ enum Hold {
 /// A temporary runs directory, removed on drop; holds [`MACHINE`] while it lives.
 struct Scratch(PathBuf, #[allow(dead_code)] Hold);
 
+/// Scratch directories are named per test and emptied when a test begins: two tests of one
+/// name, run in parallel, delete each other's runs (their workers then exit on the run
+/// directory's disappearance), a failure that shows only when their runs overlap.
+#[test]
+fn every_test_has_a_scratch_directory_of_its_own() {
+    let source = include_str!("e2e.rs");
+    let mut seen = std::collections::BTreeSet::new();
+    for call in ["Scratch::new(\"", "Scratch::exclusive(\""] {
+        for at in source.match_indices(call).map(|(i, _)| i + call.len()) {
+            let name = &source[at..at + source[at..].find('"').unwrap()];
+            assert!(
+                seen.insert(name),
+                "two tests use the scratch directory {name:?}"
+            );
+        }
+    }
+    assert!(seen.len() > 50, "{seen:?}");
+}
+
 impl Scratch {
     fn new(name: &str) -> Self {
         let hold = Hold::Shared(MACHINE.read().unwrap_or_else(|e| e.into_inner()));
@@ -2378,7 +2397,7 @@ fn supervisor_record_starts_a_recorder_that_was_not_restarted_again() {
 /// grew by that per restart for as long as the run went on.
 #[test]
 fn the_recoveries_of_a_recorder_restarted_again_and_again_do_not_pile_up() {
-    let scratch = Scratch::new("rec-again");
+    let scratch = Scratch::new("rec-piling");
     let text = config(&[
         ("updates = 40", "updates = 100000"),
         DELAYED,
