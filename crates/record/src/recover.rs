@@ -125,6 +125,39 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
     Ok(report)
 }
 
+/// Whether the file at `path` holds nothing a recorder wrote for its run: no bytes, or the MCAP
+/// magic and at most the (possibly torn) header record. That is what a recorder leaves that died
+/// between creating its part and writing its first record (the writer keeps even the header in
+/// memory until its first flush): there is nothing to recover, and [`recover`] refuses such a
+/// file as it refuses any file without a readable record.
+pub fn holds_nothing(path: &Path) -> std::io::Result<bool> {
+    const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+    const HEADER_OPCODE: u8 = 0x01;
+    let mut head = Vec::with_capacity(MAGIC.len() + 9);
+    File::open(path)?
+        .take((MAGIC.len() + 9) as u64)
+        .read_to_end(&mut head)?;
+    let len = std::fs::metadata(path)?.len();
+    if !MAGIC.starts_with(&head[..head.len().min(MAGIC.len())]) {
+        return Ok(false);
+    }
+    let Some(record) = head.get(MAGIC.len()..) else {
+        return Ok(true);
+    };
+    match record {
+        [] => Ok(true),
+        [op, ..] if *op != HEADER_OPCODE => Ok(false),
+        [_, l @ ..] if l.len() == 8 => {
+            let mut body = [0; 8];
+            body.copy_from_slice(l);
+            let body = u64::from_le_bytes(body);
+            Ok(len <= (MAGIC.len() as u64 + 9).saturating_add(body))
+        }
+        // A header torn within its length field.
+        _ => Ok(true),
+    }
+}
+
 /// Writes every readable record of `input` into `tmp`, a complete, indexed MCAP.
 fn rewrite(
     file: &mut File,
@@ -595,5 +628,45 @@ mod tests {
         let other = RecordError::io("runs/a.mcap", std::io::Error::from_raw_os_error(13));
         let text = other.to_string();
         assert_eq!(disk_full_hint(other, input, input).to_string(), text);
+    }
+
+    #[test]
+    fn a_part_whose_recorder_died_before_its_first_record_holds_nothing() {
+        let dir = std::env::temp_dir().join(format!("holds-nothing-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = |name: &str, bytes: &[u8]| {
+            let path = dir.join(name);
+            std::fs::write(&path, bytes).unwrap();
+            path
+        };
+        // A recorder SIGKILLed right after creating its part: the writer had flushed nothing.
+        let created = dir.join("created.mcap");
+        std::mem::forget(crate::RunWriter::create(&created).unwrap());
+        assert!(holds_nothing(&created).unwrap());
+        let magic = b"\x89MCAP0\r\n";
+        assert!(holds_nothing(&file("empty.mcap", b"")).unwrap());
+        assert!(holds_nothing(&file("torn-magic.mcap", &magic[..5])).unwrap());
+        assert!(holds_nothing(&file("magic.mcap", magic)).unwrap());
+        let mut header = magic.to_vec();
+        header.push(0x01);
+        header.extend_from_slice(&4u64.to_le_bytes()[..3]);
+        assert!(holds_nothing(&file("torn-length.mcap", &header)).unwrap());
+        header.truncate(magic.len() + 1);
+        header.extend_from_slice(&4u64.to_le_bytes());
+        header.extend_from_slice(&[0, 0, 0, 0]);
+        assert!(holds_nothing(&file("header.mcap", &header)).unwrap());
+        // Anything after the header is a record someone may want back.
+        header.push(0x03);
+        assert!(!holds_nothing(&file("more.mcap", &header)).unwrap());
+        assert!(!holds_nothing(&file("config.toml", b"[run]\nname = 'A1'\n")).unwrap());
+        // A part with its first record written is recovered, not taken for empty.
+        let started = dir.join("started.mcap");
+        let mut w = crate::RunWriter::create(&started).unwrap();
+        w.write_event(0, crate::Event::Start, "recorder", 1, "started")
+            .unwrap();
+        w.flush().unwrap();
+        std::mem::forget(w);
+        assert!(!holds_nothing(&started).unwrap());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

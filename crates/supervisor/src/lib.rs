@@ -16,7 +16,7 @@ mod run;
 mod shm;
 
 pub use control::{client, runs_dir};
-pub use run::{default_recording, process_alive, run, RunOptions};
+pub use run::{default_recording, process_alive, run, RunOptions, EMPTY_PART_REMOVED};
 
 /// Exit code of a run stopped by SIGINT/SIGTERM.
 pub const EXIT_INTERRUPTED: u8 = 130;

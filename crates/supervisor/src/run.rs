@@ -289,6 +289,10 @@ struct Recording {
     recovering: Vec<(PathBuf, Recovery)>,
 }
 
+/// What the summary says of a part whose recorder died before it wrote anything to it.
+pub const EMPTY_PART_REMOVED: &str =
+    "held nothing (its recorder died before writing its first record): removed";
+
 /// The recovery of a part a dead recorder left.
 enum Recovery {
     Running(std::thread::JoinHandle<Result<String, String>>),
@@ -2239,6 +2243,15 @@ impl Supervisor {
             let recovery = std::thread::Builder::new()
                 .name("recover".into())
                 .spawn(move || {
+                    // Killed between creating its part and writing its first record (a window
+                    // a loaded machine widens), a recorder leaves a part that holds nothing to
+                    // recover; kept, it would fail the recovery and the run (exit 3) and stop
+                    // the analysis of the parts, for no update lost.
+                    if record::recover::holds_nothing(&input).unwrap_or(false) {
+                        return std::fs::remove_file(&input)
+                            .map(|()| format!("{}: {EMPTY_PART_REMOVED}", input.display()))
+                            .map_err(|e| format!("{}: cannot remove: {e}", input.display()));
+                    }
                     record::recover::recover(&input, &input)
                         .map(|r| r.describe())
                         .map_err(|e| e.to_string())

@@ -2445,8 +2445,10 @@ fn the_recoveries_of_a_recorder_restarted_again_and_again_do_not_pile_up() {
     );
     let out = run.text();
     assert!(!out.contains("NOT finished"), "{out}");
+    // A recorder killed before its first record (a loaded machine) leaves nothing to recover.
     assert_eq!(
-        out.matches("(complete, indexed)").count(),
+        out.matches("(complete, indexed)").count()
+            + out.matches(supervisor::EMPTY_PART_REMOVED).count(),
         deaths as usize,
         "{out}"
     );
