@@ -843,6 +843,11 @@ trait OpenFailure: std::fmt::Debug {
     /// The service was created by a process built with another iceoryx2 version, which
     /// iceoryx2 refuses down to the patch version.
     fn version_mismatch(&self) -> bool;
+    /// The service carries other message types than this process's: one side was built from
+    /// another revision of this crate (the type names are versioned, `pi2cma.Ready.v2`).
+    fn other_contract(&self) -> bool {
+        false
+    }
 }
 
 impl OpenFailure for PublishSubscribeOpenOrCreateError {
@@ -858,6 +863,12 @@ impl OpenFailure for PublishSubscribeOpenOrCreateError {
         matches!(
             self,
             Self::PublishSubscribeOpenError(PublishSubscribeOpenError::VersionMismatch)
+        )
+    }
+    fn other_contract(&self) -> bool {
+        matches!(
+            self,
+            Self::PublishSubscribeOpenError(PublishSubscribeOpenError::IncompatibleTypes)
         )
     }
 }
@@ -883,6 +894,14 @@ pub const VERSION_MISMATCH_HINT: &str = "the run's services were created by a pr
     patch included): build your worker with the pi2cma workspace's Cargo.lock (copy it into \
     your worker crate) or as a member of the workspace";
 
+/// What a process that meets the run's messages under other type names is told: a worker built
+/// against an older or newer revision of the wire contract.
+pub const CONTRACT_MISMATCH_HINT: &str = "the run's messages are of other types than this \
+    process's (their names are versioned, e.g. pi2cma.Ready.v2): this process was built from \
+    another revision of pi2cma's wire crate than the run's processes; rebuild your worker against \
+    the pi2cma workspace the supervisor was built from (a Python worker: take that workspace's \
+    tools/pi2cma_worker.py and its wire layout in the README)";
+
 /// Opens or creates the run's service `pi2cma/<run>/<tail>` with `open`, again a few times while
 /// it fails only for a moment ([`OpenFailure::interrupted`]); an error names the service, and
 /// one of another iceoryx2 version says what to do about it.
@@ -904,6 +923,12 @@ fn open_or_create<T, E: OpenFailure>(
                 return Err(WireError::new(
                     name.as_str(),
                     format!("{e:?}: {VERSION_MISMATCH_HINT}"),
+                ))
+            }
+            Err(e) if e.other_contract() => {
+                return Err(WireError::new(
+                    name.as_str(),
+                    format!("{e:?}: {CONTRACT_MISMATCH_HINT}"),
                 ))
             }
             r => return r.map_err(|e| WireError::new(name.as_str(), format!("{e:?}"))),
@@ -1137,6 +1162,24 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(!e.contains("Cargo.lock"), "{e}");
+    }
+
+    #[test]
+    fn a_service_of_other_message_types_says_the_worker_is_of_another_revision() {
+        let e = open_or_create::<(), _>(0x2a, "ready", |_| {
+            Err(
+                PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                    PublishSubscribeOpenError::IncompatibleTypes,
+                ),
+            )
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("iceoryx2 service `pi2cma/000000000000002a/ready`: ")
+                && e.ends_with(CONTRACT_MISMATCH_HINT),
+            "{e}"
+        );
     }
 
     #[test]
