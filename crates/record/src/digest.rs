@@ -34,8 +34,8 @@ pub const SERIOUS_LISTED: usize = 10;
 
 /// Health events the summary of a run without any update shows: its last ones.
 pub const LAST_EVENTS: usize = 3;
-/// How the warning a restarted recorder writes at the start of its part begins
-/// (`pipeline_recorder`); analysis counts these to say why updates are missing.
+/// How the warning a restarted recorder writes at the start of its part begins (the pipeline
+/// recorder writes it with this prefix); analysis counts these to say why updates are missing.
 pub const RECORDER_RESTARTED: &str = "the recorder was restarted";
 
 /// The learning-curve scalars of one update, and when its first rollout started.

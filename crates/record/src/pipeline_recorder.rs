@@ -536,9 +536,10 @@ impl WriterState {
                             "recorder",
                             pid,
                             &format!(
-                                "the recorder was restarted (restart {n}) after the one before \
-                                 it died: this part begins at update {}; the updates between \
-                                 the last one of the part before and this one were not recorded",
+                                "{} (restart {n}) after the one before it died: this part \
+                                 begins at update {}; the updates between the last one of the \
+                                 part before and this one were not recorded",
+                                crate::digest::RECORDER_RESTARTED,
                                 h.update
                             ),
                         )?;

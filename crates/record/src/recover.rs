@@ -133,11 +133,10 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
 pub fn holds_nothing(path: &Path) -> std::io::Result<bool> {
     const MAGIC: &[u8] = b"\x89MCAP0\r\n";
     const HEADER_OPCODE: u8 = 0x01;
+    let file = File::open(path)?;
+    let len = file.metadata()?.len();
     let mut head = Vec::with_capacity(MAGIC.len() + 9);
-    File::open(path)?
-        .take((MAGIC.len() + 9) as u64)
-        .read_to_end(&mut head)?;
-    let len = std::fs::metadata(path)?.len();
+    file.take((MAGIC.len() + 9) as u64).read_to_end(&mut head)?;
     if !MAGIC.starts_with(&head[..head.len().min(MAGIC.len())]) {
         return Ok(false);
     }
