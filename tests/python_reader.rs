@@ -29,6 +29,23 @@ fn pi2cma_run(dir: &Path, args: &[&str]) {
     );
 }
 
+/// `python3 tools/TOOL ARGS` in `dir`: whether it succeeded, and its stdout and stderr.
+fn python_tool(tool: &str, args: &[&str], dir: &Path) -> (bool, String) {
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let out = Command::new("python3")
+        .arg(repo.join("tools").join(tool))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("python3 starts (then: python3 -m pip install -r tools/requirements.txt)");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
 #[test]
 fn python_reader_decodes_every_topic_of_a_run() {
     let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
@@ -80,7 +97,6 @@ fn python_reader_decodes_every_topic_of_a_run() {
 /// curve is drawn; given out of order, the seams fail.
 #[test]
 fn python_reader_joins_the_parts_of_a_split_recording() {
-    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let dir = scratch("python-join");
     let config = format!(
         "{}\n[recording]\nsplit_mb = 1\n",
@@ -90,19 +106,8 @@ fn python_reader_joins_the_parts_of_a_split_recording() {
     pi2cma_run(&dir, &["split.toml", "--quiet", "--out", "out"]);
     let parts = ["out/run.mcap", "out/run.part-2.mcap", "out/run.part-3.mcap"];
     let python = |files: &[&str]| {
-        let out = Command::new("python3")
-            .arg(repo.join("tools/plot_learning_curve.py"))
-            .args(["--join", "--check", "-o", "joined.svg"])
-            .args(files)
-            .current_dir(&dir)
-            .output()
-            .expect("python3 starts");
-        let text = format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        (out.status.success(), text)
+        let args = [&["--join", "--check", "-o", "joined.svg"], files].concat();
+        python_tool("plot_learning_curve.py", &args, &dir)
     };
     let (ok, text) = python(&parts);
     assert!(ok, "{text}");
@@ -217,7 +222,6 @@ for case in (SettingsMethod, StepsMethod, SettingsList, NoSettings):
 /// (it failed them: "topic /update is missing", "no /update messages").
 #[test]
 fn python_check_accepts_a_recording_without_updates_as_analyze_does() {
-    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let dir = scratch("python-no-updates");
     let cfg = session::RunConfig::default_config();
     let hp = cfg.hyperparameters();
@@ -262,18 +266,45 @@ fn python_check_accepts_a_recording_without_updates_as_analyze_does() {
             .expect("pi2cma starts");
         let summary = String::from_utf8_lossy(&analyze.stdout);
         assert!(analyze.status.success(), "{summary}");
-        let check = Command::new("python3")
-            .arg(repo.join("tools/plot_learning_curve.py"))
-            .arg("--check")
-            .arg(&file)
-            .output()
-            .expect("python3 starts");
-        let text = format!(
-            "{}{}",
-            String::from_utf8_lossy(&check.stdout),
-            String::from_utf8_lossy(&check.stderr)
-        );
-        assert!(check.status.success(), "{}: {text}", file.display());
+        let name = file.file_name().and_then(|n| n.to_str()).expect("a name");
+        let (ok, text) = python_tool("plot_learning_curve.py", &["--check", name], &dir);
+        assert!(ok, "{}: {text}", file.display());
         assert!(text.contains("1 passed, 0 failed"), "{text}");
     }
+}
+
+/// A damaged chunk (a bad sector, a bad copy) is an error naming the file, never other numbers
+/// (README, "Nothing lost"): the `mcap` package checks no CRC unless asked, so a step cost with
+/// its lowest byte flipped was read as another number, `--check` passed ("1 passed, 0 failed")
+/// and `check_update.py` agreed.
+#[test]
+fn python_tools_refuse_a_damaged_chunk_as_ours_do() {
+    let dir = scratch("damaged");
+    pi2cma_run(&dir, &["--quiet", "--out", "."]);
+    let mcap = dir.join("run.mcap");
+    // A step cost of update 10: its bytes are stored as they are (zstd literals), once.
+    let cost = record::read_recording(&mcap).expect("read").updates[10].cost_per_step[37];
+    let mut bytes = std::fs::read(&mcap).expect("read the file");
+    let at = bytes
+        .windows(8)
+        .position(|w| w == cost.to_le_bytes())
+        .expect("the step cost's bytes are in the file");
+    bytes[at] ^= 1;
+    std::fs::write(&mcap, &bytes).expect("write the damaged file");
+    assert!(
+        record::read_recording(&mcap).is_err(),
+        "our reader must see the damage"
+    );
+    for (tool, args) in [
+        ("plot_learning_curve.py", &["--check", "run.mcap"][..]),
+        ("check_update.py", &["run.mcap"]),
+    ] {
+        let (ok, text) = python_tool(tool, args, &dir);
+        assert!(!ok, "{tool} passed a damaged file:\n{text}");
+        assert!(
+            text.contains("run.mcap: damaged"),
+            "{tool} does not name the damage:\n{text}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

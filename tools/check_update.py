@@ -62,6 +62,7 @@ import sys
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.stream_reader import CRCValidationError
 from mcap_protobuf.decoder import DecoderFactory
 
 MAP_EXP, MAP_ELITES = 1, 2
@@ -86,18 +87,23 @@ def dist(d):
 
 def decoded_messages(path):
     """The file's decoded messages. A file whose writer was killed (no summary section, as
-    before `pi2cma recover`) is read as a stream up to where it ends."""
+    before `pi2cma recover`) is read as a stream up to where it ends. Every chunk's CRC is
+    checked: a damaged file ends the check naming it, as the tool's own readers do, rather than
+    being recomputed from other numbers."""
     with open(path, "rb") as f:
         try:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             indexed = reader.get_summary() is not None
         except McapError:
             indexed = False
         if not indexed:
             f.seek(0)
-            reader = NonSeekingReader(f, decoder_factories=[DecoderFactory()])
+            reader = NonSeekingReader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
         try:
             yield from reader.iter_decoded_messages(log_time_order=False)
+        except CRCValidationError as e:
+            sys.exit(f"check_update: {path}: damaged: {e} (`pi2cma recover {path}` keeps every "
+                     f"undamaged chunk)")
         except McapError as e:
             if indexed:
                 raise

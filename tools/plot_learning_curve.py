@@ -13,6 +13,8 @@ cost mean ± std band and λ on a log axis, with task changes marked.
 updates, the distribution after one update is the one the next samples from); it exits non-zero
 on any failure. A recording without updates (a run that ended before its first: its /run and
 /log, or /log alone) passes, as `analyze` reads it. Files whose writer was killed (no summary section) are read as a stream.
+Every chunk's CRC is checked: a damaged file (a bad sector, a bad copy) fails, naming the file,
+rather than giving other numbers (`pi2cma recover FILE` keeps every undamaged chunk).
 
 --join takes the files as one run, in order: the parts of a split recording (`recording.split_mb`)
 or a run and the runs resumed from it (`--resume`). It checks that each file goes on exactly where
@@ -27,6 +29,7 @@ import sys
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.stream_reader import CRCValidationError
 from mcap_protobuf.decoder import DecoderFactory
 
 EXPECTED_TOPICS = {
@@ -40,12 +43,18 @@ EXPECTED_TOPICS = {
 }
 
 
+class Damaged(Exception):
+    """A chunk whose records fail their CRC: without the check (the `mcap` package's default)
+    a flipped byte in a step cost was read as another number, and `--check` passed."""
+
+
 def read(path):
-    """Returns {topic: [decoded message, ...]} and whether the file was indexed."""
+    """Returns {topic: [decoded message, ...]} and whether the file was indexed; raises Damaged
+    for a chunk that fails its CRC."""
     by_topic = collections.defaultdict(list)
     with open(path, "rb") as f:
         try:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             summary = reader.get_summary()
         except McapError:
             summary = None
@@ -54,11 +63,15 @@ def read(path):
             it = reader.iter_decoded_messages(log_time_order=False)
         else:
             f.seek(0)
-            reader = NonSeekingReader(f, decoder_factories=[DecoderFactory()])
+            reader = NonSeekingReader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             it = reader.iter_decoded_messages(log_time_order=False)
         try:
             for schema, channel, _message, decoded in it:
                 by_topic[channel.topic].append((schema.name, decoded))
+        except CRCValidationError as e:
+            raise Damaged(
+                f"{path}: damaged: {e} (`pi2cma recover {path}` keeps every undamaged chunk)"
+            ) from None
         except McapError as e:
             if indexed:
                 raise
@@ -195,7 +208,13 @@ def main(argv=None):
     failed_files = 0
     read_files = []
     for i, path in enumerate(args.files):
-        by_topic, indexed = read(path)
+        try:
+            by_topic, indexed = read(path)
+        except Damaged as e:
+            failures.append(str(e))
+            failed_files += 1
+            read_files.append({})
+            continue
         read_files.append(by_topic)
         counts = ", ".join(f"{t} {len(m)}" for t, m in sorted(by_topic.items()))
         print(f"{path}: {'indexed' if indexed else 'NOT indexed (stream read)'}; decoded {counts}")
