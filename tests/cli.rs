@@ -462,3 +462,30 @@ fn command_line_overrides_are_part_of_the_recorded_config() {
     let default_seed = run(&["--updates", "25", "--out", "seed1"]);
     assert_ne!(default_seed, whole, "the seed changes the run");
 }
+
+/// `--quiet` leaves out the per-update lines, not the warnings: a rollout whose costs were not
+/// finite and that is run again is printed (README, "Non-finite costs"), as `supervisor run
+/// --quiet` prints it. It was printed only without `--quiet`.
+#[test]
+fn a_rerun_of_a_non_finite_rollout_is_printed_also_with_quiet() {
+    let d = scratch("rerun-quiet");
+    let text = std::fs::read_to_string(repo().join("config/A1.toml")).expect("A1");
+    let text = text.replacen(
+        "updates = 40",
+        "updates = 10\nnonfinite_reruns = 2\nfault_nan_first_attempt = { update = 3, rollout = 7 }",
+        1,
+    );
+    std::fs::write(d.join("rerun.toml"), text).expect("write config");
+    let out = pi2cma(&["run", "rerun.toml", "--quiet", "--out", "res"], &d);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(
+        stdout.contains(
+            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite (attempt 1 of \
+             at most 3, by in-process): rerunning it with the same parameters \
+             (run.nonfinite_reruns = 2)"
+        ),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("update   1/10"), "{stdout}");
+}

@@ -53,7 +53,7 @@ enum Command {
         /// recording is refused. Default: runs/latest, which each run without --out replaces.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Print nothing per update.
+        /// Print nothing per update (a rollout run again for non-finite costs is still printed).
         #[arg(long)]
         quiet: bool,
         /// Do not write the MCAP recording (OUT/run.mcap).
@@ -110,10 +110,15 @@ enum Command {
 
 struct Progress {
     total: Option<u64>,
+    /// `--quiet`: no task change and no line per update; a rerun, a warning, is printed still.
+    quiet: bool,
 }
 
 impl Observer for Progress {
     fn on_task_change(&mut self, update: u64, change: &tasks::TaskChange) {
+        if self.quiet {
+            return;
+        }
         // The progress lines count updates from 1; tables and configs index them from 0.
         say!(
             "task change {} = {} from update {}/{} on (index {update})",
@@ -127,6 +132,9 @@ impl Observer for Progress {
         say!("{}", rerun.message());
     }
     fn on_update(&mut self, r: &UpdateRecord<'_>) {
+        if self.quiet {
+            return;
+        }
         let s = r.summary;
         let total = self.total.map_or("∞".to_string(), |t| t.to_string());
         say!(
@@ -269,8 +277,8 @@ fn recorder(mcap: &Path, text: String) -> Result<record::McapRecorder> {
         .with_config_text(text))
 }
 
-/// Runs `run` with the progress printer (unless `quiet`) and `recorder` as observers, then
-/// finishes the recording.
+/// Runs `run` with the progress printer (with `quiet`, only its warnings) and `recorder` as
+/// observers, then finishes the recording.
 fn run_observed<T>(
     cfg: &RunConfig,
     mut recorder: Option<record::McapRecorder>,
@@ -279,12 +287,10 @@ fn run_observed<T>(
 ) -> Result<T> {
     let mut progress = Progress {
         total: cfg.run.updates,
+        quiet,
     };
     let value = {
-        let mut observers: Vec<&mut dyn Observer> = Vec::new();
-        if !quiet {
-            observers.push(&mut progress);
-        }
+        let mut observers: Vec<&mut dyn Observer> = vec![&mut progress];
         if let Some(r) = recorder.as_mut() {
             observers.push(r);
         }
