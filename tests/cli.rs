@@ -489,3 +489,42 @@ fn a_rerun_of_a_non_finite_rollout_is_printed_also_with_quiet() {
     );
     assert!(!stdout.contains("update   1/10"), "{stdout}");
 }
+
+/// An unbounded config (no `run.updates`) does not run in-process as it is; the refusal names
+/// `--updates N`, which runs it here, and not only the supervisor (it named `--updates` only
+/// when resuming).
+#[test]
+fn an_unbounded_config_is_refused_naming_updates() {
+    let d = scratch("unbounded");
+    let text = std::fs::read_to_string(repo().join("config/A1.toml")).expect("A1");
+    std::fs::write(
+        d.join("unbounded.toml"),
+        text.replacen("updates = 40\n", "", 1),
+    )
+    .expect("write config");
+    let out = pi2cma(&["run", "unbounded.toml", "--quiet", "--out", "res"], &d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("unbounded.toml: run.updates is not set")
+            && stderr.contains("give --updates N"),
+        "{stderr}"
+    );
+    let out = pi2cma(
+        &[
+            "run",
+            "unbounded.toml",
+            "--updates",
+            "3",
+            "--quiet",
+            "--out",
+            "res",
+        ],
+        &d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

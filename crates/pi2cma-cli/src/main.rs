@@ -341,9 +341,10 @@ fn run(cli: Cli) -> Result<()> {
             )?;
             if cfg.run.updates.is_none() {
                 bail!(
-                    "{}: run.updates is not set (an unbounded run): run it with the supervisor, which can be stopped{}",
-                    cfg.origin.display(),
-                    if point.is_some() { ", or give --updates" } else { "" }
+                    "{}: run.updates is not set (an unbounded run): give --updates N to run N \
+                     updates in-process, or run it with `supervisor run`, which goes on until it \
+                     is stopped",
+                    cfg.origin.display()
                 );
             }
             // Before anything in OUT is written: a config that cannot run in-process (an
