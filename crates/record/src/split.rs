@@ -213,20 +213,33 @@ pub fn refuse_overwrite(path: &Path, option: &str) -> Result<(), RecordError> {
         .skip(1)
         .map(|p| p.display().to_string())
         .collect();
-    let what = match (first, parts.is_empty()) {
-        (None, true) => return Ok(()),
-        (Some(bytes), true) => format!("a recording of {bytes} bytes"),
-        (Some(bytes), false) => format!(
-            "a recording of {bytes} bytes and its parts {}",
-            parts.join(", ")
+    let (what, is, it) = match (first, parts.as_slice()) {
+        (None, []) => return Ok(()),
+        (Some(bytes), []) => (format!("a recording of {bytes} bytes"), "is", "it"),
+        (Some(bytes), _) => (
+            format!(
+                "a recording of {bytes} bytes and its parts {}",
+                parts.join(", ")
+            ),
+            "are",
+            "them",
         ),
-        (None, false) => format!("the parts {} of an earlier recording", parts.join(", ")),
+        (None, [one]) => (
+            format!("the part {one} of an earlier recording"),
+            "is",
+            "it",
+        ),
+        (None, _) => (
+            format!("the parts {} of an earlier recording", parts.join(", ")),
+            "are",
+            "them",
+        ),
     };
     Err(RecordError::invalid(
         path,
         format!(
-            "{what} is there already ({option}); a run does not overwrite a recording: remove \
-             it or record elsewhere"
+            "{what} {is} there already ({option}); a run does not overwrite a recording: remove \
+             {it} or record elsewhere"
         ),
     ))
 }
@@ -545,6 +558,39 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(again.contains("is there already"), "{again}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The refusal's verb and pronoun follow what is there: "the parts a, b of an earlier
+    /// recording is there already: remove it" said one thing of two files.
+    #[test]
+    fn a_refusal_names_what_is_there_in_its_number() {
+        let dir = std::env::temp_dir().join(format!("split-refuse-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("r.mcap");
+        // Each file is added to those before it.
+        for (file, said) in [
+            (
+                part_path(&first, 2),
+                "r.part-2.mcap of an earlier recording is",
+            ),
+            (
+                part_path(&first, 3),
+                "r.part-3.mcap of an earlier recording are",
+            ),
+            (first.clone(), "r.part-3.mcap are"),
+        ] {
+            std::fs::write(&file, b"x").unwrap();
+            let e = refuse_overwrite(&first, "--record")
+                .unwrap_err()
+                .to_string();
+            let it = if said.ends_with("is") { "it" } else { "them" };
+            let expected = format!(
+                "{said} there already (--record); a run does not overwrite a recording: remove \
+                 {it} or record elsewhere"
+            );
+            assert!(e.contains(&expected), "{e}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
