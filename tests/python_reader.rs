@@ -270,6 +270,17 @@ fn python_check_accepts_a_recording_without_updates_as_analyze_does() {
         let (ok, text) = python_tool("plot_learning_curve.py", &["--check", name], &dir);
         assert!(ok, "{}: {text}", file.display());
         assert!(text.contains("1 passed, 0 failed"), "{text}");
+        // check_update.py has nothing to recompute there, and says so (it failed with a
+        // TypeError traceback on the file without /run, and said "DISAGREES" of the other).
+        let (ok, text) = python_tool("check_update.py", &[name], &dir);
+        assert!(
+            !ok && text.contains("no update recorded")
+                && text.contains("without an update to recompute")
+                && !text.contains("Traceback")
+                && !text.contains("DISAGREES"),
+            "{}: {text}",
+            file.display()
+        );
     }
 }
 
