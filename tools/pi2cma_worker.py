@@ -318,7 +318,8 @@ def _check_shape(task, shape):
 
 def serve(make_task, argv=None):
     """Parses the supervisor's arguments, builds the task with `make_task(shape)` (a `Shape`:
-    what the config declares: `parameters`, `steps`, `settings`, `basis_activations`, ...), or
+    what the config declares: `parameters`, `steps`, `settings` (the names, sorted, not their
+    values: those come through `task.set`), `basis_activations`, ...), or
     with `make_task()` unless its first parameter must be given or is named `shape` (see
     `_takes_an_argument`), and
     runs rollouts until SIGTERM/SIGINT (in a rollout too: see `Stopped`) or the end of the run
