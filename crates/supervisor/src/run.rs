@@ -456,7 +456,23 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             origin.display()
         );
     }
-    let launcher = Launcher::find(opts.bin_dir.as_deref(), &cfg)?;
+    let launcher = Launcher::find(opts.bin_dir.as_deref(), &cfg).map_err(|e| {
+        // A recorded config has no file of its own: a worker path relative to the run's config
+        // file was looked for beside the recording, and the error told the user nothing to do.
+        let relative = matches!(&cfg.task, session::TaskSection::External(x)
+            if x.worker.first().is_some_and(|p| p.contains('/') && Path::new(p).is_relative()));
+        match (&opts.resume, opts.config.is_none() && relative) {
+            (Some(file), true) => e.context(format!(
+                "resuming {} with its recorded config, whose worker path is relative to a \
+                 config file it no longer has (it is looked for beside the recording): give the \
+                 config, `supervisor run CONFIG --resume {}` (its worker command may differ from \
+                 the recorded one)",
+                file.display(),
+                file.display()
+            )),
+            _ => e,
+        }
+    })?;
     if let Some(dest) = &opts.result {
         check_writable(dest).with_context(|| {
             format!("--result {}: cannot write the result there", dest.display())

@@ -4788,3 +4788,57 @@ fn a_second_run_with_a_live_runs_id_is_refused_without_harming_it() {
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
 }
+
+/// An external task's worker path is relative to its config file (as in
+/// config/external-reach.toml). A run resumed without its config goes on with the recorded
+/// config, which has no file of its own: the worker was looked for beside the recording, and
+/// the run failed saying only "relative to the config file's directory". It now says to give
+/// the config, and with it the run resumes.
+#[test]
+fn an_external_run_resumed_without_its_config_says_to_give_it() {
+    let scratch = Scratch::new("resume-relative-worker");
+    let worker = Path::new(SUPERVISOR)
+        .parent()
+        .unwrap()
+        .join("examples/reach-worker");
+    assert!(worker.is_file(), "{} not built", worker.display());
+    for dir in ["bin", "config"] {
+        std::fs::create_dir_all(scratch.path(dir)).unwrap();
+    }
+    std::fs::copy(&worker, scratch.path("bin/reach-worker")).unwrap();
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/external-reach.toml"),
+    )
+    .unwrap()
+    .replacen(
+        "\"../target/release/examples/reach-worker\"",
+        "\"../bin/reach-worker\"",
+        1,
+    );
+    write_config(&scratch, "config/reach.toml", &text);
+    let first = ["config/reach.toml", "--quiet", "--record", "day1.mcap"];
+    Run::start(&scratch, 1500, &first).wait_exit(Duration::from_secs(60), 0);
+    let resume = [
+        "--resume",
+        "day1.mcap",
+        "--updates",
+        "90",
+        "--record",
+        "day2.mcap",
+    ];
+    let mut run = Run::start(&scratch, 1501, &resume);
+    run.wait_exit(Duration::from_secs(60), 1);
+    let out = run.text();
+    assert!(
+        out.contains("give the config, `supervisor run CONFIG --resume day1.mcap`"),
+        "{out}"
+    );
+    let mut run = Run::start(
+        &scratch,
+        1502,
+        &[&["config/reach.toml"][..], &resume].concat(),
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(scratch.path("day2.mcap").is_file());
+    assert_nothing_left(&run);
+}
