@@ -382,9 +382,56 @@ struct Supervisor {
     limits: Limits,
     /// `run --no-shm-check`: scale-ups are not checked against /dev/shm either.
     no_shm_check: bool,
-    /// Every pid this supervisor started, reaped ones too: a worker's late announcement, read
-    /// after it was reaped, is not a worker joining from outside.
-    spawned: std::collections::BTreeSet<u32>,
+    /// Every pid this supervisor started, reaped ones for [`LATE_ANNOUNCEMENT`] after: a
+    /// worker's late announcement, read after it was reaped, is not a worker joining from
+    /// outside.
+    spawned: Spawned,
+}
+
+/// How long a reaped child's pid is still taken as the supervisor's own when an announcement
+/// from it is read ([`Spawned`]); the supervisor reads announcements within a tick of their
+/// sending, so this only has to outlast a loaded machine.
+const LATE_ANNOUNCEMENT: Duration = Duration::from_secs(60);
+
+/// The pids the supervisor started: running, or reaped within [`LATE_ANNOUNCEMENT`]. They used
+/// to be kept for the whole run, one per worker incarnation, so a continual run whose workers
+/// were restarted and scaled for days kept a set that only grew, and once the kernel handed one
+/// of those pids (`kernel.pid_max` is 32768 on many systems) to a worker the user started, that
+/// worker was taken for a late announcement of the supervisor's own: not listed as joined, and
+/// not stopped when it took a slot a worker of the supervisor's held.
+#[derive(Default)]
+struct Spawned {
+    /// pid → when it was reaped (`None`: running).
+    pids: BTreeMap<u32, Option<Instant>>,
+}
+
+impl Spawned {
+    fn started(&mut self, pid: u32) {
+        self.pids.insert(pid, None);
+    }
+
+    /// `pid` has exited and was reaped at `now`; pids reaped too long ago are forgotten.
+    fn reaped(&mut self, pid: u32, now: Instant) {
+        if let Some(at) = self.pids.get_mut(&pid) {
+            *at = Some(now);
+        }
+        self.pids.retain(|_, at| Self::recent(*at, now));
+    }
+
+    /// Whether an announcement read at `now` from `pid` is from a process this supervisor
+    /// started.
+    fn ours(&self, pid: u32, now: Instant) -> bool {
+        self.pids.get(&pid).is_some_and(|at| Self::recent(*at, now))
+    }
+
+    fn recent(reaped: Option<Instant>, now: Instant) -> bool {
+        reaped.is_none_or(|t| now.saturating_duration_since(t) < LATE_ANNOUNCEMENT)
+    }
+
+    #[cfg(test)]
+    fn len(&self) -> usize {
+        self.pids.len()
+    }
 }
 
 /// A `supervisor set` whose reply waits for the updater's [`Progress::TASK_CHANGE`].
@@ -1016,6 +1063,7 @@ impl Supervisor {
             match rx.recv_timeout(end.saturating_duration_since(Instant::now())) {
                 Ok(Event::Exited { pid, .. }) => {
                     self.procs.remove(&pid);
+                    self.spawned.reaped(pid, Instant::now());
                 }
                 Ok(_) => {}
                 Err(_) => break,
@@ -1363,7 +1411,7 @@ impl Supervisor {
                     let _ = tx.send(Event::Exited { pid, status });
                 }
             })?;
-        self.spawned.insert(pid);
+        self.spawned.started(pid);
         self.procs.insert(
             pid,
             Proc {
@@ -1461,7 +1509,7 @@ impl Supervisor {
                 if p.role == Role::Recorder {
                     self.recorder_back()?;
                 }
-            } else if l.role == wire::role::WORKER && !self.spawned.contains(&l.pid) {
+            } else if l.role == wire::role::WORKER && !self.spawned.ours(l.pid, Instant::now()) {
                 if let Some(holder) = self.slot_holder(l.worker) {
                     // Both would take slot w's work: every rollout of it would run twice (on a
                     // robot, twice for real). The newcomer is the mistake.
@@ -1971,6 +2019,7 @@ impl Supervisor {
     }
 
     fn exited(&mut self, pid: u32, status: ExitStatus) {
+        self.spawned.reaped(pid, Instant::now());
         let Some(p) = self.procs.remove(&pid) else {
             return;
         };
@@ -2815,6 +2864,34 @@ fn interval_text(secs: f64) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn spawned_pids_are_forgotten_a_while_after_they_were_reaped() {
+        use super::{Spawned, LATE_ANNOUNCEMENT};
+        use std::time::{Duration, Instant};
+        let t0 = Instant::now();
+        let mut spawned = Spawned::default();
+        spawned.started(1);
+        // A day of worker incarnations, restarted and scaled.
+        for pid in 100..10_100 {
+            spawned.started(pid);
+            spawned.reaped(pid, t0);
+        }
+        // Its announcement, read just after it was reaped, is not a worker joining.
+        assert!(spawned.ours(5000, t0 + Duration::from_secs(1)));
+        let later = t0 + LATE_ANNOUNCEMENT + Duration::from_secs(1);
+        spawned.started(20_000);
+        spawned.reaped(20_000, later);
+        // The pid, handed by the kernel to a worker started by hand, is that worker's.
+        assert!(!spawned.ours(5000, later));
+        assert!(spawned.ours(1, later), "a running child stays ours");
+        assert!(spawned.ours(20_000, later));
+        assert_eq!(
+            spawned.len(),
+            2,
+            "only the running and the recently reaped are kept"
+        );
+    }
+
     use super::*;
 
     #[test]
