@@ -192,7 +192,8 @@ class Soak:
             except OSError:
                 pass
         rec = self.deleted + sum(os.path.getsize(p) for p in parts if os.path.exists(p))
-        shm = shm_usage(f"p2c{self.hex}_")
+        root = f"/tmp/p2c-{self.hex}"
+        shm = shm_usage(f"p2c{self.hex}_") + (tree_files(root) if os.path.exists(root) else 0,)
         self.samples.append((t, updates, procs, shm, rec, len(parts), workers))
         return updates, pids
 
@@ -362,7 +363,8 @@ class Soak:
         print("/dev/shm files " + "/".join(str(v[0]) for v in shm)
               + ", written KiB " + "/".join(str(v[1] // 1024) for v in shm)
               + ", ls -l MiB " + "/".join(f"{v[2] / 2**20:.1f}" for v in shm)
-              + f"; peak written {max(x[3][1] for x in s) // 1024} KiB")
+              + f"; peak written {max(x[3][1] for x in s) // 1024} KiB; entries under "
+              f"/tmp/p2c-{self.hex} " + "/".join(str(v[3]) for v in shm))
         print(f"recording {s[-1][4] / 2**20:.1f} MiB in {len(self.parts) + self.deleted_parts}"
               f" files ({self.deleted_parts} older ones deleted as it ran) "
               f"({s[-1][4] / max(s[-1][1], 1) * 1000 / 2**20:.2f} MiB per 1000 updates)")
