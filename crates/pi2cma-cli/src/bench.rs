@@ -68,8 +68,16 @@ pub fn viapoint_update(weighting: WeightingName, groups: usize) -> Measurement {
     })
 }
 
-/// Update only, for a large policy: P = 350 (7 × 50), K = 50, N = 1000, PI²-CMA bounds.
-pub fn large_update(weighting: Weighting, groups: usize, threads: usize) -> Measurement {
+/// Update only, for a large policy: P = 350 (7 × 50), K = 50, N = 1000, PI²-CMA bounds
+/// (λ_min = 0.02), samples drawn from Σ = `lambda`·I. With λ = 1 (early in learning, 50·λ_min)
+/// a few of each step's eigenvalues fall below λ_min; with λ = 0.05 (late, near λ_min) about
+/// half of them do.
+pub fn large_update(
+    weighting: Weighting,
+    groups: usize,
+    threads: usize,
+    lambda: f64,
+) -> Measurement {
     let (p, k, n) = (350usize, 50usize, 1000usize);
     let hp = Hyperparameters {
         rollouts: k,
@@ -87,7 +95,7 @@ pub fn large_update(weighting: Weighting, groups: usize, threads: usize) -> Meas
     let mut rule = UpdateRule::new(hp, p, n, None)
         .expect("valid hyperparameters")
         .with_threads(threads);
-    let old = Distribution::isotropic(DVector::zeros(p), 1.0).expect("valid distribution");
+    let old = Distribution::isotropic(DVector::zeros(p), lambda).expect("valid distribution");
     let batch = ParameterBatch::sample(&old, 7, 0, k);
     let mut costs = CostBatch::new(k, n);
     for kk in 0..k {
@@ -104,7 +112,8 @@ pub fn large_update(weighting: Weighting, groups: usize, threads: usize) -> Meas
             .expect("finite");
     }
     let label = format!(
-        "large update only (P = 350, K = 50, N = 1000), {weighting:?}, {threads} thread(s)"
+        "large update only (P = 350, K = 50, N = 1000, Σ = {lambda}·I), {weighting:?}, \
+         {threads} thread(s)"
     );
     measure(&label, groups, 1, || {
         rule.update(&old, &batch.values, &costs)
@@ -113,14 +122,16 @@ pub fn large_update(weighting: Weighting, groups: usize, threads: usize) -> Meas
 }
 
 /// Runs the benchmarks whose name (via-point/per-time-step, via-point/episodic,
-/// large/per-time-step, large/episodic) contains `filter` ("" for all).
+/// large/per-time-step, large/per-time-step/2-threads, large/per-time-step/late,
+/// large/episodic) contains `filter` ("" for all).
 pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
     let per_step = Weighting::PerTimeStep {
         temporal: TemporalAveraging::RemainingSteps,
     };
     let groups = if quick { 4 } else { 200 };
     type Case<'a> = (&'a str, Box<dyn Fn() -> Measurement>);
-    let cases: [Case; 5] = [
+    let large = if quick { 3 } else { 11 };
+    let cases: [Case; 6] = [
         (
             "via-point/per-time-step",
             Box::new(move || viapoint_update(WeightingName::PerTimeStep, groups)),
@@ -131,15 +142,21 @@ pub fn run_all(quick: bool, filter: &str) -> Vec<Measurement> {
         ),
         (
             "large/per-time-step",
-            Box::new(move || large_update(per_step, if quick { 3 } else { 11 }, 1)),
+            Box::new(move || large_update(per_step, large, 1, 1.0)),
         ),
         (
             "large/per-time-step/2-threads",
-            Box::new(move || large_update(per_step, if quick { 3 } else { 11 }, 2)),
+            Box::new(move || large_update(per_step, large, 2, 1.0)),
+        ),
+        (
+            "large/per-time-step/late",
+            Box::new(move || large_update(per_step, large, 1, 0.05)),
         ),
         (
             "large/episodic",
-            Box::new(move || large_update(Weighting::Episodic, if quick { 11 } else { 101 }, 1)),
+            Box::new(move || {
+                large_update(Weighting::Episodic, if quick { 11 } else { 101 }, 1, 1.0)
+            }),
         ),
     ];
     cases

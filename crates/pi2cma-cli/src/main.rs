@@ -100,7 +100,8 @@ enum Command {
         #[arg(long)]
         quick: bool,
         /// Only the cases whose name contains this (via-point/per-time-step, via-point/episodic,
-        /// large/per-time-step, large/episodic).
+        /// large/per-time-step, large/per-time-step/2-threads, large/per-time-step/late,
+        /// large/episodic).
         #[arg(long, default_value = "")]
         only: String,
     },
