@@ -25,7 +25,7 @@ pub use distribution::{Distribution, NoiseKey, Sampler};
 pub use error::{CostError, ParameterError};
 pub use optimizer::{Optimizer, ParameterBatch, UpdateSummary};
 pub use update::{
-    CovarianceStructure, Exploration, Hyperparameters, TemporalAveraging, UpdateRule,
+    CovarianceStructure, Exploration, Hyperparameters, LowRankStats, TemporalAveraging, UpdateRule,
     UpdateWeights, Weighting,
 };
 pub use weighting::CostMapping;

@@ -1,5 +1,7 @@
 //! Eigen-decomposition of small symmetric matrices for the per-time-step low-rank kernel, which
-//! needs one K×K decomposition per time step (1,000 per update for a large policy). Householder
+//! needs one K×K eigenproblem per time step (1,000 per update for a large policy). Besides the
+//! full decomposition, the pieces of a partial one: the tridiagonal reduction alone, Sturm
+//! counts, bisection and inverse iteration for selected eigenpairs. Householder
 //! tridiagonalisation and the implicit QL algorithm (EISPACK tred2/tql2, as in JAMA), written
 //! over column-major slices so that the hot loops — the rotations accumulated into the
 //! eigenvectors — run over contiguous memory and vectorise; compiled for AVX2 too and chosen at
@@ -14,6 +16,17 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     if n == 0 {
         return;
     }
+    reduce(n, v, d, e);
+    accumulate(n, v, d, e);
+    ql::<true>(n, v, d, e);
+}
+
+/// Householder reduction of the symmetric matrix in `v` to tridiagonal form (tred2's first
+/// half). Afterwards the tridiagonal's diagonal is v's diagonal, `e[s]` (s ≥ 1) couples rows
+/// s − 1 and s (`e[0]` is garbage), and the reflector of step s (s = n − 1 down to 1) is
+/// I − u·uᵀ/h with u in rows 0..s of column s of `v` and h = `d[s]` (0: no reflection).
+#[inline(always)]
+fn reduce(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     // v[j*n + k] is V[k][j] of the textbook formulation.
     let at = |k: usize, j: usize| j * n + k;
     for j in 0..n {
@@ -79,8 +92,13 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
         }
         d[i] = h;
     }
+}
 
-    // Accumulate the transformations.
+/// Turns the output of [`reduce`] into the orthogonal Q (columns, in `v`) with A = Q·T·Qᵀ, the
+/// tridiagonal's diagonal in `d` and its off-diagonal in `e[1..]` (`e[0]` = 0).
+#[inline(always)]
+fn accumulate(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
+    let at = |k: usize, j: usize| j * n + k;
     for i in 0..n - 1 {
         v[at(n - 1, i)] = v[at(i, i)];
         v[at(i, i)] = 1.0;
@@ -107,8 +125,13 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     }
     v[at(n - 1, n - 1)] = 1.0;
     e[0] = 0.0;
+}
 
-    // Implicit QL on the tridiagonal matrix (d, e).
+/// Implicit QL on the tridiagonal matrix (diagonal `d`, off-diagonal `e[1..]`): the eigenvalues
+/// into `d`; with `VECTORS`, the rotations are also applied to the columns of `v`. The
+/// eigenvalues do not depend on `VECTORS`: the rotations of `v` never feed back into (d, e).
+#[inline(always)]
+fn ql<const VECTORS: bool>(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     for i in 1..n {
         e[i - 1] = e[i];
     }
@@ -155,11 +178,13 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
                     c = p / r;
                     p = c * d[i] - s * g;
                     d[i + 1] = h + s * (c * g + s * d[i]);
-                    let (vi, vi1) = column_pair(v, n, i, i + 1);
-                    for (a, b) in vi.iter_mut().zip(vi1.iter_mut()) {
-                        let h = *b;
-                        *b = s * *a + c * h;
-                        *a = c * *a - s * h;
+                    if VECTORS {
+                        let (vi, vi1) = column_pair(v, n, i, i + 1);
+                        for (a, b) in vi.iter_mut().zip(vi1.iter_mut()) {
+                            let h = *b;
+                            *b = s * *a + c * h;
+                            *a = c * *a - s * h;
+                        }
                     }
                 }
                 p = -s * s2 * c3 * el1 * e[l] / dl1;
@@ -172,6 +197,259 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
         }
         d[l] += f;
         e[l] = 0.0;
+    }
+}
+
+/// Householder reduction of the symmetric n×n matrix in `v` (column-major, both triangles set)
+/// to tridiagonal form, kept for [`tridiagonal_eigenvalues`], [`count_below`], [`bisect`] and
+/// [`reduced_eigenvector`]: on return `v` holds the reflectors, `h` their scales, `diag` and
+/// `off` the tridiagonal (`off[i]` couples rows i − 1 and i; `off[0]` is 0).
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+pub fn reduce_tridiagonal(
+    n: usize,
+    v: &mut [f64],
+    h: &mut [f64],
+    diag: &mut [f64],
+    off: &mut [f64],
+) {
+    assert!(v.len() == n * n && [h.len(), diag.len(), off.len()] == [n; 3]);
+    if n == 0 {
+        return;
+    }
+    reduce(n, v, h, off);
+    off[0] = 0.0;
+    for i in 0..n {
+        diag[i] = v[i * n + i];
+    }
+}
+
+/// All eigenvalues (unsorted) of the tridiagonal of [`reduce_tridiagonal`], by the same QL
+/// iteration as [`symmetric_eigen`], so the same bits. `scratch`: n values.
+pub fn tridiagonal_eigenvalues(diag: &[f64], off: &[f64], values: &mut [f64], scratch: &mut [f64]) {
+    let n = diag.len();
+    assert!([off.len(), values.len(), scratch.len()] == [n; 3]);
+    if n == 0 {
+        return;
+    }
+    values.copy_from_slice(diag);
+    scratch.copy_from_slice(off);
+    ql::<false>(n, &mut [], values, scratch);
+}
+
+/// The bounds of the Gershgorin discs of the tridiagonal, and the smallest pivot magnitude
+/// allowed in its Sturm sequences (as LAPACK's dstebz).
+pub fn gershgorin(diag: &[f64], off: &[f64]) -> (f64, f64, f64) {
+    let n = diag.len();
+    let (mut lo, mut hi, mut big) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+    for i in 0..n {
+        let r = off[i].abs() + if i + 1 < n { off[i + 1].abs() } else { 0.0 };
+        lo = lo.min(diag[i] - r);
+        hi = hi.max(diag[i] + r);
+        big = big.max(off[i] * off[i]);
+    }
+    (lo, hi, f64::MIN_POSITIVE * big.max(1.0))
+}
+
+/// How many eigenvalues of the tridiagonal (diag, off) lie below `x` (Sturm count: the number
+/// of negative pivots of the LDLᵀ factorisation of T − x·I).
+pub fn count_below(diag: &[f64], off: &[f64], x: f64, pivmin: f64) -> usize {
+    let mut q = 1.0;
+    let mut count = 0;
+    for (d, e) in diag.iter().zip(off) {
+        q = (d - x) - e * e / q;
+        if q.abs() < pivmin {
+            q = -pivmin;
+        }
+        count += usize::from(q < 0.0);
+    }
+    count
+}
+
+/// Lanes of [`bisect`]: Sturm sequences computed side by side, so that the divisions of
+/// independent sequences overlap instead of waiting for each other.
+pub const BISECT_LANES: usize = 8;
+
+/// The eigenvalues of the tridiagonal (diag, off) of ascending index `index[l]` (0 = smallest),
+/// by bisection from intervals [`lo[l]`, `hi[l]`] that must hold them (with no more than
+/// `index[l]` eigenvalues below `lo[l]` and more than `index[l]` below `hi[l]`), to an
+/// absolute width of 2ε·`scale`. Unused lanes may repeat a used one.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+pub fn bisect(
+    diag: &[f64],
+    off: &[f64],
+    pivmin: f64,
+    scale: f64,
+    index: [usize; BISECT_LANES],
+    lo: &mut [f64; BISECT_LANES],
+    hi: &mut [f64; BISECT_LANES],
+) {
+    let tol = 2.0 * f64::EPSILON * scale;
+    let target = index.map(|k| k as f64);
+    for _ in 0..200 {
+        if (0..BISECT_LANES).all(|l| !(hi[l] - lo[l] > tol)) {
+            break;
+        }
+        let mut x = [0.0; BISECT_LANES];
+        for l in 0..BISECT_LANES {
+            x[l] = 0.5 * (lo[l] + hi[l]);
+        }
+        let mut q = [1.0; BISECT_LANES];
+        let mut count = [0.0; BISECT_LANES];
+        for (d, e) in diag.iter().zip(off) {
+            let e2 = e * e;
+            for l in 0..BISECT_LANES {
+                let t = (d - x[l]) - e2 / q[l];
+                let t = if t.abs() < pivmin { -pivmin } else { t };
+                q[l] = t;
+                count[l] += if t < 0.0 { 1.0 } else { 0.0 };
+            }
+        }
+        for l in 0..BISECT_LANES {
+            if count[l] > target[l] {
+                hi[l] = x[l];
+            } else {
+                lo[l] = x[l];
+            }
+        }
+    }
+}
+
+/// The unit eigenvector, into `z`, of the matrix reduced by [`reduce_tridiagonal`] for its
+/// eigenvalue `mu`: inverse iteration on the tridiagonal (LU with partial pivoting, a fixed
+/// start vector and a fixed count of iterations, so the bits are reproducible), orthogonalised
+/// against the unit vectors `previous` (tridiagonal coordinates, n each, concatenated; they must
+/// be eigenvectors of the same matrix) after every solve so that eigenvalues that coincide get
+/// independent vectors; then mapped back through the reflectors. The vector in tridiagonal
+/// coordinates is also appended to `previous`. `work`: 6·n values.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+#[allow(clippy::too_many_arguments)]
+pub fn reduced_eigenvector(
+    n: usize,
+    v: &[f64],
+    h: &[f64],
+    diag: &[f64],
+    off: &[f64],
+    mu: f64,
+    previous: &mut Vec<f64>,
+    z: &mut [f64],
+    work: &mut [f64],
+) {
+    assert!(v.len() == n * n && z.len() == n && work.len() == 6 * n);
+    assert!(previous.len().is_multiple_of(n.max(1)));
+    if n == 0 {
+        return;
+    }
+    let (dd, rest) = work.split_at_mut(n);
+    let (du, rest) = rest.split_at_mut(n);
+    let (dl, rest) = rest.split_at_mut(n);
+    let (du2, rest) = rest.split_at_mut(n);
+    let (swapped, y) = rest.split_at_mut(n);
+    // LU of T − μI with row interchanges (LAPACK dgttrf's scheme); swapped[i] ≠ 0 records one.
+    let mut norm: f64 = 0.0;
+    for i in 0..n {
+        let right = if i + 1 < n { off[i + 1].abs() } else { 0.0 };
+        norm = norm.max(diag[i].abs() + off[i].abs() + right);
+        dd[i] = diag[i] - mu;
+        du[i] = if i + 1 < n { off[i + 1] } else { 0.0 };
+        dl[i] = du[i];
+        du2[i] = 0.0;
+        swapped[i] = 0.0;
+    }
+    for i in 0..n - 1 {
+        if dd[i].abs() >= dl[i].abs() {
+            if dd[i] != 0.0 {
+                let f = dl[i] / dd[i];
+                dl[i] = f;
+                dd[i + 1] -= f * du[i];
+            }
+        } else {
+            swapped[i] = 1.0;
+            let f = dd[i] / dl[i];
+            dd[i] = dl[i];
+            dl[i] = f;
+            let t = du[i];
+            du[i] = dd[i + 1];
+            dd[i + 1] = t - f * dd[i + 1];
+            if i + 2 < n {
+                du2[i] = du[i + 1];
+                du[i + 1] *= -f;
+            }
+        }
+    }
+    // A pivot that vanishes (μ is an eigenvalue to working precision) becomes the size of the
+    // rounding in μ: the solve then grows the wanted eigenvector by ~1/ε.
+    let tiny = (f64::EPSILON * norm).max(f64::MIN_POSITIVE);
+    for p in dd.iter_mut() {
+        if p.abs() < tiny {
+            *p = if *p < 0.0 { -tiny } else { tiny };
+        }
+    }
+    // Fixed start vector with entries of mixed sizes and signs (no eigenvector of a symmetric
+    // tridiagonal is orthogonal to it except by accident; the orthogonalisation handles repeats).
+    let mut state: u64 = 0x9E37_79B9_7F4A_7C15 ^ (previous.len() as u64);
+    for yi in y.iter_mut() {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        *yi = ((state >> 11) as f64) / ((1u64 << 53) as f64) - 0.5;
+    }
+    for _ in 0..3 {
+        for i in 0..n - 1 {
+            if swapped[i] != 0.0 {
+                let t = y[i];
+                y[i] = y[i + 1];
+                y[i + 1] = t - dl[i] * y[i];
+            } else {
+                y[i + 1] -= dl[i] * y[i];
+            }
+        }
+        y[n - 1] /= dd[n - 1];
+        if n > 1 {
+            y[n - 2] = (y[n - 2] - du[n - 2] * y[n - 1]) / dd[n - 2];
+        }
+        for i in (0..n.saturating_sub(2)).rev() {
+            y[i] = (y[i] - du[i] * y[i + 1] - du2[i] * y[i + 2]) / dd[i];
+        }
+        normalise(y);
+        for q in previous.chunks_exact(n) {
+            let c = dot(q, y);
+            for (yi, qi) in y.iter_mut().zip(q) {
+                *yi -= c * qi;
+            }
+        }
+        normalise(y);
+    }
+    previous.extend_from_slice(y);
+    // z = Q·y with Q = P_{n−1}⋯P_1 (the reduction applied P_{n−1} first).
+    z.copy_from_slice(y);
+    for s in 1..n {
+        if h[s] != 0.0 {
+            let u = &v[s * n..s * n + s];
+            let g = dot(u, &z[..s]) / h[s];
+            for (zk, uk) in z[..s].iter_mut().zip(u) {
+                *zk -= g * uk;
+            }
+        }
+    }
+}
+
+/// Scales `y` to unit length (a zero vector becomes the first unit vector).
+#[inline(always)]
+fn normalise(y: &mut [f64]) {
+    let big = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    if !(big > 0.0) || !big.is_finite() {
+        if big == 0.0 {
+            y.fill(0.0);
+            y[0] = 1.0;
+        }
+        return;
+    }
+    for yi in y.iter_mut() {
+        *yi /= big;
+    }
+    let s = 1.0 / dot(y, y).sqrt();
+    for yi in y.iter_mut() {
+        *yi *= s;
     }
 }
 
@@ -253,6 +531,75 @@ mod tests {
             for (x, y) in ours.iter().zip(&theirs) {
                 assert!((x - y).abs() < tol, "{x} vs {y}");
             }
+        }
+    }
+
+    /// The pieces of the partial path: Sturm counts and bisection agree with the eigenvalues of
+    /// the full decomposition, and inverse iteration gives orthonormal eigenvectors with small
+    /// residuals, also for an eigenvalue of multiplicity 3 (a matrix of rank n − 3).
+    #[test]
+    fn partial_decomposition_matches_the_full_one() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for trial in 0..60 {
+            let n = 3 + trial % 37;
+            let r = if trial % 3 == 0 { n - 3 } else { n };
+            let b = DMatrix::from_fn(n, r.max(1), |_, _| rng.random_range(-2.0..2.0));
+            let a = &b * b.transpose();
+            let a = (&a + a.transpose()) * 0.5;
+            let mut full = a.as_slice().to_vec();
+            let (mut d, mut e) = (vec![0.0; n], vec![0.0; n]);
+            symmetric_eigen(n, &mut full, &mut d, &mut e);
+            let mut sorted = d.clone();
+            sorted.sort_by(f64::total_cmp);
+
+            let mut v = a.as_slice().to_vec();
+            let (mut h, mut diag, mut off) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+            reduce_tridiagonal(n, &mut v, &mut h, &mut diag, &mut off);
+            let (mut values, mut scratch) = (vec![0.0; n], vec![0.0; n]);
+            tridiagonal_eigenvalues(&diag, &off, &mut values, &mut scratch);
+            assert_eq!(values, d, "the same QL on the same tridiagonal");
+            let (gl, gu, pivmin) = gershgorin(&diag, &off);
+            let scale = gl.abs().max(gu.abs());
+            let tol = 1e-13 * scale * n as f64;
+            let x = 0.5 * (sorted[n / 2] + sorted[n / 2 - 1]);
+            if sorted[n / 2] - sorted[n / 2 - 1] > 2.0 * tol {
+                assert_eq!(count_below(&diag, &off, x, pivmin), n / 2);
+            }
+            let mut previous = Vec::new();
+            let (mut z, mut work) = (vec![0.0; n], vec![0.0; 6 * n]);
+            let mut vectors = Vec::new();
+            for start in (0..n).step_by(BISECT_LANES) {
+                let lanes = BISECT_LANES.min(n - start);
+                let index: [usize; BISECT_LANES] =
+                    std::array::from_fn(|l| start + l.min(lanes - 1));
+                let (mut lo, mut hi) = ([gl - tol; BISECT_LANES], [gu + tol; BISECT_LANES]);
+                bisect(&diag, &off, pivmin, scale, index, &mut lo, &mut hi);
+                for l in 0..lanes {
+                    let mu = 0.5 * (lo[l] + hi[l]);
+                    assert!(
+                        (mu - sorted[start + l]).abs() < tol,
+                        "{mu} vs {}",
+                        sorted[start + l]
+                    );
+                    reduced_eigenvector(
+                        n,
+                        &v,
+                        &h,
+                        &diag,
+                        &off,
+                        mu,
+                        &mut previous,
+                        &mut z,
+                        &mut work,
+                    );
+                    let zv = nalgebra::DVector::from_column_slice(&z);
+                    let residual = (&a * &zv - &zv * mu).amax();
+                    assert!(residual < tol, "n = {n}, rank {r}: residual {residual:e}");
+                    vectors.push(zv);
+                }
+            }
+            let zm = DMatrix::from_columns(&vectors);
+            assert!((zm.transpose() * &zm - DMatrix::identity(n, n)).amax() < 1e-12 * n as f64);
         }
     }
 

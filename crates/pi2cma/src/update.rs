@@ -122,7 +122,8 @@ enum CovarianceKernel {
     /// P ≤ rollouts: dense P×P eigen-decomposition per step.
     Dense,
     /// P > rollouts: Σ_i = Eᵀ·diag(p_i)·E has rank ≤ K, so boundcovar works on a K×K problem
-    /// and Σ_new = λ_min·I + Eᵀ·M·E.
+    /// and Σ_new = λ_min·I + Eᵀ·M·E (episodic), or λ_min·I + Q·M·Qᵀ with Eᵀ = Q·R
+    /// (per-time-step, see `lowrank_per_step`).
     LowRank,
 }
 
@@ -159,6 +160,13 @@ pub struct UpdateRule {
     gram: DMatrix<f64>,
     lowrank_acc: DMatrix<f64>,
     small: DMatrix<f64>,
+    /// Per-time-step low-rank kernel: Q (P × K') of X = Q·R over the K' non-zero ε_k, and the
+    /// K'×K' temporal average of clip(T_i) − λ_min·I, T_i = R·D_i·Rᵀ; Σ = λ_min·I + Q·core·Qᵀ.
+    per_step_basis: Option<(DMatrix<f64>, DMatrix<f64>)>,
+    /// How the per-step low-rank problems were solved in the last update.
+    lowrank_stats: LowRankStats,
+    /// Which per-step solver the low-rank kernel may use (tests force one).
+    pub(crate) lowrank_mode: LowRankMode,
     /// Per-dimension covariance with adaptive exploration: one full-covariance rule of B
     /// parameters per DMP dimension, which computes that dimension's block from its own ε and
     /// the shared costs. Empty otherwise.
@@ -305,6 +313,9 @@ impl UpdateRule {
             gram: DMatrix::zeros(m, m),
             lowrank_acc: DMatrix::zeros(m, m),
             small: DMatrix::zeros(m, m),
+            per_step_basis: None,
+            lowrank_stats: LowRankStats::default(),
+            lowrank_mode: LowRankMode::Auto,
             blocks,
         })
     }
@@ -346,6 +357,13 @@ impl UpdateRule {
 
     pub fn dim(&self) -> usize {
         self.dim
+    }
+
+    /// How the per-time-step low-rank kernel (P > K) solved its per-step problems in the last
+    /// update: how many steps needed no eigenvalue clipped, and how many eigenvectors it
+    /// computed. All zero for other kernels and modes.
+    pub fn lowrank_stats(&self) -> LowRankStats {
+        self.lowrank_stats
     }
 
     pub fn steps(&self) -> usize {
@@ -403,7 +421,10 @@ impl UpdateRule {
         if self.kernel == CovarianceKernel::LowRank {
             self.lowrank_acc.fill(0.0);
         }
-        if self.kernel == CovarianceKernel::LowRank && adaptive.is_some() {
+        self.lowrank_stats = LowRankStats::default();
+        self.per_step_basis = None;
+        let per_step = matches!(self.hp.weighting, Weighting::PerTimeStep { .. });
+        if self.kernel == CovarianceKernel::LowRank && adaptive.is_some() && !per_step {
             self.compute_gram(m);
         }
 
@@ -744,19 +765,37 @@ impl UpdateRule {
         }
     }
 
-    /// The per-time-step low-rank accumulation, in fixed blocks of steps whose partial sums are
-    /// added in block order: the bits do not depend on how many threads computed the blocks.
+    /// The per-time-step low-rank accumulation. With X = Q·R (P × K' and K'×K', over the K'
+    /// non-zero ε_k), Σ_i = Q·T_i·Qᵀ with T_i = R·D_i·Rᵀ, so boundcovar(Σ_i) =
+    /// λ_min·I + Q·(clip(T_i) − λ_min·I)·Qᵀ, and clip(T_i) − λ_min·I = T_i − λ_min·I − C_i with
+    /// C_i = Σ_j (μ_j − clip(μ_j))·v_j·v_jᵀ over the eigenpairs of T_i that are clipped. Σ_i w_i·T_i
+    /// = R·diag(Σ_i w_i·p_i)·Rᵀ is summed once; per step only the eigenvalues and the
+    /// eigenvectors of the clipped ones are needed (see [`lowrank_qr_step`]). In fixed blocks of
+    /// steps whose partial sums are added in block order: the bits do not depend on how many
+    /// threads computed the blocks.
     fn lowrank_per_step(&mut self, bounds: EigenvalueBounds) {
-        let (n, m) = (self.steps, self.probs.len());
+        let (n, m, p) = (self.steps, self.probs.len(), self.dim);
+        let kept: Vec<usize> = (0..m)
+            .filter(|&r| self.eps[r * p..(r + 1) * p].iter().any(|&x| x != 0.0))
+            .collect();
+        let mk = kept.len();
+        let mut x = DMatrix::zeros(p, mk);
+        for (c, &r) in kept.iter().enumerate() {
+            x.column_mut(c)
+                .copy_from_slice(&self.eps[r * p..(r + 1) * p]);
+        }
+        let qr = x.qr();
+        let (q, r) = (qr.q(), qr.r());
         let blocks: Vec<std::ops::Range<usize>> = (0..n)
             .step_by(STEP_BLOCK)
             .map(|s| s..(s + STEP_BLOCK).min(n))
             .collect();
-        let (probs, temporal, gram) = (&self.step_probs, &self.temporal, &self.gram);
+        let (probs, temporal, mode) = (&self.step_probs, &self.temporal, self.lowrank_mode);
+        let (kept, r) = (&kept, &r);
         let block = |b: &std::ops::Range<usize>| {
-            lowrank_block(b.clone(), n, m, probs, temporal, gram, bounds)
+            qr_block(b.clone(), n, kept, probs, temporal, r, bounds, mode)
         };
-        let partials: Vec<DMatrix<f64>> = if self.threads > 1 && blocks.len() > 1 {
+        let partials: Vec<QrPartial> = if self.threads > 1 && blocks.len() > 1 {
             let per_thread = blocks.len().div_ceil(self.threads);
             std::thread::scope(|scope| {
                 let handles: Vec<_> = blocks
@@ -771,9 +810,27 @@ impl UpdateRule {
         } else {
             blocks.iter().map(block).collect()
         };
-        for p in partials {
-            self.lowrank_acc += p;
+        let mut core = DMatrix::zeros(mk, mk);
+        let mut weights = vec![0.0; mk];
+        let mut linear = 0.0;
+        for part in partials {
+            core += part.core;
+            for (a, b) in weights.iter_mut().zip(&part.weights) {
+                *a += b;
+            }
+            linear += part.linear;
+            self.lowrank_stats.add(&part.stats);
         }
+        // + Σ_i w_i·(T_i − λ_min·I) over the steps that did not compute clip(T_i) whole.
+        let mut rd = r.clone();
+        for (c, w) in weights.iter().enumerate() {
+            rd.column_mut(c).scale_mut(*w);
+        }
+        core.gemm(1.0, &rd, &r.transpose(), 1.0);
+        for a in 0..mk {
+            core[(a, a)] -= bounds.min * linear;
+        }
+        self.per_step_basis = Some((q, core));
     }
 
     fn finish_covariance(&mut self, bounds: EigenvalueBounds, unbounded: bool) -> DMatrix<f64> {
@@ -787,6 +844,28 @@ impl UpdateRule {
             CovarianceKernel::Dense => {
                 let s = &self.cov_acc;
                 (s + s.transpose()) * 0.5
+            }
+            CovarianceKernel::LowRank if self.per_step_basis.is_some() => {
+                let (q, mut core) = self.per_step_basis.take().expect("checked");
+                let mk = core.nrows();
+                for a in 0..mk {
+                    for b in 0..a {
+                        let v = 0.5 * (core[(a, b)] + core[(b, a)]);
+                        core[(a, b)] = v;
+                        core[(b, a)] = v;
+                    }
+                }
+                let qc = &q * &core;
+                let mut s = qc * q.transpose();
+                for a in 0..p {
+                    for b in 0..a {
+                        let v = 0.5 * (s[(a, b)] + s[(b, a)]);
+                        s[(a, b)] = v;
+                        s[(b, a)] = v;
+                    }
+                    s[(a, a)] += bounds.min;
+                }
+                s
             }
             CovarianceKernel::LowRank => {
                 let m = self.probs.len();
@@ -917,35 +996,319 @@ fn closed2_rows(
 /// Steps per block of the per-time-step low-rank accumulation.
 const STEP_BLOCK: usize = 50;
 
-/// Σ_{i ∈ steps} w_i·M_i for one block of steps (see [`lowrank_step`]).
-fn lowrank_block(
+/// How the per-time-step low-rank kernel solves a step's K'×K' problem T_i.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LowRankMode {
+    /// Eigenvalues first; no eigenvector when none is clipped, the eigenvectors of the clipped
+    /// ones (or of the unclipped ones, if fewer) by inverse iteration, and the full
+    /// decomposition only when both sets are large.
+    Auto,
+    /// The full decomposition at every step (the reference the others are tested against).
+    #[cfg(test)]
+    Full,
+    /// The partial path at every step, however many eigenvalues are clipped.
+    #[cfg(test)]
+    Partial,
+    /// Wrong on purpose, for the tests: treats every step as if nothing were clipped.
+    #[cfg(test)]
+    IgnoreClipping,
+}
+
+/// Counts over the steps of one update of the per-time-step low-rank kernel.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LowRankStats {
+    /// Steps (per-step problems) solved.
+    pub steps: usize,
+    /// Steps none of whose eigenvalues needed clipping: no eigenvector computed.
+    pub unclipped: usize,
+    /// Steps solved with the full eigen-decomposition.
+    pub full: usize,
+    /// Eigenvectors computed by inverse iteration, over all steps.
+    pub vectors: usize,
+    /// Eigenvalues clipped, over all steps (below λ_min or above λ_max).
+    pub clipped_values: usize,
+}
+
+impl LowRankStats {
+    fn add(&mut self, o: &LowRankStats) {
+        self.steps += o.steps;
+        self.unclipped += o.unclipped;
+        self.full += o.full;
+        self.vectors += o.vectors;
+        self.clipped_values += o.clipped_values;
+    }
+}
+
+/// One block's share of the per-time-step low-rank sum: `core` holds Σ w_i·(clip(T_i) − λ_min·I)
+/// for the steps decomposed whole and −Σ w_i·C_i for the others, whose linear part
+/// Σ w_i·(T_i − λ_min·I) = R·diag(`weights`)·Rᵀ − λ_min·`linear`·I is added once at the end.
+struct QrPartial {
+    core: DMatrix<f64>,
+    weights: Vec<f64>,
+    linear: f64,
+    stats: LowRankStats,
+}
+
+/// Scratch of [`lowrank_qr_step`], sized for K' once per block.
+struct QrScratch {
+    sqrt_p: Vec<f64>,
+    rs: Vec<f64>,
+    t: Vec<f64>,
+    t_copy: Vec<f64>,
+    h: Vec<f64>,
+    diag: Vec<f64>,
+    off: Vec<f64>,
+    values: Vec<f64>,
+    scratch: Vec<f64>,
+    work: Vec<f64>,
+    previous: Vec<f64>,
+    z: Vec<f64>,
+    factor: DMatrix<f64>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn qr_block(
     steps: std::ops::Range<usize>,
     n: usize,
-    m: usize,
+    kept: &[usize],
     step_probs: &[f64],
     temporal: &[f64],
-    gram: &DMatrix<f64>,
+    r: &DMatrix<f64>,
     bounds: EigenvalueBounds,
-) -> DMatrix<f64> {
-    let mut acc = DMatrix::zeros(m, m);
-    let mut small = DMatrix::zeros(m, m);
-    let mut factor = DMatrix::zeros(m, m);
-    let mut sqrt_p = vec![0.0; m];
+    mode: LowRankMode,
+) -> QrPartial {
+    let mk = kept.len();
+    let mut part = QrPartial {
+        core: DMatrix::zeros(mk, mk),
+        weights: vec![0.0; mk],
+        linear: 0.0,
+        stats: LowRankStats::default(),
+    };
+    let mut sc = QrScratch {
+        sqrt_p: vec![0.0; mk],
+        rs: vec![0.0; mk * mk],
+        t: vec![0.0; mk * mk],
+        t_copy: vec![0.0; mk * mk],
+        h: vec![0.0; mk],
+        diag: vec![0.0; mk],
+        off: vec![0.0; mk],
+        values: vec![0.0; mk],
+        scratch: vec![0.0; mk],
+        work: vec![0.0; 6 * mk],
+        previous: Vec::with_capacity(mk * mk),
+        z: vec![0.0; mk],
+        factor: DMatrix::zeros(mk, mk),
+    };
     for i in steps {
-        for (r, s) in sqrt_p.iter_mut().enumerate() {
-            *s = step_probs[r * n + i].sqrt();
+        for (c, &k) in kept.iter().enumerate() {
+            sc.sqrt_p[c] = step_probs[k * n + i].sqrt();
         }
-        lowrank_step(
-            &sqrt_p,
-            temporal[i],
-            gram,
-            bounds,
-            &mut small,
-            &mut factor,
-            &mut acc,
-        );
+        lowrank_qr_step(temporal[i], r.as_slice(), bounds, mode, &mut sc, &mut part);
     }
-    acc
+    part
+}
+
+/// T = B·Bᵀ with B = R·diag(√p) (R upper triangular, column-major K'×K'), both triangles, each
+/// entry the same sum of the same products as its mirror, so T is exactly symmetric.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+fn gram_of_scaled(mk: usize, r: &[f64], sqrt_p: &[f64], b: &mut [f64], t: &mut [f64]) {
+    for k in 0..mk {
+        let s = sqrt_p[k];
+        for a in 0..=k {
+            b[k * mk + a] = r[k * mk + a] * s;
+        }
+    }
+    t.fill(0.0);
+    for k in 0..mk {
+        let bk = &b[k * mk..k * mk + k + 1];
+        for c in 0..=k {
+            let f = bk[c];
+            let col = &mut t[c * mk..c * mk + k + 1];
+            for (tc, bv) in col.iter_mut().zip(bk) {
+                *tc += bv * f;
+            }
+        }
+    }
+}
+
+/// One step of the per-time-step low-rank kernel (see [`UpdateRule::lowrank_per_step`]):
+/// T = R·D·Rᵀ, reduced to tridiagonal form; Sturm counts at λ_min and λ_max tell how many
+/// eigenvalues are clipped. None: T − λ_min·I is the step's share, no eigenvector needed.
+/// Otherwise either the clipped eigenpairs (C = Σ (μ_j − clip(μ_j))·v_j·v_jᵀ) or, if fewer,
+/// those above λ_min (clip(T) − λ_min·I = Σ (clip(μ_j) − λ_min)·v_j·v_jᵀ) are computed: their
+/// eigenvalues by bisection (a few) or QL (more), their vectors by inverse iteration. When
+/// both sets are large, the full decomposition.
+fn lowrank_qr_step(
+    w: f64,
+    r: &[f64],
+    bounds: EigenvalueBounds,
+    mode: LowRankMode,
+    sc: &mut QrScratch,
+    part: &mut QrPartial,
+) {
+    use crate::symeig::{bisect, count_below, gershgorin, BISECT_LANES};
+    let mk = sc.sqrt_p.len();
+    if mk == 0 {
+        return;
+    }
+    gram_of_scaled(mk, r, &sc.sqrt_p, &mut sc.rs, &mut sc.t);
+    sc.t_copy.copy_from_slice(&sc.t);
+    crate::symeig::reduce_tridiagonal(mk, &mut sc.t, &mut sc.h, &mut sc.diag, &mut sc.off);
+    part.stats.steps += 1;
+    let (gl, gu, pivmin) = gershgorin(&sc.diag, &sc.off);
+    let scale = gl.abs().max(gu.abs());
+    let finite = scale.is_finite();
+    let (n_low, n_high) = if finite {
+        let low = count_below(&sc.diag, &sc.off, bounds.min, pivmin);
+        let high = if bounds.max.is_finite() {
+            mk - count_below(&sc.diag, &sc.off, bounds.max, pivmin)
+        } else {
+            0
+        };
+        (low, high)
+    } else {
+        (0, 0)
+    };
+    part.stats.clipped_values += n_low + n_high;
+    #[cfg(test)]
+    let (n_low, n_high) = if mode == LowRankMode::IgnoreClipping {
+        (0, 0)
+    } else {
+        (n_low, n_high)
+    };
+    let clipped = n_low + n_high;
+    let above = mk - n_low;
+    // The eigenvalues whose vectors are needed: the clipped ones, or those above λ_min.
+    let direct = clipped > above;
+    let needed = clipped.min(above);
+    let partial = finite
+        && match mode {
+            LowRankMode::Auto => needed * 2 <= mk,
+            #[cfg(test)]
+            LowRankMode::Full => false,
+            #[cfg(test)]
+            LowRankMode::Partial | LowRankMode::IgnoreClipping => true,
+        };
+    if !partial {
+        // The full decomposition: clip(T) − λ_min·I = V·diag(clip(μ) − λ_min)·Vᵀ.
+        part.stats.full += 1;
+        sc.t.copy_from_slice(&sc.t_copy);
+        crate::symeig::symmetric_eigen(mk, &mut sc.t, &mut sc.values, &mut sc.scratch);
+        let mut rank = 0;
+        for j in 0..mk {
+            let g = bounds.clip(sc.values[j]) - bounds.min;
+            if !(g > 0.0) && !g.is_nan() {
+                continue;
+            }
+            let scale = (w * g).sqrt();
+            for a in 0..mk {
+                sc.factor[(rank, a)] = sc.t[j * mk + a] * scale;
+            }
+            rank += 1;
+        }
+        if rank > 0 {
+            sc.factor.rows_mut(rank, mk - rank).fill(0.0);
+            let ft = sc.factor.transpose();
+            part.core.gemm(1.0, &ft, &sc.factor, 1.0);
+        }
+        return;
+    }
+    // The needed eigenvalues, ascending indices, into sc.values[..needed].
+    let wanted = |j: usize| {
+        if direct {
+            j >= n_low
+        } else {
+            j < n_low || j >= mk - n_high
+        }
+    };
+    if needed <= BISECT_LANES {
+        let margin = 4.0 * f64::EPSILON * scale + pivmin;
+        let mut filled = 0;
+        let (mut index, mut lo, mut hi) =
+            ([0; BISECT_LANES], [0.0; BISECT_LANES], [0.0; BISECT_LANES]);
+        for j in (0..mk).filter(|&j| wanted(j)) {
+            index[filled] = j;
+            // Sturm counts put eigenvalue j below λ_min if j < n_low, at or above λ_max if
+            // j ≥ mk − n_high, and between them otherwise.
+            lo[filled] = if j < n_low {
+                gl - margin
+            } else if j >= mk - n_high {
+                bounds.max
+            } else {
+                bounds.min
+            };
+            hi[filled] = if j < n_low {
+                bounds.min
+            } else if j >= mk - n_high || !bounds.max.is_finite() {
+                gu + margin
+            } else {
+                bounds.max
+            };
+            filled += 1;
+        }
+        for l in filled..BISECT_LANES {
+            (index[l], lo[l], hi[l]) = (index[0], lo[0], hi[0]);
+        }
+        if filled > 0 {
+            bisect(&sc.diag, &sc.off, pivmin, scale, index, &mut lo, &mut hi);
+        }
+        for l in 0..filled {
+            sc.values[l] = 0.5 * (lo[l] + hi[l]);
+        }
+    } else {
+        crate::symeig::tridiagonal_eigenvalues(&sc.diag, &sc.off, &mut sc.values, &mut sc.scratch);
+        sc.values.sort_by(f64::total_cmp);
+        let mut filled = 0;
+        for j in 0..mk {
+            if wanted(j) {
+                sc.values[filled] = sc.values[j];
+                filled += 1;
+            }
+        }
+    }
+    sc.previous.clear();
+    for l in 0..needed {
+        let mu = sc.values[l];
+        let coef = if direct {
+            w * (bounds.clip(mu) - bounds.min)
+        } else {
+            -w * (mu - bounds.clip(mu))
+        };
+        add_eigen_term(mk, mu, coef, sc, part);
+    }
+    if direct {
+        return;
+    }
+    if clipped == 0 {
+        part.stats.unclipped += 1;
+    }
+    for (a, s) in part.weights.iter_mut().zip(&sc.sqrt_p) {
+        *a += w * (s * s);
+    }
+    part.linear += w;
+}
+
+/// core += coef·z·zᵀ for the unit eigenvector z of the reduced T for its eigenvalue μ.
+fn add_eigen_term(mk: usize, mu: f64, coef: f64, sc: &mut QrScratch, part: &mut QrPartial) {
+    crate::symeig::reduced_eigenvector(
+        mk,
+        &sc.t,
+        &sc.h,
+        &sc.diag,
+        &sc.off,
+        mu,
+        &mut sc.previous,
+        &mut sc.z,
+        &mut sc.work,
+    );
+    part.stats.vectors += 1;
+    for b in 0..mk {
+        let f = coef * sc.z[b];
+        let col = &mut part.core.as_mut_slice()[b * mk..(b + 1) * mk];
+        for (c, zv) in col.iter_mut().zip(&sc.z) {
+            *c += f * zv;
+        }
+    }
 }
 
 /// Adds w·M to `acc`, where boundcovar(Σ_k p_k ε_k ε_kᵀ) = λ_min·I + X·M·Xᵀ. With D = diag(p),
@@ -1012,4 +1375,205 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         tail += x * y;
     }
     (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+#[cfg(test)]
+mod lowrank_tests {
+    use super::*;
+    use nalgebra::DVector;
+    use rand::{Rng, SeedableRng};
+
+    /// A per-time-step PI²-CMA problem with P > K (the low-rank kernel): samples from
+    /// N(0, λ·I), `duplicate` makes rollout 2 a copy of rollout 1 (a rank-deficient X besides
+    /// the zero ε of the evaluation rollout 0, which enters the update).
+    struct Problem {
+        p: usize,
+        k: usize,
+        n: usize,
+        h: f64,
+        bounds: EigenvalueBounds,
+        samples: Vec<f64>,
+        costs: CostBatch,
+    }
+
+    fn problem(
+        rng: &mut impl Rng,
+        (p, k, n): (usize, usize, usize),
+        lambda: f64,
+        h: f64,
+        bounds: EigenvalueBounds,
+        duplicate: bool,
+    ) -> Problem {
+        let mut samples = vec![0.0; k * p];
+        for v in samples[p..].iter_mut() {
+            // Uniform with variance λ.
+            *v = rng.random_range(-1.0..1.0) * (3.0 * lambda).sqrt();
+        }
+        if duplicate {
+            let row: Vec<f64> = samples[p..2 * p].to_vec();
+            samples[2 * p..3 * p].copy_from_slice(&row);
+        }
+        let mut costs = CostBatch::new(k, n);
+        for r in 0..k {
+            let q: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+            costs.insert(r, &q, rng.random_range(0.0..2.0)).unwrap();
+        }
+        Problem {
+            p,
+            k,
+            n,
+            h,
+            bounds,
+            samples,
+            costs,
+        }
+    }
+
+    fn rule(pb: &Problem, mode: LowRankMode) -> UpdateRule {
+        let hp = Hyperparameters {
+            rollouts: pb.k,
+            mapping: CostMapping::Exponential { eliteness: pb.h },
+            exploration: Exploration::Adaptive { bounds: pb.bounds },
+            weighting: Weighting::PerTimeStep {
+                temporal: TemporalAveraging::RemainingSteps,
+            },
+            evaluation_in_update: true,
+            covariance: CovarianceStructure::Full,
+        };
+        let mut r = UpdateRule::new(hp, pb.p, pb.n, None).unwrap();
+        assert_eq!(r.kernel, CovarianceKernel::LowRank);
+        r.lowrank_mode = mode;
+        r
+    }
+
+    fn run(pb: &Problem, mode: LowRankMode) -> (DMatrix<f64>, LowRankStats) {
+        let mut r = rule(pb, mode);
+        let old = Distribution::isotropic(DVector::zeros(pb.p), 1.0).unwrap();
+        let (new, _) = r.update(&old, &pb.samples, &pb.costs).unwrap();
+        (new.covariance, r.lowrank_stats())
+    }
+
+    /// Algorithm 1 written out with dense P×P matrices: per step Σ_i = Σ_k p_ik ε_k ε_kᵀ,
+    /// boundcovar(Σ_i) by the P×P decomposition, averaged with weights N − i.
+    fn dense_reference(pb: &Problem) -> DMatrix<f64> {
+        let (p, k, n) = (pb.p, pb.k, pb.n);
+        let eps: Vec<DVector<f64>> = (0..k)
+            .map(|r| DVector::from_column_slice(&pb.samples[r * p..(r + 1) * p]))
+            .collect();
+        let total: f64 = (1..=n).map(|v| v as f64).sum();
+        let mut acc = DMatrix::zeros(p, p);
+        for i in 0..n {
+            let s: Vec<f64> = (0..k)
+                .map(|r| pb.costs.terminal(r) + pb.costs.per_step(r)[i..].iter().sum::<f64>())
+                .collect();
+            let lo = s.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = s.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            let e: Vec<f64> = s
+                .iter()
+                .map(|v| (-pb.h * (v - lo) / (hi - lo)).exp())
+                .collect();
+            let z: f64 = e.iter().sum();
+            let mut sigma = DMatrix::zeros(p, p);
+            for r in 0..k {
+                sigma += &eps[r] * eps[r].transpose() * (e[r] / z);
+            }
+            acc += boundcovar(&sigma, pb.bounds) * ((n - i) as f64 / total);
+        }
+        acc
+    }
+
+    fn max_diff(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+        (a - b).amax() / (1.0 + b.amax())
+    }
+
+    /// Every solver the kernel may use, forced on for every step, gives the dense reference's
+    /// Σ to rounding: in the regime with nothing clipped, with a few eigenvalues clipped, with
+    /// most clipped, with λ_max clipping, and with a rank-deficient X (a duplicated sample). The
+    /// deliberately wrong solver (the no-clipping shortcut applied everywhere) agrees only where
+    /// nothing is clipped, so the comparison would catch a shortcut applied wrongly.
+    #[test]
+    fn per_step_solvers_match_the_dense_reference() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2024);
+        let inf = f64::INFINITY;
+        // (λ of the samples, eliteness, λ_min, λ_max, duplicate, regime)
+        let cases = [
+            (1.0, 0.3, 0.02, inf, false, "none clipped"),
+            (
+                1.0,
+                0.3,
+                0.02,
+                inf,
+                true,
+                "none clipped but the duplicate's null direction",
+            ),
+            (1.0, 10.0, 0.02, inf, false, "a few clipped"),
+            (0.05, 10.0, 0.02, inf, false, "most clipped"),
+            (0.05, 10.0, 0.02, inf, true, "most clipped, rank-deficient"),
+            (1.0, 3.0, 0.05, 2.0, false, "clipped at both ends"),
+            (
+                1.0,
+                3.0,
+                0.0,
+                1.0,
+                true,
+                "λ_min = 0, λ_max clipping, rank-deficient",
+            ),
+        ];
+        let mut seen_unclipped = false;
+        for (lambda, h, lo, hi, duplicate, regime) in cases {
+            for shape in [(30, 8, 12), (60, 20, 9)] {
+                let bounds = EigenvalueBounds::new(lo, hi).unwrap();
+                let pb = problem(&mut rng, shape, lambda, h, bounds, duplicate);
+                let reference = dense_reference(&pb);
+                let tol = 1e-13;
+                let (auto, stats) = run(&pb, LowRankMode::Auto);
+                assert_eq!(stats.steps, pb.n, "{regime}");
+                let (full, fs) = run(&pb, LowRankMode::Full);
+                let (partial, ps) = run(&pb, LowRankMode::Partial);
+                assert_eq!((fs.full, ps.full), (pb.n, 0), "{regime}");
+                for (what, got) in [("auto", &auto), ("full", &full), ("partial", &partial)] {
+                    let d = max_diff(got, &reference);
+                    assert!(
+                        d < tol,
+                        "{regime} {shape:?}, {what}: off by {d:e} ({stats:?})"
+                    );
+                }
+                let (wrong, _) = run(&pb, LowRankMode::IgnoreClipping);
+                let d = max_diff(&wrong, &reference);
+                if stats.clipped_values == 0 {
+                    seen_unclipped = true;
+                    assert_eq!(stats.unclipped, pb.n, "{regime}");
+                    assert_eq!(stats.vectors, 0, "{regime}");
+                    assert!(d < tol, "{regime}: {d:e}");
+                } else {
+                    assert!(
+                        d > 1e-6,
+                        "{regime}: the wrong shortcut went unnoticed ({d:e})"
+                    );
+                }
+            }
+        }
+        assert!(seen_unclipped, "no case had every step unclipped");
+    }
+
+    /// The same bits for any thread count, and from one run to the next.
+    #[test]
+    fn low_rank_kernel_is_deterministic_across_threads() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let bounds = EigenvalueBounds::new(0.02, 5.0).unwrap();
+        let pb = problem(&mut rng, (40, 10, 230), 0.1, 10.0, bounds, false);
+        let old = Distribution::isotropic(DVector::zeros(pb.p), 1.0).unwrap();
+        let bits = |threads: usize| {
+            let mut r = rule(&pb, LowRankMode::Auto).with_threads(threads);
+            let (new, _) = r.update(&old, &pb.samples, &pb.costs).unwrap();
+            new.covariance
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<u64>>()
+        };
+        let one = bits(1);
+        assert_eq!(one, bits(1));
+        assert_eq!(one, bits(2));
+        assert_eq!(one, bits(3));
+    }
 }
