@@ -36,6 +36,9 @@ const DT: f64 = 0.01;
 const TARGET_WEIGHT: f64 = 1e4;
 /// How often a rollout that takes `--rollout-ms` looks whether the worker is to stop.
 const CONTROL_CYCLE: std::time::Duration = std::time::Duration::from_millis(10);
+/// A rollout at least this long says when it begins, as a robot's log would: an operator (or a
+/// test) can then tell a worker in a rollout from one waiting for work.
+const SLOW_ROLLOUT: std::time::Duration = std::time::Duration::from_secs(1);
 
 struct Reach {
     /// The DMP weights of a minimum-jerk reach from START to END: the initial mean, printed by
@@ -111,6 +114,9 @@ impl Task for Reach {
         // The real-time part of a rollout (a robot's movement, a simulator's steps) is where a
         // stop or a scale-down would otherwise wait for the rollout to end: look for one every
         // control cycle and leave at once. The worker abandons a rollout left this way.
+        if self.delay >= SLOW_ROLLOUT {
+            eprintln!("a rollout of {} ms begins", self.delay.as_millis());
+        }
         while let Some(rest) = self
             .delay
             .checked_sub(start.elapsed())

@@ -3784,8 +3784,13 @@ fn a_rust_worker_that_checks_stop_requested_leaves_a_long_rollout_at_once() {
     let mut run = Run::start_quiet(&scratch, 1301, &cfg, &result);
     let s = run.wait_status("2 workers", |s| s.contains("worker-1 pid"));
     let (first, second) = (pid_of(&s, "worker-0"), pid_of(&s, "worker-1"));
-    // Both are well into their first rollout (the first update needs a minute).
-    std::thread::sleep(Duration::from_millis(1000));
+    // Both are in their first rollout (the first update needs a minute). A fixed wait of a
+    // second was not always enough on a loaded machine: a worker not yet in a rollout leaves
+    // without one to abandon.
+    let end = Instant::now() + Duration::from_secs(60);
+    for w in ["worker-0", "worker-1"] {
+        run.wait_output(&format!("[{w}] a rollout of 60000 ms begins"), end);
+    }
     let bound = Duration::from_secs(5);
     let t0 = Instant::now();
     run.ctl_ok(&["scale", "--workers", "1"]);
