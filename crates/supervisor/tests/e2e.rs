@@ -57,6 +57,34 @@ fn every_test_has_a_scratch_directory_of_its_own() {
     assert!(seen.len() > 50, "{seen:?}");
 }
 
+/// A run id names the run's iceoryx2 root, `/tmp/p2c-<run id>/`, so two tests of one id, run in
+/// parallel, share its services and files: one run's clean-up removes the other's, a failure
+/// that shows only when their runs overlap. The ids are the literal ones a test passes after
+/// its scratch directory (`Run::start*(&scratch, N, …)` and the helpers that take one) or to
+/// `run_id(…)`; a test may use its own more than once.
+#[test]
+fn every_test_has_run_ids_of_its_own() {
+    let source = include_str!("e2e.rs");
+    let mut owner: std::collections::BTreeMap<u64, &str> = std::collections::BTreeMap::new();
+    for function in source.split("\nfn ").skip(1) {
+        let name = &function[..function.find('(').unwrap()];
+        for call in ["&scratch, ", "run_id("] {
+            for at in function.match_indices(call).map(|(i, _)| i + call.len()) {
+                let digits: String = function[at..]
+                    .chars()
+                    .take_while(char::is_ascii_digit)
+                    .collect();
+                let Ok(id) = digits.parse::<u64>() else {
+                    continue;
+                };
+                let first = *owner.entry(id).or_insert(name);
+                assert_eq!(first, name, "two tests use run id {id}");
+            }
+        }
+    }
+    assert!(owner.len() > 50, "{owner:?}");
+}
+
 impl Scratch {
     fn new(name: &str) -> Self {
         let hold = Hold::Shared(MACHINE.read().unwrap_or_else(|e| e.into_inner()));
@@ -2709,7 +2737,7 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
     let text = external_config(&[]);
     let cfg = write_config(&scratch, "reach.toml", &text);
     let result = scratch.path("result.toml");
-    let mut run = Run::start_quiet(&scratch, 800, &cfg, &result);
+    let mut run = Run::start_quiet(&scratch, 1510, &cfg, &result);
     run.wait_exit(Duration::from_secs(60), 0);
     let r = RunResult::read(&result).unwrap();
     assert_eq!(r.updates, 80);
@@ -2725,7 +2753,7 @@ fn a_task_of_your_own_learns_in_its_own_workers_and_is_recorded() {
         ),
         ("target_y", 40)
     );
-    let rec = record::read_recording(&scratch.recording("reach", 800)).unwrap();
+    let rec = record::read_recording(&scratch.recording("reach", 1510)).unwrap();
     assert_recorded(&rec, 80);
     for name in ["worker-0", "worker-1"] {
         assert!(
