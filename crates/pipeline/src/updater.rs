@@ -24,7 +24,8 @@ const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
 pub struct UpdaterArgs {
     #[command(flatten)]
     pub process: ProcessArgs,
-    /// Resume from this state ([`session::Start::write`]) instead of update 0.
+    /// Resume from this state (the start file `supervisor run --resume` writes: TOML, values as
+    /// bits) instead of update 0.
     #[arg(long, value_name = "FILE")]
     pub start: Option<std::path::PathBuf>,
 }

@@ -47,9 +47,9 @@ pub struct RecorderArgs {
     /// The recording this run resumes (recorded as metadata `resumed_from`).
     #[arg(long, value_name = "FILE")]
     pub resumed_from: Option<String>,
-    /// The resumed run's state ([`session::Start::write`]), as the updater gets it: its first
-    /// update is compared with these settings. Without it, a `--resumed-from` recording is read
-    /// for them.
+    /// The resumed run's state (the start file `supervisor run --resume` writes), as the
+    /// updater gets it: its first update is compared with these settings. Without it, a
+    /// `--resumed-from` recording is read for them.
     #[arg(long, value_name = "FILE")]
     pub start: Option<PathBuf>,
     /// A recorder started after the run's recorder died (the supervisor's restart count). It

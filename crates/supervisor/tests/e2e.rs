@@ -57,6 +57,37 @@ fn every_test_has_a_scratch_directory_of_its_own() {
     assert!(seen.len() > 50, "{seen:?}");
 }
 
+/// `--help` is read by users, not by rustdoc: a doc comment's intra-doc link
+/// (`[`session::Start::write`]`) showed there as brackets and backticks around a Rust path.
+#[test]
+fn help_texts_show_no_rustdoc_links() {
+    let programs = [
+        (
+            SUPERVISOR,
+            &["", "run", "stop", "scale", "set", "status", "record"][..],
+        ),
+        (env!("CARGO_BIN_EXE_updater"), &[""][..]),
+        (env!("CARGO_BIN_EXE_sampler"), &[""][..]),
+        (env!("CARGO_BIN_EXE_rollout-worker"), &[""][..]),
+        (env!("CARGO_BIN_EXE_recorder"), &[""][..]),
+    ];
+    for (program, subcommands) in programs {
+        for sub in subcommands {
+            let args: Vec<&str> = [*sub, "--help"]
+                .into_iter()
+                .filter(|a| !a.is_empty())
+                .collect();
+            let out = Command::new(program).args(&args).output().unwrap();
+            let help = String::from_utf8_lossy(&out.stdout);
+            assert!(out.status.success(), "{program} {args:?}: {help}");
+            assert!(
+                !help.contains("[`") && !help.contains("`]"),
+                "{program} {args:?} shows a rustdoc link:\n{help}"
+            );
+        }
+    }
+}
+
 /// A run id names the run's iceoryx2 root, `/tmp/p2c-<run id>/`, so two tests of one id, run in
 /// parallel, share its services and files: one run's clean-up removes the other's, a failure
 /// that shows only when their runs overlap. The ids are the literal ones a test passes after
