@@ -4438,17 +4438,24 @@ fn a1_changing_at(at: u64, delay_ms: f64, edits: &[(&str, &str)]) -> String {
     config(&all)
 }
 
-/// Resumes `recording` with `config` to `updates` (recording to `to`), and checks that the
-/// pipeline and the in-process runner, resumed from it, both end exactly where the
-/// uninterrupted run of `reference` (a config text) does.
-fn assert_resumes_to(
+/// Resumes `recording` (of `a1_changing_at(at, …)`, stopped in update `at`) to update 8, and
+/// checks that the pipeline and the in-process runner, resumed from it, both end exactly where
+/// the uninterrupted run with the schedule's change to `viapoint` does, and that updates `at`
+/// and on ran with it.
+fn assert_resumes_with_viapoint(
     scratch: &Scratch,
     id: u64,
     recording: &Path,
-    config: &Path,
-    to: &Path,
-    reference: &str,
-) -> record::Recording {
+    at: u64,
+    viapoint: f64,
+) {
+    let reference = a1_changing_at(
+        at,
+        0.0,
+        &[("value = 0.1", &format!("value = {viapoint:?}"))],
+    );
+    let config = &write_config(scratch, "fast.toml", &a1_changing_at(at, 0.0, &[]));
+    let to = &scratch.path("second.mcap");
     let result = scratch.path(&format!("resumed-{id}.result.toml"));
     let mut resumed = Run::start(
         scratch,
@@ -4467,7 +4474,7 @@ fn assert_resumes_to(
         ],
     );
     resumed.wait_exit(Duration::from_secs(60), 0);
-    assert_bit_identical(reference, &result);
+    assert_bit_identical(&reference, &result);
     let point = record::resume::resume_point(recording).unwrap();
     let mut cfg = RunConfig::load(config).unwrap();
     cfg.run.updates = Some(8);
@@ -4481,7 +4488,10 @@ fn assert_resumes_to(
     assert_nothing_left(&resumed);
     let rec = record::read_recording(to).unwrap();
     assert_recomputes(&rec);
-    rec
+    assert_eq!(
+        viapoints(&rec),
+        (at..8).map(|u| (u, viapoint)).collect::<Vec<_>>()
+    );
 }
 
 /// The via-point values the updates of a recording ran with.
@@ -4536,14 +4546,7 @@ fn a_set_back_to_the_value_in_force_over_a_scheduled_change_is_resumed_with() {
     assert_nothing_left(&run);
 
     // Uninterrupted, the via-point stays at 0.3: the schedule's change was overridden.
-    let reference = a1_changing_at(3, 0.0, &[("value = 0.1", "value = 0.3")]);
-    let fast = write_config(&scratch, "fast.toml", &a1_changing_at(3, 0.0, &[]));
-    let second = scratch.path("second.mcap");
-    let resumed = assert_resumes_to(&scratch, 1401, &first, &fast, &second, &reference);
-    assert_eq!(
-        viapoints(&resumed),
-        (3..8).map(|u| (u, 0.3)).collect::<Vec<_>>()
-    );
+    assert_resumes_with_viapoint(&scratch, 1401, &first, 3, 0.3);
 }
 
 /// A part a restarted recorder began at the first update that a `set` over the schedule's
@@ -4622,14 +4625,7 @@ fn a_part_without_updates_resumes_as_the_run_went_on() {
     assert_nothing_left(&run);
 
     // Uninterrupted, update 4 and on run with the `set`'s 0.2, not the schedule's 0.1.
-    let reference = a1_changing_at(4, 0.0, &[("value = 0.1", "value = 0.2")]);
-    let fast = write_config(&scratch, "fast.toml", &a1_changing_at(4, 0.0, &[]));
-    let second = scratch.path("second.mcap");
-    let resumed = assert_resumes_to(&scratch, 1403, &first, &fast, &second, &reference);
-    assert_eq!(
-        viapoints(&resumed),
-        (4..8).map(|u| (u, 0.2)).collect::<Vec<_>>()
-    );
+    assert_resumes_with_viapoint(&scratch, 1403, &first, 4, 0.2);
 }
 
 /// `--run` takes the id as `supervisor run --run-id` was given it (`2222` for the run
