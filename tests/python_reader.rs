@@ -284,6 +284,20 @@ fn python_check_accepts_a_recording_without_updates_as_analyze_does() {
     }
 }
 
+/// Writes `src` to `dst` with the lowest bit of a step cost of update 10 flipped: a damaged
+/// chunk, as a bad sector or a bad copy leaves it.
+fn damage_a_step_cost(src: &Path, dst: &Path) {
+    // Its bytes are stored as they are (zstd literals), once.
+    let cost = record::read_recording(src).expect("read").updates[10].cost_per_step[37];
+    let mut bytes = std::fs::read(src).expect("read the file");
+    let at = bytes
+        .windows(8)
+        .position(|w| w == cost.to_le_bytes())
+        .expect("the step cost's bytes are in the file");
+    bytes[at] ^= 1;
+    std::fs::write(dst, &bytes).expect("write the damaged file");
+}
+
 /// A damaged chunk (a bad sector, a bad copy) is an error naming the file, never other numbers
 /// (README, "Nothing lost"): the `mcap` package checks no CRC unless asked, so a step cost with
 /// its lowest byte flipped was read as another number, `--check` passed ("1 passed, 0 failed")
@@ -293,15 +307,7 @@ fn python_tools_refuse_a_damaged_chunk_as_ours_do() {
     let dir = scratch("damaged");
     pi2cma_run(&dir, &["--quiet", "--out", "."]);
     let mcap = dir.join("run.mcap");
-    // A step cost of update 10: its bytes are stored as they are (zstd literals), once.
-    let cost = record::read_recording(&mcap).expect("read").updates[10].cost_per_step[37];
-    let mut bytes = std::fs::read(&mcap).expect("read the file");
-    let at = bytes
-        .windows(8)
-        .position(|w| w == cost.to_le_bytes())
-        .expect("the step cost's bytes are in the file");
-    bytes[at] ^= 1;
-    std::fs::write(&mcap, &bytes).expect("write the damaged file");
+    damage_a_step_cost(&mcap, &mcap);
     assert!(
         record::read_recording(&mcap).is_err(),
         "our reader must see the damage"
@@ -317,5 +323,71 @@ fn python_tools_refuse_a_damaged_chunk_as_ours_do() {
             "{tool} does not name the damage:\n{text}"
         );
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Rewrites the recording `src` into `dst` with update 1's terminal cost of rollout 3 raised by
+/// 1, through the PyPI `mcap` package: every chunk's CRC is right, the numbers are not.
+const TAMPER: &str = r#"
+import sys
+from mcap.reader import make_reader
+from mcap.writer import Writer
+from mcap_protobuf.decoder import DecoderFactory
+
+src, dst = sys.argv[1], sys.argv[2]
+with open(src, "rb") as f, open(dst, "wb") as o:
+    reader = make_reader(f, decoder_factories=[DecoderFactory()])
+    w = Writer(o)
+    w.start(reader.get_header().profile, "tamper")
+    schemas, channels = {}, {}
+    for schema, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+        if schema.id not in schemas:
+            schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+        if channel.id not in channels:
+            channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                      schemas[schema.id], channel.metadata)
+        data = message.data
+        if channel.topic == "/update" and decoded.update == 1:
+            decoded.cost_terminal[3] += 1.0
+            data = decoded.SerializeToString()
+        w.add_message(channels[channel.id], message.log_time, data, message.publish_time,
+                      message.sequence)
+    w.finish()
+"#;
+
+/// Given several files, `check_update.py` checks each and names every one that failed: it
+/// stopped at the first damaged file (`sys.exit` from its reader), so the files after it were
+/// never recomputed, and a missing file ended it with a traceback.
+#[test]
+fn check_update_checks_every_file_and_names_each_that_failed() {
+    let dir = common::scratch("h3-check-update-several");
+    pi2cma_run(&dir, &["--quiet", "--out", "."]);
+    damage_a_step_cost(&dir.join("run.mcap"), &dir.join("damaged.mcap"));
+    let tamper = Command::new("python3")
+        .args(["-c", TAMPER, "run.mcap", "disagrees.mcap"])
+        .current_dir(&dir)
+        .status()
+        .expect("python3 starts");
+    // Its stderr, inherited, is in the test's output.
+    assert!(tamper.success(), "the tampering script failed");
+    let files = ["damaged.mcap", "run.mcap", "disagrees.mcap", "missing.mcap"];
+    let (ok, text) = python_tool("check_update.py", &files, &dir);
+    assert!(!ok, "check_update.py passed:\n{text}");
+    assert!(!text.contains("Traceback"), "{text}");
+    assert!(text.contains("damaged.mcap: damaged"), "{text}");
+    // The good file and the one after the damaged file were recomputed.
+    assert!(text.contains("4 recording(s), 80 updates"), "{text}");
+    let failed = text
+        .lines()
+        .find(|l| l.starts_with("check_update: failed:"))
+        .unwrap_or_else(|| panic!("no line naming the failed files:\n{text}"));
+    for name in [
+        "damaged.mcap (damaged",
+        "disagrees.mcap (disagrees",
+        "missing.mcap (",
+    ] {
+        assert!(failed.contains(name), "{name} not in {failed}\n{text}");
+    }
+    assert!(!failed.contains(" run.mcap"), "{failed}");
     let _ = std::fs::remove_dir_all(&dir);
 }

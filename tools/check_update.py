@@ -85,12 +85,25 @@ def dist(d):
     return np.array(d.mean, float), np.array(d.covariance, float).reshape(p, p)
 
 
+class Unreadable(Exception):
+    """A file that cannot be checked (damaged, or not there): `main` names it among the failed
+    and goes on with the next file."""
+
+    def __init__(self, what, why):
+        super().__init__(why)
+        self.what = what
+
+
 def decoded_messages(path):
     """The file's decoded messages. A file whose writer was killed (no summary section, as
     before `pi2cma recover`) is read as a stream up to where it ends. Every chunk's CRC is
-    checked: a damaged file ends the check naming it, as the tool's own readers do, rather than
-    being recomputed from other numbers."""
-    with open(path, "rb") as f:
+    checked: a damaged file raises `Unreadable` naming it, as the tool's own readers fail, rather
+    than being recomputed from other numbers."""
+    try:
+        f = open(path, "rb")
+    except OSError as e:
+        raise Unreadable("cannot be read", f"{path}: cannot be read: {e.strerror}") from e
+    with f:
         try:
             reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             indexed = reader.get_summary() is not None
@@ -102,11 +115,14 @@ def decoded_messages(path):
         try:
             yield from reader.iter_decoded_messages(log_time_order=False)
         except CRCValidationError as e:
-            sys.exit(f"check_update: {path}: damaged: {e} (`pi2cma recover {path}` keeps every "
-                     f"undamaged chunk)")
+            raise Unreadable("damaged", f"{path}: damaged: {e} (`pi2cma recover {path}` keeps "
+                             f"every undamaged chunk)") from e
         except McapError as e:
             if indexed:
-                raise
+                # A finished file is whole: records that do not read are damage, as for our
+                # readers, not a killed writer's end.
+                raise Unreadable("damaged", f"{path}: damaged: {e!r} (`pi2cma recover {path}` "
+                                 f"keeps every undamaged chunk)") from e
             print(f"{path}: not finished, stream ends early ({e!r}); checking the readable "
                   f"prefix (`pi2cma recover` completes the file)", file=sys.stderr)
 
@@ -346,14 +362,25 @@ def main():
     bad = False
     empty = 0
     total = 0
+    # Every file is checked, whichever failed before it; each failed one is named at the end.
+    failed = []
+    unreadable = 0
     for path in a.files:
-        run, ups, changes, res, inv = check_file(path, a.per_update)
+        try:
+            run, ups, changes, res, inv = check_file(path, a.per_update)
+        except Unreadable as e:
+            print(f"check_update: {e}", file=sys.stderr)
+            failed.append(f"{path} ({e.what})")
+            unreadable += 1
+            out[path] = dict(error=str(e))
+            continue
         if run is None or not ups:
             # A run that ended before its first update (its /run and /log, or /log alone): there
             # is nothing to recompute, which is no agreement (it failed with a TypeError on a
             # file without /run, and said "DISAGREES" of one with it).
             print(f"{path}\n  no update recorded{'' if run else ' (nor a /run)'}: nothing to recompute")
             empty += 1
+            failed.append(f"{path} (no update recorded)")
             out[path] = dict(run=run and run["name"], updates=0)
             continue
         hp = run["hp"]
@@ -367,12 +394,16 @@ def main():
         print("  max rel diff: " + "  ".join(f"{q}={res[q][0]:.2e}(u{res[q][1]})" for q in QUANTS))
         worst = max(res[q][0] for q in QUANTS)
         # `not <=`: a NaN difference fails too.
-        if not worst <= a.tol or any(math.isnan(res[q][0]) for q in QUANTS):
-            bad = True
+        disagrees = not worst <= a.tol or any(math.isnan(res[q][0]) for q in QUANTS)
+        if disagrees:
             print(f"  >>> DISAGREES beyond {a.tol:g}")
         for s in inv[:10]:
             print("  invariant broken:", s)
-        bad = bad or bool(inv)
+        why = ([f"disagrees beyond {a.tol:g}"] if disagrees else []) + (
+            [f"{len(inv)} invariant(s) broken"] if inv else [])
+        if why:
+            bad = True
+            failed.append(f"{path} ({', '.join(why)})")
         total += len(ups)
         entry = dict(run=run["name"], updates=len(ups), maxrel={q: res[q][0] for q in QUANTS},
                      at={q: res[q][1] for q in QUANTS}, invariants=inv)
@@ -387,8 +418,12 @@ def main():
     verdict = ["DISAGREES" if bad else f"agrees within {a.tol:g}"] if total else []
     if empty:
         verdict.append(f"{empty} recording(s) without an update to recompute")
+    if unreadable:
+        verdict.append(f"{unreadable} recording(s) not checked")
     print(f"check_update: {len(a.files)} recording(s), {total} updates: {'; '.join(verdict)}")
-    sys.exit(1 if bad or empty else 0)
+    if failed:
+        print(f"check_update: failed: {', '.join(failed)}")
+    sys.exit(1 if failed or empty else 0)
 
 
 if __name__ == "__main__":
