@@ -47,7 +47,8 @@ pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_
 pub use digest::{Digest, UpdatePoint};
 pub use error::RecordError;
 pub use reader::{
-    join_resumed, read_ends, read_recording, read_recording_slim, Decoded, Ends, Recording,
+    join_resumed, read_ends, read_recording, read_recording_slim, read_recording_slim_with,
+    Decoded, Ends, Recording,
 };
 pub use recorder::McapRecorder;
 pub use split::{

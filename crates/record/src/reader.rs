@@ -212,6 +212,12 @@ pub(crate) enum Item<'a> {
     },
 }
 
+#[cfg(test)]
+thread_local! {
+    /// How many times this thread streamed a file: what tests of the number of passes count.
+    pub(crate) static STREAMS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
 /// Streams the records of the recording at `path` (chunks decompressed, each checked against
 /// its CRC) through mcap's sans-io reader, so memory stays at about one chunk whatever the size
 /// of the file. Returns why reading stopped early (a file whose writer was killed: the records
@@ -221,6 +227,8 @@ pub(crate) fn stream(
     mut on: impl FnMut(Item<'_>) -> Result<(), RecordError>,
 ) -> Result<Option<String>, RecordError> {
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    #[cfg(test)]
+    STREAMS.with(|n| n.set(n.get() + 1));
     let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
     // A chunk is checked against the CRC its writer computed before any of its messages is
     // handed over: damage is reported, never read as other numbers.
@@ -569,7 +577,7 @@ fn decode<M: Message + Default>(
 
 /// Reads and decodes a whole recording.
 pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
-    read(path, false)
+    read(path, false, &mut |_, _| {})
 }
 
 /// Reads and decodes a recording, each `/update` without its bulk: `samples`, `cost_per_step`,
@@ -577,10 +585,24 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
 /// distributions before and after included, is read. [`Recording::for_each_update`] gives the
 /// whole updates.
 pub fn read_recording_slim(path: &Path) -> Result<Recording, RecordError> {
-    read(path, true)
+    read(path, true, &mut |_, _| {})
 }
 
-fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
+/// [`read_recording_slim`] that hands every `/update`, bulk included, to `each` as it is read,
+/// with the first `/run` read before it: what needs every update whole (`verify`) without
+/// streaming the file a second time.
+pub fn read_recording_slim_with(
+    path: &Path,
+    mut each: impl FnMut(Option<&proto::RunInfo>, &proto::Update),
+) -> Result<Recording, RecordError> {
+    read(path, true, &mut each)
+}
+
+fn read(
+    path: &Path,
+    slim: bool,
+    each: &mut dyn FnMut(Option<&proto::RunInfo>, &proto::Update),
+) -> Result<Recording, RecordError> {
     let mut rec = Recording {
         path: path.to_path_buf(),
         file_bytes: std::fs::metadata(path)
@@ -614,6 +636,7 @@ fn read(path: &Path, slim: bool) -> Result<Recording, RecordError> {
             topics::RUN => rec.run.push(decode(path, topic, index, "RunInfo", data)?),
             topics::UPDATE => {
                 let mut u: proto::Update = decode(path, topic, index, "Update", data)?;
+                each(rec.run.first(), &u);
                 rec.digest.add_update(&u);
                 if slim {
                     u.samples = Vec::new();

@@ -1,8 +1,13 @@
 //! Recomputing every recorded update with the core from its recorded inputs.
 
+use std::path::Path;
+
 use pi2cma::{CostBatch, Distribution, UpdateRule};
 
-use crate::{distribution_from_proto, hyperparameters_from_proto, proto, RecordError, Recording};
+use crate::{
+    distribution_from_proto, hyperparameters_from_proto, proto, read_recording_slim_with,
+    RecordError, Recording,
+};
 
 /// One update recomputed: the core's new distribution and weights.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,17 +25,22 @@ pub struct VerifyReport {
     pub mismatches: Vec<u64>,
 }
 
-fn err(rec: &Recording, update: u64, what: impl Into<String>) -> RecordError {
-    RecordError::Update {
-        file: rec.path.clone(),
-        update,
-        what: what.into(),
-    }
-}
-
 /// Recomputes update `u` with `UpdateRule::update(before, samples, costs)`.
 pub fn recompute_update(rec: &Recording, u: &proto::Update) -> Result<Recomputed, RecordError> {
-    let e = |what: String| err(rec, u.update, what);
+    recompute(&rec.path, rec.run_info(), u)
+}
+
+/// [`recompute_update`] of an update of the file `path` whose `/run` is `run`.
+fn recompute(
+    path: &Path,
+    run: Option<&proto::RunInfo>,
+    u: &proto::Update,
+) -> Result<Recomputed, RecordError> {
+    let e = |what: String| RecordError::Update {
+        file: path.to_path_buf(),
+        update: u.update,
+        what,
+    };
     let hp = hyperparameters_from_proto(
         u.hyperparameters
             .as_ref()
@@ -48,8 +58,7 @@ pub fn recompute_update(rec: &Recording, u: &proto::Update) -> Result<Recomputed
             u.cost_terminal.len()
         )));
     }
-    let basis = rec
-        .run_info()
+    let basis = run
         .map(|r| r.basis_activations.as_slice())
         .filter(|b| !b.is_empty());
     let mut rule = UpdateRule::new(hp, p, n, basis).map_err(|x| e(x.to_string()))?;
@@ -90,16 +99,43 @@ pub fn matches_recorded(u: &proto::Update, r: &Recomputed) -> bool {
         && same_bits(&u.weights, &r.weights)
 }
 
+impl VerifyReport {
+    fn add(&mut self, u: &proto::Update, r: &Recomputed) {
+        self.updates += 1;
+        if !matches_recorded(u, r) {
+            self.mismatches.push(u.update);
+        }
+    }
+}
+
 /// Recomputes every update of the recording and compares.
 pub fn verify(rec: &Recording) -> Result<VerifyReport, RecordError> {
     let mut report = VerifyReport::default();
     rec.for_each_update(|u| {
-        let r = recompute_update(rec, u)?;
-        report.updates += 1;
-        if !matches_recorded(u, &r) {
-            report.mismatches.push(u.update);
-        }
+        report.add(u, &recompute_update(rec, u)?);
         Ok(())
     })?;
     Ok(report)
+}
+
+/// [`read_recording_slim`](crate::read_recording_slim) and [`verify`] in one pass over the file:
+/// each update is recomputed as it is read, where `verify` of a recording read slim streams the
+/// file again.
+pub fn read_and_verify(path: &Path) -> Result<(Recording, VerifyReport), RecordError> {
+    let mut report = VerifyReport::default();
+    // The first update that cannot be recomputed ends the recomputing; its error is returned
+    // once the file is read, so that a file that does not read fails as it does read alone.
+    let mut failed = None;
+    let rec = read_recording_slim_with(path, |run, u| {
+        if failed.is_none() {
+            match recompute(path, run, u) {
+                Ok(r) => report.add(u, &r),
+                Err(e) => failed = Some(e),
+            }
+        }
+    })?;
+    match failed {
+        Some(e) => Err(e),
+        None => Ok((rec, report)),
+    }
 }

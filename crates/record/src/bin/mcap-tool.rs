@@ -126,8 +126,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Verify { files } => {
             let mut bad = 0;
             for f in &files {
-                let rec = read_recording_slim(f)?;
-                let r = record::recompute::verify(&rec)?;
+                let (_, r) = record::recompute::read_and_verify(f)?;
                 println!(
                     "{}: {} updates recomputed, {} mismatches {:?}",
                     f.display(),
