@@ -304,7 +304,8 @@ struct WriterState {
     slots: WorkerSlots,
     /// The rejected executions of each update's rollouts whose costs were not finite, counted
     /// as the updater counts them (`run.nonfinite_reruns`): a rejected execution it runs again
-    /// is a warning, the one that fails the run an error.
+    /// is a warning, the one that fails the run an error (why not from the updater's
+    /// `Control::RERUN`: [`Self::cost_rejected`]).
     reruns: std::collections::BTreeMap<u64, NonfiniteReruns>,
 }
 
@@ -673,6 +674,31 @@ impl WriterState {
 
     /// The event for costs the assembler rejected: a warning for an execution with non-finite
     /// costs that the updater runs again, otherwise (the run fails on it) an error.
+    ///
+    /// Whether the updater reruns it is re-derived here with the updater's own policy
+    /// ([`NonfiniteReruns`]) from the same cost messages, rather than taken from the
+    /// updater's `Control::RERUN`, which this process also receives and ignores:
+    /// - The execution that fails the run gets no `RERUN` (the updater exits), so the recorder
+    ///   must judge a non-finite cost itself anyway to log that error and its rerun count;
+    ///   `RERUN` would be a second source for what this count already gives.
+    /// - `RERUN` and the costs come on two services with no order between them: costs are
+    ///   drained before control in a round, but a cost that arrives between the two drains has
+    ///   its `RERUN` taken in first. Pairing them needs costs held in both directions, and a
+    ///   non-finite cost without its `RERUN` is a rerun not yet announced or the run's failure,
+    ///   which cannot be told apart until the run ends.
+    /// - The warning quotes the rejected value and step, which only the cost message carries.
+    /// - The costs service is the one sized for a lagging recorder (it holds the updater back
+    ///   through it); `control`'s buffer is 2·max_workers + 16 with safe overflow, so a burst
+    ///   of reruns while the recorder writes a long round could push `RERUN`s out.
+    ///
+    /// The counts agree with the updater's because both count the same messages per rollout,
+    /// and a rollout's next execution is handed out only after its rejection. What re-deriving
+    /// cannot know (`RERUN`'s attempt number would give it): a recorder restarted between
+    /// a rollout's rejected executions counts from its restart, so it logs lower attempt
+    /// numbers and rerun count than the updater's; and with two executions of one rollout
+    /// waiting in its costs subscriber at once (a recorder busy writing; receiving does not
+    /// keep the order between two workers' messages), the workers named for attempts 1 and 2
+    /// may be swapped. Both only change the wording of the health log.
     fn cost_rejected(&mut self, h: &CostHeader, e: &CostError) -> anyhow::Result<()> {
         let by = format!("worker-{}", h.worker);
         let limit = self.config.run.nonfinite_reruns;
