@@ -4282,13 +4282,11 @@ fn a_resume_that_is_not_the_recorded_run_is_refused() {
     assert_eq!(record::read_recording(&first).unwrap().updates.len(), 5);
 }
 
-/// A `supervisor set` over the schedule's change of the same setting at the same update
-/// overrides it, and the recording of a run stopped in that update records the runtime value as
-/// the change ahead. `--resume` must go on with it: it went on with the schedule's, which it
-/// applied again on top of the recorded settings.
-#[test]
-fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one() {
-    let scratch = Scratch::new("override-resume");
+/// Starts a run of the reach task (300 ms rollouts, 6 updates) whose schedule changes target_y
+/// to 0.6 at update 3, with `args` after its config, and sets target_y to 0.5 while update 2
+/// runs, which overrides the scheduled change; returns once the updater has said so and the
+/// recorder has had time to write update 2 (update 3 takes 1.5 s), with the config's path.
+fn set_over_a_scheduled_change(scratch: &Scratch, id: u64, args: &[&str]) -> (Run, PathBuf) {
     let text = external_config(&[
         (
             "from_update = 40\nset = \"target_y\"\nvalue = 0.78",
@@ -4300,14 +4298,8 @@ fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one()
             "/reach-worker\", \"--rollout-ms\", \"300\"]",
         ),
     ]);
-    let cfg = write_config(&scratch, "override.toml", &text);
-    let result = scratch.path("override.result.toml");
-    let id = 870;
-    let mut run = Run::start(
-        &scratch,
-        id,
-        &[cfg.to_str().unwrap(), "--result", result.to_str().unwrap()],
-    );
+    let cfg = write_config(scratch, "override.toml", &text);
+    let run = Run::start(scratch, id, &[&[cfg.to_str().unwrap()], args].concat());
     run.wait_status("2 updates", |s| updates_in(s) >= 2);
     let reply = run.ctl_ok(&["set", "target_y", "0.5"]);
     assert_eq!(takes_effect_from(&reply), 3, "update 2 takes 1.5 s");
@@ -4322,6 +4314,20 @@ fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one()
         end,
     );
     std::thread::sleep(Duration::from_millis(400));
+    (run, cfg)
+}
+
+/// A `supervisor set` over the schedule's change of the same setting at the same update
+/// overrides it, and the recording of a run stopped in that update records the runtime value as
+/// the change ahead. `--resume` must go on with it: it went on with the schedule's, which it
+/// applied again on top of the recorded settings.
+#[test]
+fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one() {
+    let scratch = Scratch::new("override-resume");
+    let result = scratch.path("override.result.toml");
+    let id = 870;
+    let args = ["--result", result.to_str().unwrap()];
+    let (mut run, cfg) = set_over_a_scheduled_change(&scratch, 870, &args);
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
     let out = run.text();
@@ -4370,6 +4376,56 @@ fn a_runtime_change_over_a_scheduled_one_is_resumed_with_not_the_scheduled_one()
         r.task_changes
     );
     assert_nothing_left(&resumed);
+}
+
+/// What a SIGKILL (power loss) costs besides the updates in flight (README, "Nothing lost"):
+/// the recorder writes what the update the run was in was to run with (`/task_change`,
+/// `/unfinished_update`) only when stopped in order, and the killed file holds nothing of that
+/// update for `recover` to rebuild it from. So the `set` of the test above, killed instead of
+/// stopped in the update it took effect at, is lost: `--resume` goes on with the settings of
+/// the last recorded update, and the schedule's change it had overridden applies again.
+#[test]
+fn a_set_at_the_update_a_killed_run_was_in_is_lost_with_that_update() {
+    let scratch = Scratch::new("h3-killed-set");
+    let id = 1650;
+    let (mut run, _) = set_over_a_scheduled_change(&scratch, 1650, &[]);
+    let pids = pids_in(&run.ctl(&["status"]).1);
+    sigkill_supervisor(&mut run, &pids);
+
+    let recording = scratch.recording("reach", id);
+    let recovered = scratch.path("recovered.mcap");
+    record::recover::recover(&recording, &recovered).unwrap();
+    for file in [&recording, &recovered] {
+        let rec = record::read_recording(file).unwrap();
+        assert_eq!(update_indices(&rec), [0, 1, 2], "{}", file.display());
+        for topic in ["/task_change", "/unfinished_update"] {
+            assert!(
+                !rec.topic_counts.contains_key(topic),
+                "{}: {topic} {:?}",
+                file.display(),
+                rec.topic_counts
+            );
+        }
+        let point = record::resume::resume_point(file).unwrap();
+        assert_eq!(point.start.update, 3);
+        let ran: Vec<(String, f64)> = rec.updates[2]
+            .task_settings
+            .iter()
+            .map(|s| (s.name.clone(), s.value))
+            .collect();
+        // Update 2's settings, not the 0.5 update 3 was published with.
+        assert_eq!(point.start.settings, ran, "{}", file.display());
+        assert!(!ran.iter().any(|(_, v)| *v == 0.5), "{ran:?}");
+        assert!(!point.start.published, "{}", file.display());
+    }
+    // What the killed run left (the next run's sweep would find it; no run follows here).
+    let prefix = format!("p2c{}_", run.run_id);
+    for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+        if e.file_name().to_string_lossy().starts_with(&prefix) {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+    let _ = std::fs::remove_dir_all(format!("/tmp/p2c-{}", run.run_id));
 }
 
 /// A `set` to the value in force, and one that overrides a scheduled change back to it, leave
