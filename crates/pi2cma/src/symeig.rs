@@ -202,7 +202,7 @@ fn ql<const VECTORS: bool>(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]
 
 /// Householder reduction of the symmetric n×n matrix in `v` (column-major, both triangles set)
 /// to tridiagonal form, kept for [`tridiagonal_eigenvalues`], [`count_below`], [`bisect`] and
-/// [`reduced_eigenvector`]: on return `v` holds the reflectors, `h` their scales, `diag` and
+/// [`reduced_eigenvectors`]: on return `v` holds the reflectors, `h` their scales, `diag` and
 /// `off` the tridiagonal (`off[i]` couples rows i − 1 and i; `off[0]` is 0).
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 pub fn reduce_tridiagonal(
@@ -314,142 +314,250 @@ pub fn bisect(
     }
 }
 
-/// The unit eigenvector, into `z`, of the matrix reduced by [`reduce_tridiagonal`] for its
-/// eigenvalue `mu`: inverse iteration on the tridiagonal (LU with partial pivoting, a fixed
-/// start vector and a fixed count of iterations, so the bits are reproducible), orthogonalised
-/// against the unit vectors `previous` (tridiagonal coordinates, n each, concatenated; they must
-/// be eigenvectors of the same matrix) after every solve so that eigenvalues that coincide get
-/// independent vectors; then mapped back through the reflectors. The vector in tridiagonal
-/// coordinates is also appended to `previous`. `work`: 6·n values.
+/// Eigenvectors computed side by side by [`reduced_eigenvectors`]: the triangular solves of
+/// inverse iteration are chains of dependent operations, and independent chains overlap.
+pub const VECTOR_LANES: usize = 4;
+
+/// The unit eigenvectors, into the columns of `z` (n × `mu.len()`, column-major), of the matrix
+/// reduced by [`reduce_tridiagonal`] for its eigenvalues `mu` (at most [`VECTOR_LANES`]):
+/// inverse iteration on the tridiagonal (LU with partial pivoting, fixed start vectors and a
+/// fixed count of iterations, so the bits are reproducible). After every solve each vector is
+/// orthogonalised against the unit vectors `previous` (tridiagonal coordinates, n each,
+/// concatenated; they must be eigenvectors of the same matrix) and against the vectors of the
+/// lanes before its own, so that eigenvalues that coincide get independent vectors; then all are
+/// mapped back through the reflectors together. The vectors in tridiagonal coordinates are also
+/// appended to `previous`. `work`: 6·[`VECTOR_LANES`]·n values.
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 #[allow(clippy::too_many_arguments)]
-pub fn reduced_eigenvector(
+pub fn reduced_eigenvectors(
     n: usize,
     v: &[f64],
     h: &[f64],
     diag: &[f64],
     off: &[f64],
-    mu: f64,
+    mu: &[f64],
     previous: &mut Vec<f64>,
     z: &mut [f64],
     work: &mut [f64],
 ) {
-    assert!(v.len() == n * n && z.len() == n && work.len() == 6 * n);
+    const L: usize = VECTOR_LANES;
+    let count = mu.len();
+    assert!(v.len() == n * n && count <= L && z.len() == n * count && work.len() == 6 * L * n);
     assert!(previous.len().is_multiple_of(n.max(1)));
-    if n == 0 {
+    if n == 0 || count == 0 {
         return;
     }
-    let (dd, rest) = work.split_at_mut(n);
-    let (du, rest) = rest.split_at_mut(n);
-    let (dl, rest) = rest.split_at_mut(n);
-    let (du2, rest) = rest.split_at_mut(n);
-    let (swapped, y) = rest.split_at_mut(n);
-    // LU of T − μI with row interchanges (LAPACK dgttrf's scheme); swapped[i] ≠ 0 records one.
+    // Lane-interleaved: entry i of lane l at i·L + l, so that a step of the solves advances every
+    // lane with one vector operation. Unused lanes repeat the last shift; their results are
+    // dropped, and no used lane is orthogonalised against them.
+    let shift: [f64; L] = std::array::from_fn(|l| mu[l.min(count - 1)]);
+    let (inv, rest) = work.split_at_mut(L * n);
+    let (du, rest) = rest.split_at_mut(L * n);
+    let (dl, rest) = rest.split_at_mut(L * n);
+    let (du2, rest) = rest.split_at_mut(L * n);
+    let (swapped, y) = rest.split_at_mut(L * n);
     let mut norm: f64 = 0.0;
     for i in 0..n {
-        let right = if i + 1 < n { off[i + 1].abs() } else { 0.0 };
-        norm = norm.max(diag[i].abs() + off[i].abs() + right);
-        dd[i] = diag[i] - mu;
-        du[i] = if i + 1 < n { off[i + 1] } else { 0.0 };
-        dl[i] = du[i];
-        du2[i] = 0.0;
-        swapped[i] = 0.0;
+        let sub = if i + 1 < n { off[i + 1] } else { 0.0 };
+        norm = norm.max(diag[i].abs() + off[i].abs() + sub.abs());
+        for l in 0..L {
+            inv[i * L + l] = diag[i] - shift[l];
+            du[i * L + l] = sub;
+            dl[i * L + l] = sub;
+            du2[i * L + l] = 0.0;
+        }
     }
+    // LU of T − μI with row interchanges (LAPACK dgttrf's scheme), written with selects instead
+    // of branches: the lanes pivot differently, and a branch per lane would mispredict.
     for i in 0..n - 1 {
-        if dd[i].abs() >= dl[i].abs() {
-            if dd[i] != 0.0 {
-                let f = dl[i] / dd[i];
-                dl[i] = f;
-                dd[i + 1] -= f * du[i];
-            }
-        } else {
-            swapped[i] = 1.0;
-            let f = dd[i] / dl[i];
-            dd[i] = dl[i];
-            dl[i] = f;
-            let t = du[i];
-            du[i] = dd[i + 1];
-            dd[i + 1] = t - f * dd[i + 1];
+        let (cur, next) = (i * L, (i + 1) * L);
+        for l in 0..L {
+            let (a, b, c, d) = (inv[cur + l], dl[cur + l], du[cur + l], inv[next + l]);
+            let sw = a.abs() < b.abs();
+            let (num, den) = if sw { (a, b) } else { (b, a) };
+            // den = 0 only without interchange, when the column below is 0 too: nothing to do.
+            let f = if den != 0.0 { num / den } else { 0.0 };
+            inv[cur + l] = if sw { b } else { a };
+            dl[cur + l] = f;
+            du[cur + l] = if sw { d } else { c };
+            inv[next + l] = if sw { c - f * d } else { d - f * c };
+            swapped[cur + l] = if sw { 1.0 } else { 0.0 };
             if i + 2 < n {
-                du2[i] = du[i + 1];
-                du[i + 1] *= -f;
+                let e = du[next + l];
+                du2[cur + l] = if sw { e } else { 0.0 };
+                du[next + l] = if sw { e * -f } else { e };
             }
         }
     }
     // A pivot that vanishes (μ is an eigenvalue to working precision) becomes the size of the
-    // rounding in μ: the solve then grows the wanted eigenvector by ~1/ε.
+    // rounding in μ: the solve then grows the wanted eigenvector by ~1/ε. The pivots are kept
+    // as reciprocals: the solves multiply, which keeps divisions out of their dependency chains.
     let tiny = (f64::EPSILON * norm).max(f64::MIN_POSITIVE);
-    for p in dd.iter_mut() {
+    for p in inv.iter_mut() {
         if p.abs() < tiny {
             *p = if *p < 0.0 { -tiny } else { tiny };
         }
+        *p = 1.0 / *p;
     }
-    // Fixed start vector with entries of mixed sizes and signs (no eigenvector of a symmetric
-    // tridiagonal is orthogonal to it except by accident; the orthogonalisation handles repeats).
-    let mut state: u64 = 0x9E37_79B9_7F4A_7C15 ^ (previous.len() as u64);
-    for yi in y.iter_mut() {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        *yi = ((state >> 11) as f64) / ((1u64 << 53) as f64) - 0.5;
+    // Fixed start vectors with entries of mixed sizes and signs (no eigenvector of a symmetric
+    // tridiagonal is orthogonal to one except by accident; the orthogonalisation handles repeats).
+    for l in 0..L {
+        let mut state: u64 = 0x9E37_79B9_7F4A_7C15 ^ ((previous.len() + l * n) as u64);
+        for i in 0..n {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            y[i * L + l] = ((state >> 11) as f64) / ((1u64 << 53) as f64) - 0.5;
+        }
     }
     for _ in 0..3 {
         for i in 0..n - 1 {
-            if swapped[i] != 0.0 {
-                let t = y[i];
-                y[i] = y[i + 1];
-                y[i + 1] = t - dl[i] * y[i];
-            } else {
-                y[i + 1] -= dl[i] * y[i];
+            let (cur, next) = (i * L, (i + 1) * L);
+            for l in 0..L {
+                let (a, b) = (y[cur + l], y[next + l]);
+                let (p, q) = if swapped[cur + l] != 0.0 {
+                    (b, a)
+                } else {
+                    (a, b)
+                };
+                y[cur + l] = p;
+                y[next + l] = q - dl[cur + l] * p;
             }
         }
-        y[n - 1] /= dd[n - 1];
+        let last = (n - 1) * L;
+        for l in 0..L {
+            y[last + l] *= inv[last + l];
+        }
         if n > 1 {
-            y[n - 2] = (y[n - 2] - du[n - 2] * y[n - 1]) / dd[n - 2];
+            let at = (n - 2) * L;
+            for l in 0..L {
+                y[at + l] = (y[at + l] - du[at + l] * y[at + L + l]) * inv[at + l];
+            }
         }
         for i in (0..n.saturating_sub(2)).rev() {
-            y[i] = (y[i] - du[i] * y[i + 1] - du2[i] * y[i + 2]) / dd[i];
-        }
-        normalise(y);
-        for q in previous.chunks_exact(n) {
-            let c = dot(q, y);
-            for (yi, qi) in y.iter_mut().zip(q) {
-                *yi -= c * qi;
+            let at = i * L;
+            for l in 0..L {
+                y[at + l] =
+                    (y[at + l] - du[at + l] * y[at + L + l] - du2[at + l] * y[at + 2 * L + l])
+                        * inv[at + l];
             }
         }
-        normalise(y);
+        normalise_lanes(y, [true; L]);
+        for q in previous.chunks_exact(n) {
+            let c = lane_dot(q, y);
+            for (row, qi) in y.chunks_exact_mut(L).zip(q) {
+                for l in 0..L {
+                    row[l] -= c[l] * qi;
+                }
+            }
+        }
+        for l in 0..L {
+            for m in 0..l {
+                let mut acc = [0.0; 4];
+                for rows in y.chunks(4 * L) {
+                    for (a, row) in acc.iter_mut().zip(rows.chunks_exact(L)) {
+                        *a += row[m] * row[l];
+                    }
+                }
+                let c = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+                for row in y.chunks_exact_mut(L) {
+                    row[l] -= c * row[m];
+                }
+            }
+            normalise_lanes(y, std::array::from_fn(|m| m == l));
+        }
     }
-    previous.extend_from_slice(y);
-    // z = Q·y with Q = P_{n−1}⋯P_1 (the reduction applied P_{n−1} first).
-    z.copy_from_slice(y);
+    for l in 0..count {
+        previous.extend(y.chunks_exact(L).map(|row| row[l]));
+    }
+    // Z = Q·Y with Q = P_{n−1}⋯P_1 (the reduction applied P_{n−1} first), every lane at once.
     for s in 1..n {
         if h[s] != 0.0 {
             let u = &v[s * n..s * n + s];
-            let g = dot(u, &z[..s]) / h[s];
-            for (zk, uk) in z[..s].iter_mut().zip(u) {
-                *zk -= g * uk;
+            let mut g = lane_dot(u, &y[..s * L]);
+            for gl in g.iter_mut() {
+                *gl /= h[s];
             }
+            for (row, uk) in y[..s * L].chunks_exact_mut(L).zip(u) {
+                for l in 0..L {
+                    row[l] -= g[l] * uk;
+                }
+            }
+        }
+    }
+    for (l, col) in z.chunks_exact_mut(n).enumerate() {
+        for (zi, row) in col.iter_mut().zip(y.chunks_exact(L)) {
+            *zi = row[l];
         }
     }
 }
 
-/// Scales `y` to unit length (a zero vector becomes the first unit vector).
+/// Σ_i q_i·y_{i,l} for every lane l of the lane-interleaved `y` (rows of [`VECTOR_LANES`]),
+/// with two accumulators per lane so that the sums pipeline.
 #[inline(always)]
-fn normalise(y: &mut [f64]) {
-    let big = y.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    if !(big > 0.0) || !big.is_finite() {
-        if big == 0.0 {
-            y.fill(0.0);
-            y[0] = 1.0;
+fn lane_dot(q: &[f64], y: &[f64]) -> [f64; VECTOR_LANES] {
+    const L: usize = VECTOR_LANES;
+    let (mut a, mut b) = ([0.0; L], [0.0; L]);
+    let pairs = q.len() / 2;
+    for k in 0..pairs {
+        let (r0, r1) = (
+            &y[2 * k * L..(2 * k + 1) * L],
+            &y[(2 * k + 1) * L..(2 * k + 2) * L],
+        );
+        for l in 0..L {
+            a[l] += q[2 * k] * r0[l];
+            b[l] += q[2 * k + 1] * r1[l];
         }
-        return;
     }
-    for yi in y.iter_mut() {
-        *yi /= big;
+    if q.len() % 2 == 1 {
+        let k = q.len() - 1;
+        for l in 0..L {
+            a[l] += q[k] * y[k * L + l];
+        }
     }
-    let s = 1.0 / dot(y, y).sqrt();
-    for yi in y.iter_mut() {
-        *yi *= s;
+    std::array::from_fn(|l| a[l] + b[l])
+}
+
+/// Scales the lanes `which` of the lane-interleaved `y` to unit length (a zero lane becomes the
+/// first unit vector), all lanes' sums side by side.
+#[inline(always)]
+fn normalise_lanes(y: &mut [f64], which: [bool; VECTOR_LANES]) {
+    const L: usize = VECTOR_LANES;
+    let mut big = [0.0f64; L];
+    for row in y.chunks_exact(L) {
+        for l in 0..L {
+            big[l] = big[l].max(row[l].abs());
+        }
+    }
+    // Dividing by the largest entry first keeps the sum of squares from overflowing after a
+    // solve that grew the vector by ~1/ε.
+    let usable: [bool; L] = std::array::from_fn(|l| which[l] && big[l] > 0.0 && big[l].is_finite());
+    let inv: [f64; L] = std::array::from_fn(|l| if usable[l] { 1.0 / big[l] } else { 0.0 });
+    let mut sums = [[0.0; L]; 4];
+    for rows in y.chunks(4 * L) {
+        for (acc, row) in sums.iter_mut().zip(rows.chunks_exact(L)) {
+            for l in 0..L {
+                let x = row[l] * inv[l];
+                acc[l] += x * x;
+            }
+        }
+    }
+    let scale: [f64; L] = std::array::from_fn(|l| {
+        if usable[l] {
+            inv[l] / ((sums[0][l] + sums[1][l]) + (sums[2][l] + sums[3][l])).sqrt()
+        } else {
+            1.0
+        }
+    });
+    for row in y.chunks_exact_mut(L) {
+        for l in 0..L {
+            row[l] *= scale[l];
+        }
+    }
+    for l in 0..L {
+        if which[l] && big[l] == 0.0 {
+            y[l] = 1.0;
+        }
     }
 }
 
@@ -566,7 +674,7 @@ mod tests {
                 assert_eq!(count_below(&diag, &off, x, pivmin), n / 2);
             }
             let mut previous = Vec::new();
-            let (mut z, mut work) = (vec![0.0; n], vec![0.0; 6 * n]);
+            let mut work = vec![0.0; 6 * VECTOR_LANES * n];
             let mut vectors = Vec::new();
             for start in (0..n).step_by(BISECT_LANES) {
                 let lanes = BISECT_LANES.min(n - start);
@@ -574,28 +682,39 @@ mod tests {
                     std::array::from_fn(|l| start + l.min(lanes - 1));
                 let (mut lo, mut hi) = ([gl - tol; BISECT_LANES], [gu + tol; BISECT_LANES]);
                 bisect(&diag, &off, pivmin, scale, index, &mut lo, &mut hi);
-                for l in 0..lanes {
-                    let mu = 0.5 * (lo[l] + hi[l]);
+                let mu: Vec<f64> = (0..lanes).map(|l| 0.5 * (lo[l] + hi[l])).collect();
+                for (l, m) in mu.iter().enumerate() {
                     assert!(
-                        (mu - sorted[start + l]).abs() < tol,
-                        "{mu} vs {}",
+                        (m - sorted[start + l]).abs() < tol,
+                        "{m} vs {}",
                         sorted[start + l]
                     );
-                    reduced_eigenvector(
+                }
+                // Groups of every size up to the lanes, so that partly used groups are covered.
+                let mut at = 0;
+                let mut size = 1 + trial % VECTOR_LANES;
+                while at < lanes {
+                    let take = size.min(lanes - at);
+                    let mut z = vec![0.0; n * take];
+                    reduced_eigenvectors(
                         n,
                         &v,
                         &h,
                         &diag,
                         &off,
-                        mu,
+                        &mu[at..at + take],
                         &mut previous,
                         &mut z,
                         &mut work,
                     );
-                    let zv = nalgebra::DVector::from_column_slice(&z);
-                    let residual = (&a * &zv - &zv * mu).amax();
-                    assert!(residual < tol, "n = {n}, rank {r}: residual {residual:e}");
-                    vectors.push(zv);
+                    for (zl, m) in z.chunks_exact(n).zip(&mu[at..at + take]) {
+                        let zv = nalgebra::DVector::from_column_slice(zl);
+                        let residual = (&a * &zv - &zv * *m).amax();
+                        assert!(residual < tol, "n = {n}, rank {r}: residual {residual:e}");
+                        vectors.push(zv);
+                    }
+                    at += take;
+                    size = size % VECTOR_LANES + 1;
                 }
             }
             let zm = DMatrix::from_columns(&vectors);

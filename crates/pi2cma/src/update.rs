@@ -10,7 +10,7 @@ use crate::boundcovar::{boundcovar, boundcovar2, boundcovar2_interpolated, Eigen
 use crate::cost::CostBatch;
 use crate::distribution::Distribution;
 use crate::error::{CostError, ParameterError};
-use crate::symeig::symmetric_eigen;
+use crate::symeig::{symmetric_eigen, VECTOR_LANES};
 use crate::weighting::{exp_nonpositive, CostMapping};
 
 /// How Σ changes from one update to the next.
@@ -1094,9 +1094,9 @@ fn qr_block(
         off: vec![0.0; mk],
         values: vec![0.0; mk],
         scratch: vec![0.0; mk],
-        work: vec![0.0; 6 * mk],
+        work: vec![0.0; 6 * VECTOR_LANES * mk],
         previous: Vec::with_capacity(mk * mk),
-        z: vec![0.0; mk],
+        z: vec![0.0; VECTOR_LANES * mk],
         factor: DMatrix::zeros(mk, mk),
     };
     for i in steps {
@@ -1267,14 +1267,17 @@ fn lowrank_qr_step(
         }
     }
     sc.previous.clear();
-    for l in 0..needed {
-        let mu = sc.values[l];
-        let coef = if direct {
-            w * (bounds.clip(mu) - bounds.min)
-        } else {
-            -w * (mu - bounds.clip(mu))
-        };
-        add_eigen_term(mk, mu, coef, sc, part);
+    for start in (0..needed).step_by(VECTOR_LANES) {
+        let end = (start + VECTOR_LANES).min(needed);
+        let coef: [f64; VECTOR_LANES] = std::array::from_fn(|l| {
+            let mu = sc.values[(start + l).min(end - 1)];
+            if direct {
+                w * (bounds.clip(mu) - bounds.min)
+            } else {
+                -w * (mu - bounds.clip(mu))
+            }
+        });
+        add_eigen_terms(mk, start..end, &coef[..end - start], sc, part);
     }
     if direct {
         return;
@@ -1288,25 +1291,35 @@ fn lowrank_qr_step(
     part.linear += w;
 }
 
-/// core += coef·z·zᵀ for the unit eigenvector z of the reduced T for its eigenvalue μ.
-fn add_eigen_term(mk: usize, mu: f64, coef: f64, sc: &mut QrScratch, part: &mut QrPartial) {
-    crate::symeig::reduced_eigenvector(
+/// core += Σ_l coef_l·z_l·z_lᵀ for the unit eigenvectors z_l of the reduced T for its
+/// eigenvalues `sc.values[range]`.
+fn add_eigen_terms(
+    mk: usize,
+    range: std::ops::Range<usize>,
+    coef: &[f64],
+    sc: &mut QrScratch,
+    part: &mut QrPartial,
+) {
+    let z = &mut sc.z[..mk * range.len()];
+    crate::symeig::reduced_eigenvectors(
         mk,
         &sc.t,
         &sc.h,
         &sc.diag,
         &sc.off,
-        mu,
+        &sc.values[range],
         &mut sc.previous,
-        &mut sc.z,
+        z,
         &mut sc.work,
     );
-    part.stats.vectors += 1;
-    for b in 0..mk {
-        let f = coef * sc.z[b];
-        let col = &mut part.core.as_mut_slice()[b * mk..(b + 1) * mk];
-        for (c, zv) in col.iter_mut().zip(&sc.z) {
-            *c += f * zv;
+    part.stats.vectors += coef.len();
+    for (zl, c) in z.chunks_exact(mk).zip(coef) {
+        for b in 0..mk {
+            let f = c * zl[b];
+            let col = &mut part.core.as_mut_slice()[b * mk..(b + 1) * mk];
+            for (cv, zv) in col.iter_mut().zip(zl) {
+                *cv += f * zv;
+            }
         }
     }
 }
