@@ -1324,13 +1324,19 @@ fn add_eigen_terms(
         &mut sc.work,
     );
     part.stats.vectors += coef.len();
-    for (zl, c) in z.chunks_exact(mk).zip(coef) {
-        for b in 0..mk {
-            let f = c * zl[b];
-            let col = &mut part.core.as_mut_slice()[b * mk..(b + 1) * mk];
-            for (cv, zv) in col.iter_mut().zip(zl) {
-                *cv += f * zv;
-            }
+    // All terms of the group in one pass over `core`, rather than one pass per vector: the
+    // passes are bound by loading and storing `core`. Unused lanes add 0·z.
+    let zs: [&[f64]; VECTOR_LANES] =
+        std::array::from_fn(|l| &z[l.min(coef.len() - 1) * mk..][..mk]);
+    let cs: [f64; VECTOR_LANES] = std::array::from_fn(|l| coef.get(l).copied().unwrap_or(0.0));
+    for b in 0..mk {
+        let f: [f64; VECTOR_LANES] = std::array::from_fn(|l| cs[l] * zs[l][b]);
+        let col = &mut part.core.as_mut_slice()[b * mk..(b + 1) * mk];
+        for (a, cv) in col.iter_mut().enumerate() {
+            *cv += f
+                .iter()
+                .zip(&zs)
+                .fold(0.0, |acc, (fl, zl)| acc + fl * zl[a]);
         }
     }
 }
