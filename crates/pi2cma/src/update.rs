@@ -994,7 +994,8 @@ fn closed2_rows(
 }
 
 /// Groups of [`BISECT_LANES`] eigenvalues up to which bisection is used rather than QL: at
-/// K = 50 one group took ~12 µs and QL of all eigenvalues ~47 µs (perf, late large update).
+/// K = 50 one group took ~16 µs and QL of all eigenvalues ~45 µs (perf time over the calls
+/// counted in the late large update).
 const BISECT_GROUPS: usize = 2;
 
 /// Steps per block of the per-time-step low-rank accumulation.
