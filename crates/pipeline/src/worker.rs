@@ -147,9 +147,13 @@ fn slot<T: Task>(
     let ring = |bell: &Notifier<wire::Service>, what: &str| {
         iox(bell.notify_with_custom_event_id(wire::WAKE), what).map(|_| ())
     };
-    let _announced = announce_ready(&ctx, wire::role::WORKER, w, incarnation)?;
+    // Ready to the sampler before the announcement to the supervisor, which starts the run
+    // once every worker has announced: the other way round, a worker descheduled between the
+    // two was not yet the sampler's when the first update was handed out, and the others got
+    // all its rollouts (with one-minute rollouts it sat idle for the whole update).
     publish_ready(Ready::NO_CHUNK, 0)?;
     ring(&sampler_bell, "notify sampler")?;
+    let _announced = announce_ready(&ctx, wire::role::WORKER, w, incarnation)?;
 
     // (the chunk being worked on, its rollouts sent)
     let mut chunk = (u64::MAX, 0u32);
