@@ -307,6 +307,47 @@ fn a_config_that_cannot_run_in_process_leaves_the_results_directory() {
     assert_eq!(std::fs::read(d.join("res/updates.csv")).expect("csv"), csv);
 }
 
+/// A bad value typed as an option is reported as that option, not as a field of the config
+/// (`--updates 0` was `<built-in default>: run.updates = 0`).
+#[test]
+fn a_bad_option_value_is_reported_as_the_option() {
+    let d = scratch("h2-options");
+    let out = pi2cma(&["run", "--updates", "0", "--out", "res"], &d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("--updates 0: must be at least 1") && !stderr.contains("built-in"),
+        "{stderr}"
+    );
+    let out = pi2cma(
+        &["run", "--seed", "18446744073709551615", "--out", "res"],
+        &d,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--seed 18446744073709551615: "),
+        "{stderr}"
+    );
+    // Set by --weighting, the averaging an external task cannot have.
+    let external = repo().join("config/external-reach.toml");
+    let out = pi2cma(
+        &[
+            "experiment",
+            external.to_str().expect("utf-8"),
+            "--weighting",
+            "per-time-step-basis-activation",
+            "--out",
+            "res",
+        ],
+        &d,
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--weighting per-time-step-basis-activation: "),
+        "{stderr}"
+    );
+}
+
 #[test]
 fn unknown_option_is_rejected() {
     let out = pi2cma(&["run", "--lambda-min", "3"], &repo());

@@ -165,7 +165,11 @@ fn apply_weighting(cfg: &mut RunConfig, w: Option<WeightingArg>) -> Result<()> {
     };
     cfg.optimizer.weighting = weighting;
     cfg.optimizer.temporal_averaging = temporal;
-    cfg.validate()?;
+    // What is wrong was set by the option, not by the file the error names.
+    cfg.validate().with_context(|| {
+        let name = w.to_possible_value().map(|v| v.get_name().to_string());
+        format!("--weighting {}", name.unwrap_or_default())
+    })?;
     Ok(())
 }
 

@@ -120,6 +120,36 @@ fn the_recorded_config_has_the_command_line_seed_and_updates() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A bad value typed as an option is reported as that option, not as a field of the config
+/// (`--updates 0` was `<built-in default>: run.updates = 0`).
+#[test]
+fn record_reports_a_bad_option_value_as_the_option() {
+    let dir = scratch::scratch("h2-options");
+    let out = dir.join("x.mcap");
+    for (args, expected) in [
+        (&["--updates", "0"][..], "--updates 0: must be at least 1"),
+        (
+            &["--rollout-delay-ms=-1"][..],
+            "--rollout-delay-ms -1: must be between 0 and 3600000",
+        ),
+    ] {
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+            .arg("record")
+            .args(args)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(
+            !run.status.success() && stderr.contains(expected) && !stderr.contains("built-in"),
+            "{stderr}"
+        );
+        assert!(!out.exists());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A split recording: `mcap-tool record` names every part, and the `analyze` command it prints
 /// reads the whole run (given the first part alone, it read only that part's updates).
 #[test]

@@ -23,6 +23,33 @@ pub enum ConfigError {
         value: String,
         reason: String,
     },
+    /// A value given as a command-line option (`--updates 0`): the user typed it, so the error
+    /// names the option, not a field of a file that does not hold it.
+    #[error("{option} {value}: {reason}")]
+    Option {
+        option: String,
+        value: String,
+        reason: String,
+    },
+}
+
+impl ConfigError {
+    /// This error as one of `option` if it is about `field`, which that option set.
+    pub fn of_option(self, field: &str, option: &str) -> Self {
+        match self {
+            ConfigError::Invalid {
+                field: f,
+                value,
+                reason,
+                ..
+            } if f == field => ConfigError::Option {
+                option: option.to_string(),
+                value,
+                reason,
+            },
+            e => e,
+        }
+    }
 }
 
 /// A whole run: what to learn, with which update rule, for how long.
@@ -542,19 +569,27 @@ impl RunConfig {
         let Some(run) = run.as_table_mut() else {
             return Err(parse_error(&"`run` is not a table"));
         };
+        let option = |field: &str| format!("--{}", field.replace('_', "-"));
         for &(field, value) in overrides {
             let Some(value) = value else { continue };
             // TOML integers are i64; a larger value cannot be written, so it is refused here.
-            let n = i64::try_from(value).map_err(|_| ConfigError::Invalid {
-                file: origin.to_path_buf(),
-                field: format!("run.{field}"),
+            let n = i64::try_from(value).map_err(|_| ConfigError::Option {
+                option: option(field),
                 value: value.to_string(),
-                reason: "too large for a TOML integer".into(),
+                reason: format!("too large (at most {})", i64::MAX),
             })?;
             run.insert(field.into(), toml::Value::Integer(n));
         }
         let text = toml::to_string(&table).map_err(|e| parse_error(&e))?;
-        Ok((Self::parse(&text, origin)?, text))
+        let cfg = Self::parse(&text, origin).map_err(|e| {
+            overrides
+                .iter()
+                .filter(|(_, v)| v.is_some())
+                .fold(e, |e, (field, _)| {
+                    e.of_option(&format!("run.{field}"), &option(field))
+                })
+        })?;
+        Ok((cfg, text))
     }
 
     fn invalid(&self, field: &str, value: impl ToString, reason: &str) -> ConfigError {
@@ -680,7 +715,11 @@ impl RunConfig {
             return Err(self.invalid("run.name", "\"\"", "must not be empty"));
         }
         if self.run.updates == Some(0) {
-            return Err(self.invalid("run.updates", 0, "must be at least 1 (omit for unbounded)"));
+            return Err(self.invalid(
+                "run.updates",
+                0,
+                "must be at least 1 (a run without run.updates is unbounded)",
+            ));
         }
         if self.run.nonfinite_reruns > MAX_NONFINITE_RERUNS {
             return Err(self.invalid(
@@ -1707,16 +1746,31 @@ mod tests {
         expected.origin = origin.into();
         assert_eq!(cfg, expected);
         assert_eq!(RunConfig::parse(&text, origin).unwrap(), cfg);
+    }
+
+    /// A value the user typed as an option is reported as that option, not as a field of a
+    /// config file that does not have it (`<built-in default>: run.updates = 0` was the error
+    /// of `--updates 0`); the same value in the file still names the file and field.
+    #[test]
+    fn a_bad_override_is_reported_as_its_option() {
+        let origin = Path::new("a.toml");
         let e = RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("updates", Some(0))])
             .unwrap_err();
-        assert!(e.to_string().starts_with("a.toml: run.updates = 0"), "{e}");
+        assert!(
+            e.to_string().starts_with("--updates 0: must be at least 1"),
+            "{e}"
+        );
         let e = RunConfig::with_run_overrides(DEFAULT_CONFIG, origin, &[("seed", Some(u64::MAX))])
             .unwrap_err();
         assert!(
-            e.to_string()
-                .starts_with("a.toml: run.seed = 18446744073709551615"),
+            e.to_string().starts_with("--seed 18446744073709551615: "),
             "{e}"
         );
+        let zero = DEFAULT_CONFIG.replace("updates = 40", "updates = 0");
+        let e = RunConfig::with_run_overrides(&zero, origin, &[("seed", Some(3))]).unwrap_err();
+        assert!(e.to_string().starts_with("a.toml: run.updates = 0"), "{e}");
+        let e = RunConfig::with_run_overrides(&zero, origin, &[]).unwrap_err();
+        assert!(e.to_string().starts_with("a.toml: run.updates = 0"), "{e}");
     }
 
     #[test]

@@ -1655,6 +1655,37 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert_nothing_left(&run);
 }
 
+/// A bad value typed as an option is reported as that option: `--updates 0` was reported as
+/// `<built-in default>: run.updates = 0`, a field of no file the user had; the same value in a
+/// config file still names the file and field.
+#[test]
+fn a_bad_option_value_is_reported_as_the_option_and_a_bad_field_as_the_field() {
+    let scratch = Scratch::new("h2-options");
+    let mut run = Run::start(&scratch, 1600, &["--updates", "0"]);
+    run.wait_exit(Duration::from_secs(10), 1);
+    assert!(
+        run.text().contains("--updates 0: must be at least 1")
+            && !run.text().contains("built-in default"),
+        "{}",
+        run.text()
+    );
+    assert_nothing_left(&run);
+    let zero = write_config(
+        &scratch,
+        "zero.toml",
+        &config(&[("updates = 40", "updates = 0")]),
+    );
+    let mut run = Run::start(&scratch, 1601, &[zero.to_str().unwrap()]);
+    run.wait_exit(Duration::from_secs(10), 1);
+    assert!(
+        run.text()
+            .contains("zero.toml: run.updates = 0: must be at least 1"),
+        "{}",
+        run.text()
+    );
+    assert_nothing_left(&run);
+}
+
 /// Config edit: `run.nonfinite_reruns = 2`, and the lines `more` in `[run]` too.
 fn reruns(more: &str) -> (&'static str, String) {
     (

@@ -206,7 +206,8 @@ fn record_run(
         }
         text = None;
     }
-    cfg.validate()?;
+    cfg.validate()
+        .map_err(|e| e.of_option("task.via-point.rollout_delay_ms", "--rollout-delay-ms"))?;
     let seed = cfg.run.seed;
     // Before the file is created: a config that cannot run here (an external task) must not
     // cost the recording that `out` may hold.
