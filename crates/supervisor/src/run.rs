@@ -1650,8 +1650,11 @@ impl Supervisor {
             format!("  {} workers", self.worker_count())
         };
         format!(
-            "update {}/{of}  eval cost {:.4}  λ now {:.4}  {:.0} updates/s{workers}",
-            p.updates, p.eval_cost, p.lambda, self.rate,
+            "update {}/{of}  eval cost {}  λ now {}  {:.0} updates/s{workers}",
+            p.updates,
+            reading(p.eval_cost),
+            reading(p.lambda),
+            self.rate,
         )
     }
 
@@ -2008,8 +2011,8 @@ impl Supervisor {
                     self.rate,
                     self.last_update_at
                         .map_or(0.0, |t| t.elapsed().as_secs_f64()),
-                    p.eval_cost,
-                    p.lambda,
+                    reading(p.eval_cost),
+                    reading(p.lambda),
                     settings.join(", ")
                 );
             }
@@ -2374,8 +2377,10 @@ impl Supervisor {
             // A run stopped before its first update has no costs to show.
             if r.updates > 0 {
                 say(&format!(
-                    "  evaluation cost {:.4} → {:.4}, final λ {:.4}",
-                    r.first_eval_cost, r.last_eval_cost, r.lambda
+                    "  evaluation cost {} → {}, final λ {}",
+                    reading(r.first_eval_cost),
+                    reading(r.last_eval_cost),
+                    reading(r.lambda)
                 ));
             }
             say(&format!("  final mean θ = {:?}", r.mean));
@@ -2852,6 +2857,17 @@ fn die_with_parent(cmd: &mut Command) {
     }
 }
 
+/// A cost or λ as people read it in the progress lines, `status` and the summary: 4 decimals,
+/// in exponent form where those would say little (below 1e-3, `0.0000` for λ = 1e-60) or
+/// show digits no one reads (from 1e12 on).
+fn reading(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-3..1e12).contains(&v.abs()) {
+        format!("{v:.4e}")
+    } else {
+        format!("{v:.4}")
+    }
+}
+
 /// A time between updates as the stall warning shows it: in seconds, in milliseconds below
 /// 10 ms (a run at thousands of updates per second came "every 0.000 s").
 fn interval_text(secs: f64) -> String {
@@ -2893,6 +2909,17 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn costs_and_lambda_are_shown_with_4_decimals_or_in_exponent_form() {
+        assert_eq!(reading(1.9999999999999998), "2.0000");
+        assert_eq!(reading(22.428912381184755), "22.4289");
+        assert_eq!(reading(0.0), "0.0000");
+        assert_eq!(reading(1e-60), "1.0000e-60");
+        assert_eq!(reading(-3.5e15), "-3.5000e15");
+        assert_eq!(reading(f64::NAN), "NaN");
+        assert_eq!(reading(f64::INFINITY), "inf");
+    }
 
     #[test]
     fn a_stall_warning_shows_a_short_interval_in_ms() {

@@ -1686,6 +1686,29 @@ fn a_bad_option_value_is_reported_as_the_option_and_a_bad_field_as_the_field() {
     assert_nothing_left(&run);
 }
 
+/// `status` shows cost and λ as the progress lines and the summary do (4 decimals), not as raw
+/// floats (`lambda: 1.9999999999999998`).
+#[test]
+fn status_shows_cost_and_lambda_as_the_progress_lines_do() {
+    let scratch = Scratch::new("h2-status");
+    let cfg = write_config(&scratch, "status.toml", &config(&[UNBOUNDED, DELAYED]));
+    let mut run = Run::start_quiet(&scratch, 1602, &cfg, &scratch.path("result.toml"));
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    for field in ["current cost: ", "lambda: "] {
+        let value = status
+            .lines()
+            .find_map(|l| l.strip_prefix(field))
+            .unwrap_or_else(|| panic!("no `{field}` line:\n{status}"));
+        let decimals = value.split_once('.').map_or(0, |(_, d)| d.len());
+        assert!(
+            decimals == 4 && value.parse::<f64>().is_ok(),
+            "{field}{value}:\n{status}"
+        );
+    }
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+}
+
 /// Config edit: `run.nonfinite_reruns = 2`, and the lines `more` in `[run]` too.
 fn reruns(more: &str) -> (&'static str, String) {
     (
