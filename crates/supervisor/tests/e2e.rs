@@ -1709,6 +1709,33 @@ fn status_shows_cost_and_lambda_as_the_progress_lines_do() {
     run.wait_exit(Duration::from_secs(20), 0);
 }
 
+/// The summary abbreviates a long final mean (it printed all 400 values for P = 400); a short
+/// one it prints whole, as it was.
+#[test]
+fn the_summary_abbreviates_a_long_final_mean() {
+    let scratch = Scratch::new("h2-long-mean");
+    let cfg = write_config(
+        &scratch,
+        "long.toml",
+        &config(&[
+            ("updates = 40", "updates = 2"),
+            ("basis_functions = 2", "basis_functions = 400"),
+        ]),
+    );
+    let mut run = Run::start_quiet(&scratch, 1603, &cfg, &scratch.path("result.toml"));
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    let line = out
+        .lines()
+        .find(|l| l.contains("final mean θ = "))
+        .unwrap_or_else(|| panic!("no final mean:\n{out}"));
+    assert!(
+        line.matches(", ").count() < 8 && line.contains("…") && line.contains("(400 values)"),
+        "{}",
+        &line[..line.len().min(300)]
+    );
+}
+
 /// Config edit: `run.nonfinite_reruns = 2`, and the lines `more` in `[run]` too.
 fn reruns(more: &str) -> (&'static str, String) {
     (
