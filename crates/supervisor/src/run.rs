@@ -2481,16 +2481,15 @@ impl Supervisor {
                 }
             }
             if rec.restarted > 0 {
-                say(&format!(
-                    "  the recorder died and was restarted {} time(s); each restart began a new \
-                     part, and the updates a dead recorder had not written are missing:",
-                    rec.restarted
-                ));
                 // Read after the recoveries ended: a part before a restart is complete then.
-                for part in record::recording_parts(&rec.path) {
-                    if let Some(gap) = record::analyze::missing_before_restart(&part) {
-                        say(&format!("    {}: {gap}", part.display()));
-                    }
+                let gaps: Vec<(PathBuf, String)> = record::recording_parts(&rec.path)
+                    .into_iter()
+                    .filter_map(|part| {
+                        record::analyze::missing_before_restart(&part).map(|gap| (part, gap))
+                    })
+                    .collect();
+                for line in restart_lines(rec.restarted, &gaps) {
+                    say(&line);
                 }
             }
             for (part, done) in &recoveries {
@@ -2509,6 +2508,36 @@ impl Supervisor {
         }
         copied.map(|()| unfinished)
     }
+}
+
+/// The summary's lines on a recording whose recorder was restarted `restarted` times: the
+/// updates missing before each part a restart began (`gaps`: the part and what it says).
+fn restart_lines(restarted: u32, gaps: &[(PathBuf, String)]) -> Vec<String> {
+    let heading = format!(
+        "  the recorder died and was restarted {restarted} time(s); each restart began a new \
+         part, and the updates a dead recorder had not written are missing"
+    );
+    // Parts may be archived while the run goes on, those a restart began too: a heading
+    // followed by nothing read as if the list had been lost. A restarted recorder that got no
+    // update before the run ended began no part.
+    let why = "moved away or deleted during the run, or never begun: the run ended before the \
+               restarted recorder's first update";
+    if gaps.is_empty() {
+        return vec![format!(
+            "{heading}; the parts that said which are not there ({why})"
+        )];
+    }
+    let mut lines = vec![format!("{heading}:")];
+    for (part, gap) in gaps {
+        lines.push(format!("    {}: {gap}", part.display()));
+    }
+    let gone = (restarted as usize).saturating_sub(gaps.len());
+    if gone > 0 {
+        lines.push(format!(
+            "    ({gone} of the {restarted} parts the restarts began are not there: {why})"
+        ));
+    }
+    lines
 }
 
 /// Whether a recorder that died mid-run is worth restarting: unless, having announced itself,
@@ -2943,6 +2972,33 @@ mod tests {
         assert_eq!(mean_text(&[1.0; 8]), format!("{:?}", [1.0; 8]));
         let long: Vec<f64> = (0..400).map(f64::from).collect();
         assert_eq!(mean_text(&long), "[0.0, 1.0, 2.0, …] (400 values)");
+    }
+
+    /// The parts restarts began say which updates are missing; with none of them left (moved
+    /// away or deleted during the run), the heading was followed by nothing.
+    #[test]
+    fn the_restarts_missing_updates_are_listed_or_said_to_be_unknown() {
+        let gap = (
+            PathBuf::from("day.part-4.mcap"),
+            "begins at update 40 after a recorder restart (restart 1); missing 38..=39".into(),
+        );
+        let lines = restart_lines(1, std::slice::from_ref(&gap));
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert!(lines[0].ends_with("are missing:"), "{lines:?}");
+        assert!(
+            lines[1].starts_with("    day.part-4.mcap: begins at update 40"),
+            "{lines:?}"
+        );
+
+        let lines = restart_lines(2, &[]);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(!lines[0].ends_with(':'), "{lines:?}");
+        assert!(lines[0].contains("are not there (moved away"), "{lines:?}");
+
+        // One of two restarts' parts gone: what is there is listed, and the other said.
+        let lines = restart_lines(2, &[gap]);
+        assert!(lines[0].ends_with("are missing:"), "{lines:?}");
+        assert!(lines[2].contains("1 of the 2 parts"), "{lines:?}");
     }
 
     #[test]
