@@ -476,6 +476,7 @@ fn draw_run_id() -> u64 {
 
 /// Runs a pipeline to the end and returns the process exit code (0, 1 or 130).
 pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
+    fix_malloc_thresholds();
     let point = opts
         .resume
         .as_deref()
@@ -2315,14 +2316,17 @@ impl Supervisor {
                     // a loaded machine widens), a recorder leaves a part that holds nothing to
                     // recover; kept, it would fail the recovery and the run (exit 3) and stop
                     // the analysis of the parts, for no update lost.
-                    if record::recover::holds_nothing(&input).unwrap_or(false) {
-                        return std::fs::remove_file(&input)
+                    let outcome = if record::recover::holds_nothing(&input).unwrap_or(false) {
+                        std::fs::remove_file(&input)
                             .map(|()| format!("{}: {EMPTY_PART_REMOVED}", input.display()))
-                            .map_err(|e| format!("{}: cannot remove: {e}", input.display()));
-                    }
-                    record::recover::recover(&input, &input)
-                        .map(|r| r.describe())
-                        .map_err(|e| e.to_string())
+                            .map_err(|e| format!("{}: cannot remove: {e}", input.display()))
+                    } else {
+                        record::recover::recover(&input, &input)
+                            .map(|r| r.describe())
+                            .map_err(|e| e.to_string())
+                    };
+                    release_freed_memory();
+                    outcome
                 })?;
             if let Some(rec) = self.recording.as_mut() {
                 rec.recovering
@@ -2864,6 +2868,34 @@ fn sigbus_hint(status: ExitStatus, shm: Option<(u64, u64)>) -> Option<String> {
         "SIGBUS here most likely means the shared memory is full: {space}; free space there \
          (or enlarge it), or make the run's messages smaller (K, P, N, pipeline.max_workers)"
     ))
+}
+
+/// Returns the memory a part's recovery freed to the system. glibc keeps what a thread freed
+/// in that thread's malloc arena, and each recovery ran in a thread of its own: the
+/// supervisor's RSS stepped up 2–3 MiB with each of the first recorder restarts and stayed
+/// there (malloc_stats: 15.6 MB from the system, 1.9 MB in use).
+fn release_freed_memory() {
+    // SAFETY: malloc_trim only gives free pages of the arenas back (it takes each arena's
+    // lock); it touches no memory in use.
+    #[cfg(target_env = "gnu")]
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
+/// Keeps glibc's mmap threshold at its initial 128 KiB. Freeing a block it had mapped raises
+/// it (and the trim threshold, to twice that) up to 32 MiB; a recovery frees blocks of
+/// megabytes, after which blocks that size came from the arenas and their freed tops were
+/// kept (malloc_trim gives back the top of the main arena only). Measured over 6 recorder
+/// kills: +7.5 MiB RSS with the threshold free to rise, +2.2 MiB with it fixed.
+fn fix_malloc_thresholds() {
+    // SAFETY: mallopt sets a parameter of the allocator; no memory is touched.
+    #[cfg(target_env = "gnu")]
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
+    }
 }
 
 /// The child gets SIGKILL when the supervisor dies, however it dies.
