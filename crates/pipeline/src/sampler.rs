@@ -6,8 +6,8 @@
 //! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
 //! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
-//! restarts it. A rollout the updater asks for again (`Control::RERUN`: its costs were not
-//! finite) goes back to the front of the queue.
+//! restarts it. A rollout the updater asks for again (on `reruns`: its costs were not finite)
+//! goes back to the front of the queue.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
@@ -20,6 +20,21 @@ use pi2cma::{Distribution, ParameterBatch};
 use wire::{Control, DistributionHeader, Ready, Service, WorkHeader, MAX_SETTINGS};
 
 use crate::{announce_ready, iox, wait_loop, Context, Flow, Ports as _, ProcessArgs};
+
+/// The rollouts whose count in `counts` (a `reruns` sample) is above the one in `seen`, which
+/// is raised to match: each has had an execution rejected since the last sample read. Counts
+/// only grow within an update, so reading only the newest of several samples finds the same
+/// rollouts.
+fn raised(seen: &mut [u32], counts: &[u32]) -> Vec<u32> {
+    let mut out = Vec::new();
+    for (k, (s, &c)) in seen.iter_mut().zip(counts).enumerate() {
+        if c > *s {
+            *s = c;
+            out.push(k as u32);
+        }
+    }
+    out
+}
 
 /// How often the sampler looks for dead worker nodes.
 const DEAD_SCAN: Duration = Duration::from_secs(1);
@@ -65,6 +80,10 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("distribution")?;
     let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("ready")?;
     let control = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
+    let rerun_requests = match ctx.config.run.nonfinite_reruns {
+        0 => None,
+        _ => Some(wire::reruns(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("reruns")?),
+    };
     let overdue = wire::overdue(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("overdue")?;
     let supervisor_bell = ctx.notifier("supervisor")?;
     let rollout_timeout = ctx
@@ -78,9 +97,11 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
     let mut idle: VecDeque<u32> = VecDeque::new();
     let mut pending: VecDeque<u32> = VecDeque::new();
-    // Rollouts of the current update the updater asked for again (Control::RERUN): their work
-    // items say so (WorkHeader::RERUN).
+    // Rollouts of the current update the updater asked for again: their work items say so
+    // (WorkHeader::RERUN). `rerun_counts`: the updater's rejected executions per rollout of
+    // the current update, as of the newest `reruns` sample read.
     let mut reruns: BTreeSet<u32> = BTreeSet::new();
+    let mut rerun_counts: Vec<u32> = vec![0; k_total];
     let mut current: Option<Current> = None;
     let mut next_chunk: u64 = 0;
     let mut finished = false;
@@ -102,19 +123,6 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             }
             if m.kind == Control::WORKER_LOST {
                 lost.push((m.worker, m.incarnation));
-            }
-            // A rollout whose costs were not finite: the update waits for it, so it is still
-            // the current one (a request for another is stale).
-            if let Some((update, k)) = m.rerun_of() {
-                if current.as_ref().is_some_and(|c| c.update == update) && (k as usize) < k_total {
-                    reruns.insert(k);
-                    if !pending.contains(&k) {
-                        pending.push_front(k);
-                    }
-                    if trace {
-                        eprintln!("{} rerun {update}/{k}", us());
-                    }
-                }
             }
         }
         if last_scan.elapsed() >= DEAD_SCAN {
@@ -182,8 +190,29 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             });
             pending = (0..k_total as u32).collect();
             reruns.clear();
+            rerun_counts.fill(0);
             if trace {
                 eprintln!("{} dist {} idle {:?}", us(), h.update, idle);
+            }
+        }
+        // Rollouts whose costs were not finite: the update waits for them, so a sample of
+        // another update is stale.
+        while let Some(sample) = match &rerun_requests {
+            Some(requests) => iox(requests.receive(), "receive reruns")?,
+            None => None,
+        } {
+            let h = *sample.user_header();
+            if h.run_id != ctx.run_id || current.as_ref().is_none_or(|c| c.update != h.update) {
+                continue;
+            }
+            for k in raised(&mut rerun_counts, sample.payload()) {
+                reruns.insert(k);
+                if !pending.contains(&k) {
+                    pending.push_front(k);
+                }
+                if trace {
+                    eprintln!("{} rerun {}/{k}", us(), h.update);
+                }
             }
         }
         if finished {
@@ -415,4 +444,21 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
     )?;
     let bell = ctx.notifier(&format!("worker/{worker}"))?;
     Ok((inbox, bell))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::raised;
+
+    #[test]
+    fn a_rollout_is_handed_out_again_once_per_rise_of_its_count() {
+        let mut seen = vec![0; 4];
+        assert_eq!(raised(&mut seen, &[0, 1, 0, 1]), [1, 3]);
+        // The same sample again, or an older one read after it: nothing new.
+        assert_eq!(raised(&mut seen, &[0, 1, 0, 1]), [] as [u32; 0]);
+        assert_eq!(raised(&mut seen, &[0, 1, 0, 0]), [] as [u32; 0]);
+        // Samples lost in between: the newest still names every rollout that rose.
+        assert_eq!(raised(&mut seen, &[2, 1, 1, 2]), [0, 2, 3]);
+        assert_eq!(seen, [2, 1, 1, 2]);
+    }
 }

@@ -12,7 +12,7 @@ use iceoryx2::prelude::*;
 use pi2cma::CostError;
 use session::reruns::{after_reruns, rerun_message, NonfiniteReruns, Verdict};
 use tasks::TaskChange;
-use wire::{Control, DistributionHeader, Progress, RecorderAck, Service};
+use wire::{Control, DistributionHeader, Progress, RecorderAck, RerunHeader, Service};
 
 use crate::result::{bits, RecordedChange, RunResult};
 use crate::{announce_ready, iox, wait_loop, Context, Exit, Flow, Ports as _, ProcessArgs};
@@ -66,11 +66,17 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let sampler_bell = ctx.notifier("sampler")?;
     let supervisor_bell = ctx.notifier("supervisor")?;
     let mut recorder = RecorderLink::new(&ctx)?;
-    // Asks the sampler for a rollout again (Control::RERUN); only a run that allows reruns
-    // opens it, so one that does not takes no more shared memory than before.
+    // Tells the sampler which rollouts to hand out again (`reruns`); only a run that allows
+    // reruns opens it, so one that does not takes no more shared memory than before.
     let rerun_requests = match cfg.run.nonfinite_reruns {
         0 => None,
-        _ => Some(wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("control")?),
+        _ => Some(iox(
+            wire::reruns(&ctx.node, ctx.run_id, &ctx.limits)?
+                .publisher_builder()
+                .initial_max_slice_len(k_total)
+                .create(),
+            "reruns publisher",
+        )?),
     };
     let mut reruns = NonfiniteReruns::new(cfg.run.nonfinite_reruns, k_total);
     let mut reruns_done: u64 = 0;
@@ -304,6 +310,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 optimizer.ask();
             }
             let u = optimizer.update_index();
+            let mut rejected = false;
             while let Some(sample) = iox(costs.receive(), "receive costs")? {
                 let h = *sample.user_header();
                 if h.run_id != ctx.run_id || h.update != u {
@@ -319,20 +326,14 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     Err(e) => e,
                 };
                 let tried = match (&e, &rerun_requests) {
-                    (CostError::NonFinite { .. }, Some(requests)) => {
+                    (CostError::NonFinite { .. }, Some(_)) => {
                         match reruns.reject(h.rollout as usize) {
                             Verdict::Rerun { attempt } => {
                                 let by = format!("worker-{}", h.worker);
                                 let limit = reruns.limit();
                                 println!("{}", rerun_message(u, &e, attempt, limit, &by));
-                                let again =
-                                    Control::rerun(ctx.run_id, u, h.rollout, h.worker, attempt);
-                                iox(requests.send_copy(again), "send rerun request")?;
-                                iox(
-                                    sampler_bell.notify_with_custom_event_id(wire::WAKE),
-                                    "notify sampler",
-                                )?;
                                 reruns_done += 1;
+                                rejected = true;
                                 continue;
                             }
                             Verdict::Fail { reruns } => reruns,
@@ -347,6 +348,20 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     ran_with_text(&h, &published, &*task),
                     after_reruns(tried)
                 );
+            }
+            if let (true, Some(requests)) = (rejected, &rerun_requests) {
+                // One sample for all the rejections this round: it holds every count.
+                let sample = iox(requests.loan_slice_uninit(k_total), "loan reruns")?;
+                let mut sample = sample.write_from_slice(reruns.rejected());
+                *sample.user_header_mut() = RerunHeader {
+                    run_id: ctx.run_id,
+                    update: u,
+                };
+                iox(sample.send(), "send reruns")?;
+                iox(
+                    sampler_bell.notify_with_custom_event_id(wire::WAKE),
+                    "notify sampler",
+                )?;
             }
             if !batch.is_complete() {
                 return Ok(Flow::Continue);

@@ -165,7 +165,9 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
     if let Some(f) = cfg.run.fault_nan_first_attempt {
         let mut t = Table::new();
         t.insert("update".into(), int(f.update));
-        t.insert("rollout".into(), int(f.rollout as u64));
+        if let Some(k) = f.rollout {
+            t.insert("rollout".into(), int(k as u64));
+        }
         run.insert("fault_nan_first_attempt".into(), Value::Table(t));
     }
     root.insert("run".into(), Value::Table(run));
@@ -319,13 +321,12 @@ mod tests {
         let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
         assert_eq!(back, cfg, "{text}");
         cfg.run.nonfinite_reruns = 3;
-        cfg.run.fault_nan_first_attempt = Some(session::RolloutAt {
-            update: 7,
-            rollout: 2,
-        });
-        let text = config_to_toml(&cfg);
-        let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
-        assert_eq!(back, cfg, "{text}");
+        for rollout in [Some(2), None] {
+            cfg.run.fault_nan_first_attempt = Some(session::RolloutAt { update: 7, rollout });
+            let text = config_to_toml(&cfg);
+            let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
+            assert_eq!(back, cfg, "{text}");
+        }
     }
 
     /// The setting travels in the recorded hyperparameters; a recording from before the field

@@ -305,7 +305,7 @@ struct WriterState {
     /// The rejected executions of each update's rollouts whose costs were not finite, counted
     /// as the updater counts them (`run.nonfinite_reruns`): a rejected execution it runs again
     /// is a warning, the one that fails the run an error (why not from the updater's
-    /// `Control::RERUN`: [`Self::cost_rejected`]).
+    /// `reruns` samples: [`Self::cost_rejected`]).
     reruns: std::collections::BTreeMap<u64, NonfiniteReruns>,
 }
 
@@ -676,24 +676,22 @@ impl WriterState {
     /// costs that the updater runs again, otherwise (the run fails on it) an error.
     ///
     /// Whether the updater reruns it is re-derived here with the updater's own policy
-    /// ([`NonfiniteReruns`]) from the same cost messages, rather than taken from the
-    /// updater's `Control::RERUN`, which this process also receives and ignores:
-    /// - The execution that fails the run gets no `RERUN` (the updater exits), so the recorder
-    ///   must judge a non-finite cost itself anyway to log that error and its rerun count;
-    ///   `RERUN` would be a second source for what this count already gives.
-    /// - `RERUN` and the costs come on two services with no order between them: costs are
-    ///   drained before control in a round, but a cost that arrives between the two drains has
-    ///   its `RERUN` taken in first. Pairing them needs costs held in both directions, and a
-    ///   non-finite cost without its `RERUN` is a rerun not yet announced or the run's failure,
-    ///   which cannot be told apart until the run ends.
+    /// ([`NonfiniteReruns`]) from the same cost messages, rather than read from the updater's
+    /// `reruns` service (the sampler's, which this process does not subscribe to):
+    /// - The execution that fails the run is in no `reruns` sample (the updater exits), so the
+    ///   recorder must judge a non-finite cost itself anyway to log that error and its rerun
+    ///   count; `reruns` would be a second source for what this count already gives.
+    /// - `reruns` and the costs come on two services with no order between them: pairing them
+    ///   needs costs held in both directions, and a non-finite cost not yet counted in a
+    ///   `reruns` sample is a rerun not yet announced or the run's failure, which cannot be
+    ///   told apart until the run ends.
     /// - The warning quotes the rejected value and step, which only the cost message carries.
     /// - The costs service is the one sized for a lagging recorder (it holds the updater back
-    ///   through it); `control`'s buffer is 2·max_workers + 16 with safe overflow, so a burst
-    ///   of reruns while the recorder writes a long round could push `RERUN`s out.
+    ///   through it).
     ///
     /// The counts agree with the updater's because both count the same messages per rollout,
     /// and a rollout's next execution is handed out only after its rejection. What re-deriving
-    /// cannot know (`RERUN`'s attempt number would give it): a recorder restarted between
+    /// cannot know (the updater's counts would give it): a recorder restarted between
     /// a rollout's rejected executions counts from its restart, so it logs lower attempt
     /// numbers and rerun count than the updater's; and with two executions of one rollout
     /// waiting in its costs subscriber at once (a recorder busy writing; receiving does not

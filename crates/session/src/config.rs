@@ -88,18 +88,20 @@ pub struct RunSection {
     /// update waits for it. 0: the first such cost fails the run.
     #[serde(default)]
     pub nonfinite_reruns: u32,
-    /// FAULT INJECTION, for tests only: the first execution of this rollout reports a NaN
-    /// terminal cost, its reruns what the task computes (a transient fault; both executors).
+    /// FAULT INJECTION, for tests only: the first execution of this rollout (of every rollout of
+    /// the update, without `rollout`) reports a NaN terminal cost, its reruns what the task
+    /// computes (a transient fault; both executors).
     #[serde(default)]
     pub fault_nan_first_attempt: Option<RolloutAt>,
 }
 
-/// One rollout of one update (`{ update = 3, rollout = 2 }`).
+/// One rollout of one update (`{ update = 3, rollout = 2 }`), or all of them (`{ update = 3 }`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RolloutAt {
     pub update: u64,
-    pub rollout: usize,
+    #[serde(default)]
+    pub rollout: Option<usize>,
 }
 
 impl RunSection {
@@ -109,7 +111,7 @@ impl RunSection {
         !rerun
             && self
                 .fault_nan_first_attempt
-                .is_some_and(|f| f.update == update && f.rollout == rollout)
+                .is_some_and(|f| f.update == update && f.rollout.is_none_or(|k| k == rollout))
     }
 }
 
@@ -733,10 +735,10 @@ impl RunConfig {
             ));
         }
         if let Some(f) = self.run.fault_nan_first_attempt {
-            if f.rollout >= o.rollouts {
+            if let Some(k) = f.rollout.filter(|&k| k >= o.rollouts) {
                 return Err(self.invalid(
                     "run.fault_nan_first_attempt.rollout",
-                    f.rollout,
+                    k,
                     &format!("must be below optimizer.rollouts = {}", o.rollouts),
                 ));
             }

@@ -48,6 +48,11 @@ impl NonfiniteReruns {
         Verdict::Rerun { attempt: *rejected }
     }
 
+    /// The rejected executions of each rollout so far.
+    pub fn rejected(&self) -> &[u32] {
+        &self.rejected
+    }
+
     /// For the next update.
     pub fn clear(&mut self) {
         self.rejected.fill(0);

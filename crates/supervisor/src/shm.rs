@@ -70,7 +70,7 @@ pub(crate) struct RunSizes<'a> {
     /// `pipeline.workers`, or `--workers` when the command line set it.
     pub workers_field: &'static str,
     pub recorder: bool,
-    /// Whether the updater publishes on `control` (`run.nonfinite_reruns` > 0).
+    /// Whether the run has the `reruns` service (`run.nonfinite_reruns` > 0).
     pub reruns: bool,
     /// The fields that set P and N (`session::RunConfig::size_fields`).
     pub p_field: String,

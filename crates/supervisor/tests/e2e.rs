@@ -1821,6 +1821,49 @@ fn a_transient_non_finite_cost_is_rerun_and_the_run_stays_bit_identical() {
     assert_nothing_left(&run);
 }
 
+/// Every rollout of an update rejected at once — K rerun requests in one burst, more than the
+/// `control` service buffers (2·max_workers + 16) — is every one run again: none of the requests
+/// may be lost while the sampler is not scheduled, or the update waits forever for a rollout
+/// nobody hands out.
+#[test]
+fn a_burst_of_rejected_rollouts_larger_than_any_buffer_is_run_again_whole() {
+    let scratch = Scratch::new("rerun-burst");
+    let (from, to) = reruns("fault_nan_first_attempt = { update = 2 }\n");
+    let text = config(&[
+        (from, to.as_str()),
+        ("updates = 40\n", "updates = 6\n"),
+        ("rollouts = 15", "rollouts = 60"),
+        (
+            "workers = 3\nmax_workers = 16",
+            "workers = 1\nmax_workers = 1",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "burst.toml", &text);
+    let result = scratch.path("burst.toml.result");
+    let args = [
+        cfg.to_str().unwrap(),
+        "--workers",
+        "1",
+        "--quiet",
+        "--no-record",
+        "--result",
+        result.to_str().unwrap(),
+    ];
+    let mut run = Run::start(&scratch, 1840, &args);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    assert!(
+        out.contains(
+            "60 rollout execution(s) with non-finite costs run again (run.nonfinite_reruns = 2)"
+        ),
+        "{out}"
+    );
+    let r = RunResult::read(&result).unwrap();
+    assert_eq!((r.updates, r.complete, r.nonfinite_reruns), (6, true, 60));
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 /// A cost that stays non-finite is no transient fault: after `run.nonfinite_reruns` reruns the
 /// run fails as without them, and says how many were tried.
 #[test]

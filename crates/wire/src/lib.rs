@@ -23,7 +23,8 @@
 //! | `progress` | [`Progress`] | – | updater → supervisor |
 //! | `recorded` | [`RecorderAck`] | – | recorder → updater |
 //! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
-//! | `control` | [`Control`] | – | supervisor → sampler, updater; updater → sampler ([`Control::RERUN`], only with `run.nonfinite_reruns` > 0) |
+//! | `control` | [`Control`] | – | supervisor → sampler, updater |
+//! | `reruns` | `[u32]`: rejected executions per rollout (K) | [`RerunHeader`] | updater → sampler (only with `run.nonfinite_reruns` > 0) |
 //! | `overdue` | [`Overdue`] | – | sampler → supervisor |
 //!
 //! Every receiving process owns one event service, its doorbell: `wake/updater`,
@@ -57,9 +58,12 @@
 //! 4. The updater stores cost (u, k) (duplicates and other updates are ignored, so a rollout may
 //!    be executed twice after a worker crash), and when all K are in, tells the core and goes to 1.
 //!    A cost that is not finite fails the run, unless `run.nonfinite_reruns` allows another
-//!    execution of rollout k: then the updater publishes [`Control::RERUN`] on `control` and
-//!    rings `wake/sampler`, which hands rollout k out again (same θ, [`WorkHeader::RERUN`]
-//!    set), and the update waits for it.
+//!    execution of rollout k: then the updater publishes on `reruns` how many executions of
+//!    each rollout of u it has rejected so far and rings `wake/sampler`, which hands out again
+//!    every rollout whose count rose since the sample it read last (same θ,
+//!    [`WorkHeader::RERUN`] set), and the update waits for them. A `reruns` sample is the whole
+//!    state, not a request: a burst of rejections that overflows the sampler's buffer loses
+//!    only samples that the newest one includes.
 //!
 //! # The recorder
 //!
@@ -210,7 +214,7 @@ impl WorkHeader {
     /// always rings is still correct, only slower.
     pub const QUEUE_EMPTY: u32 = 1;
     /// An execution of this rollout reported costs that were not finite, and the updater asked
-    /// for it again ([`Control::RERUN`]). Information for the worker (a robot may want to reset
+    /// for it again (on `reruns`, [`RerunHeader`]). Information for the worker (a robot may want to reset
     /// before it tries again); the parameters are the same.
     pub const RERUN: u32 = 2;
 }
@@ -457,13 +461,11 @@ pub struct Overdue {
 pub struct Control {
     pub run_id: u64,
     pub kind: u32,
-    /// For [`Control::WORKER_LOST`]; for [`Control::RERUN`], the worker whose costs were not
-    /// finite.
+    /// For [`Control::WORKER_LOST`].
     pub worker: u32,
-    /// For [`Control::WORKER_LOST`]; for [`Control::RERUN`], the execution rejected (1: the
-    /// first).
+    /// For [`Control::WORKER_LOST`].
     pub incarnation: u32,
-    /// For [`Control::WORKER_LOST`]: one of [`lost`]; for [`Control::RERUN`], the rollout.
+    /// For [`Control::WORKER_LOST`]: one of [`lost`].
     pub reason: u32,
     /// Length of `name` in bytes (UTF-8).
     pub name_len: u32,
@@ -474,8 +476,20 @@ pub struct Control {
     pub name: [u8; MAX_NAME],
     pub value: f64,
     /// For [`Control::SET_TASK`]: the sender's number for the change (from 1), echoed in
-    /// [`Progress::last_change_seq`]; for [`Control::RERUN`], the update.
+    /// [`Progress::last_change_seq`].
     pub seq: u64,
+}
+
+/// Header of a `reruns` sample, from the updater. Payload: for each of the K rollouts of
+/// update `update`, how many of its executions the updater has rejected so far because their
+/// costs were not finite. The sampler hands out again each rollout whose count is higher than
+/// in the last sample it read, so that it needs only the newest sample of an update.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[repr(C)]
+#[type_name("pi2cma.RerunHeader.v1")]
+pub struct RerunHeader {
+    pub run_id: u64,
+    pub update: u64,
 }
 
 /// Why a worker is gone ([`Control::reason`] of [`Control::WORKER_LOST`]): the recording's health
@@ -505,10 +519,9 @@ impl Control {
     /// A restarted recorder is subscribed: hold back for its acknowledgements again, counted
     /// from the update at hand (updater).
     pub const RECORDER_BACK: u32 = 5;
-    /// From the updater, when `run.nonfinite_reruns` > 0: an execution of a rollout reported
-    /// costs that were not finite; hand the rollout out again (sampler), with
-    /// [`WorkHeader::RERUN`]. Made by [`Control::rerun`], read by [`Control::rerun_of`].
-    pub const RERUN: u32 = 6;
+    // Kind 6 was a rerun request from the updater, one message per rejected execution: a
+    // burst of them overflowed the sampler's buffer, losing requests and hanging the update.
+    // Reruns now travel on their own service as a state ([`RerunHeader`]); 6 stays unused.
 
     /// A message of `kind` without arguments.
     pub fn plain(run_id: u64, kind: u32) -> Self {
@@ -536,23 +549,6 @@ impl Control {
             reason,
             ..Self::plain(run_id, Self::WORKER_LOST).with_name(how)
         }
-    }
-
-    /// [`Control::RERUN`] of rollout `rollout` of update `update`, whose execution number
-    /// `attempt` by worker `worker` was rejected.
-    pub fn rerun(run_id: u64, update: u64, rollout: u32, worker: u32, attempt: u32) -> Self {
-        Self {
-            seq: update,
-            reason: rollout,
-            worker,
-            incarnation: attempt,
-            ..Self::plain(run_id, Self::RERUN)
-        }
-    }
-
-    /// (update, rollout) of a [`Control::RERUN`]; `None` for other kinds.
-    pub fn rerun_of(&self) -> Option<(u64, u32)> {
-        (self.kind == Self::RERUN).then_some((self.seq, self.reason))
     }
 
     /// Change number `seq`; `None` if the name is longer than [`MAX_NAME`] bytes.
@@ -600,6 +596,7 @@ pub(crate) enum PubSub {
     Overdue,
     Notes,
     Control,
+    Reruns,
 }
 
 /// What a publish-subscribe service is opened with, besides its types: the most publishers,
@@ -661,6 +658,8 @@ impl Limits {
             PubSub::Overdue => (2, 2, 2 * w + 4, self.nodes()),
             PubSub::Notes => (2, 2, 16, self.nodes()),
             PubSub::Control => (2, 4, 2 * w + 16, self.nodes()),
+            // A sample is the whole state of the update's reruns: the newest is all it takes.
+            PubSub::Reruns => (2, 2, 4, self.nodes()),
         };
         PubSubSettings {
             publishers,
@@ -830,6 +829,7 @@ pub fn node(run_id: u64, name: &str) -> Result<Node<Service>, WireError> {
 
 pub type SliceService<H> = publish_subscribe::PortFactory<Service, [f64], H>;
 pub type FixedService<T> = publish_subscribe::PortFactory<Service, T, ()>;
+pub type CountService<H> = publish_subscribe::PortFactory<Service, [u32], H>;
 pub type EventService = event::PortFactory<Service>;
 
 /// How opening or creating a service failed, as far as [`open_or_create`] treats failures
@@ -952,16 +952,16 @@ fn pubsub_settings<P: std::fmt::Debug + IceoryxSend + ?Sized, H: std::fmt::Debug
         .max_nodes(s.nodes)
 }
 
-fn slice_service<H: std::fmt::Debug + ZeroCopySend>(
+fn slice_service<T: std::fmt::Debug + ZeroCopySend, H: std::fmt::Debug + ZeroCopySend>(
     node: &Node<Service>,
     run_id: u64,
     tail: &str,
     settings: PubSubSettings,
-) -> Result<SliceService<H>, WireError> {
+) -> Result<publish_subscribe::PortFactory<Service, [T], H>, WireError> {
     open_or_create(run_id, tail, |name| {
         let builder = node
             .service_builder(name)
-            .publish_subscribe::<[f64]>()
+            .publish_subscribe::<[T]>()
             .user_header::<H>();
         pubsub_settings(builder, settings).open_or_create()
     })
@@ -1091,8 +1091,19 @@ pub fn notes(
     fixed_service(node, run_id, "notes", l.settings(PubSub::Notes))
 }
 
-/// `control`: 2 publishers (the supervisor; the updater, with `run.nonfinite_reruns` > 0), 4
-/// subscribers, a buffer of 2·max_workers + 16.
+/// `reruns`: 2 publishers (the updater; a crashed predecessor until cleaned), 2 subscribers, a
+/// buffer of 4: each sample holds all an update's reruns, so an overflow loses nothing.
+/// Publishers use `initial_max_slice_len(K)`; only a run with `run.nonfinite_reruns` > 0 opens
+/// it.
+pub fn reruns(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<CountService<RerunHeader>, WireError> {
+    slice_service(node, run_id, "reruns", l.settings(PubSub::Reruns))
+}
+
+/// `control`: 2 publishers (the supervisor), 4 subscribers, a buffer of 2·max_workers + 16.
 pub fn control(
     node: &Node<Service>,
     run_id: u64,
@@ -1264,15 +1275,5 @@ mod tests {
         let long = format!("{}é", "x".repeat(MAX_NAME - 1));
         let c = Control::worker_lost(7, 0, 0, 42, lost::EXITED, &long);
         assert_eq!(c.name(), "x".repeat(MAX_NAME - 1));
-    }
-
-    #[test]
-    fn a_rerun_names_its_update_and_rollout_and_only_a_rerun_does() {
-        let c = Control::rerun(7, u64::MAX - 1, 14, 3, 2);
-        assert_eq!(c.rerun_of(), Some((u64::MAX - 1, 14)));
-        assert_eq!((c.run_id, c.worker, c.incarnation), (7, 3, 2));
-        let lost = Control::worker_lost(7, 14, 2, 42, lost::CRASHED, "");
-        assert_eq!(lost.rerun_of(), None);
-        assert_eq!(Control::plain(7, Control::START).rerun_of(), None);
     }
 }

@@ -17,7 +17,7 @@ use iceoryx2::service::header::publish_subscribe::Header;
 
 use crate::{
     Control, CostHeader, DistributionHeader, Lifecycle, Limits, Overdue, Progress, PubSub,
-    PubSubSettings, Ready, RecorderAck, RunNote, WorkHeader, BORROWED_SAMPLES,
+    PubSubSettings, Ready, RecorderAck, RerunHeader, RunNote, WorkHeader, BORROWED_SAMPLES,
 };
 
 /// What a run's shared memory is for, in bytes of allocated pages at its peak
@@ -65,7 +65,7 @@ const FREE_LIST_PER_SAMPLE: usize = 4;
 
 impl Limits {
     /// The bytes of `/dev/shm` a run with `workers` worker processes (and the recorder, if
-    /// `recorder`; and the updater's publisher on `control`, if `reruns`, as with a positive
+    /// `recorder`; and the `reruns` service, if `reruns`, as with a positive
     /// `run.nonfinite_reruns`) takes at its peak, on a file system that allocates `page` bytes
     /// at a time: an upper estimate. Counted are the files iceoryx2 creates for the run's ports (see the
     /// service functions and the crate documentation's table for who publishes and subscribes
@@ -156,12 +156,7 @@ impl Limits {
                 2 + w + rec,
                 1 + rec,
             ),
-            (
-                PubSub::Control,
-                size_of::<Control>(),
-                1 + usize::from(reruns),
-                2 + rec,
-            ),
+            (PubSub::Control, size_of::<Control>(), 1, 2 + rec),
             (PubSub::Overdue, size_of::<Overdue>(), 1, 1),
             (PubSub::Notes, size_of::<RunNote>(), 1, rec),
         ];
@@ -171,6 +166,12 @@ impl Limits {
             let chunk = chunk_bytes::<()>(size, 8);
             let samples = service(s, publishers, subscribers);
             small_segments += publishers * segment(page, chunk, samples, SMALL_IN_USE);
+        }
+        if reruns {
+            let s = self.settings(PubSub::Reruns);
+            let chunk = chunk_bytes::<RerunHeader>(4 * k, 4);
+            let samples = service(s, 1, 1);
+            small_segments += segment(page, chunk, samples, samples);
         }
 
         // Doorbells: updater, sampler, supervisor, recorder (its notifier is opened even
@@ -316,10 +317,10 @@ mod tests {
         }
     }
 
-    /// The updater's publisher on `control` (reruns of non-finite costs): a small segment and
-    /// its connections, counted only when the run has it.
+    /// The `reruns` service (reruns of non-finite costs): a small segment and its connection,
+    /// counted only when the run has it.
     #[test]
-    fn the_updaters_control_publisher_is_counted_when_reruns_are_on() {
+    fn the_reruns_service_is_counted_when_reruns_are_on() {
         let a1 = MEASURED[0].limits;
         for recorder in [false, true] {
             let without = a1.shared_memory(3, recorder, false, PAGE).total();
