@@ -2,7 +2,10 @@
 //! core's pure `ParameterBatch::sample`) and hands them out by load. Each worker that announces
 //! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts, pending as at the start of the hand-out:
 //! equal shares at the start of an update, smaller ones while some workers are still busy
-//! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. Rollouts of a
+//! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. When rollouts
+//! are slow, a chunk holds at most [`CHUNK_TIME`] of them (as measured on the chunks before), so
+//! that work stays queued through the update: a worker that joins mid-update (a scale-up), or
+//! finishes early, takes rollouts of this update instead of waiting for the next. Rollouts of a
 //! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
 //! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
@@ -34,6 +37,25 @@ fn raised(seen: &mut [u32], counts: &[u32]) -> Vec<u32> {
         }
     }
     out
+}
+
+/// The most work a chunk holds once the rollouts' duration is known: the sampler's round trip
+/// per chunk (tens of µs, up to a few hundred on a busy machine) stays well below 1% of it, and
+/// work handed out ahead of the workers is never more than this per worker. Only rollouts slower
+/// than CHUNK_TIME / ⌈K / workers⌉ (3.3 ms for K = 15 and one worker) get smaller chunks.
+const CHUNK_TIME: Duration = Duration::from_millis(50);
+
+/// Rollouts in each chunk of a hand-out round: ⌈pending / available⌉, at most [`CHUNK_TIME`]
+/// of rollouts that take `per_rollout` each, at least 1.
+fn chunk_len(pending: usize, available: usize, per_rollout: Option<Duration>) -> usize {
+    let share = pending.div_ceil(available.max(1)).max(1);
+    match per_rollout {
+        Some(t) if !t.is_zero() => {
+            let fit = (CHUNK_TIME.as_nanos() / t.as_nanos()).max(1);
+            share.min(usize::try_from(fit).unwrap_or(usize::MAX))
+        }
+        _ => share,
+    }
 }
 
 /// How often the sampler looks for dead worker nodes.
@@ -104,6 +126,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut rerun_counts: Vec<u32> = vec![0; k_total];
     let mut current: Option<Current> = None;
     let mut next_chunk: u64 = 0;
+    // The time a rollout takes, from hand-out to Ready of the chunks done (a moving average,
+    // latencies included): sizes the chunks (chunk_len).
+    let mut per_rollout: Option<Duration> = None;
     let mut finished = false;
     let mut last_scan = Instant::now();
     // PI2CMA_TRACE=1: one line per distribution, request and chunk (µs since start).
@@ -247,8 +272,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     let assigned =
                         done && w.assignment.as_ref().is_some_and(|a| a.chunk == r.chunk);
                     let late = done && w.overdue_chunk == Some(r.chunk);
-                    if assigned {
-                        w.assignment = None;
+                    if let Some(a) = w.assignment.take_if(|_| assigned) {
+                        let took = a.since.elapsed() / a.rollouts.len().max(1) as u32;
+                        per_rollout = Some(per_rollout.map_or(took, |t| (t * 3 + took) / 4));
                     }
                     if late {
                         w.overdue_chunk = None;
@@ -335,7 +361,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             .values()
             .filter(|w| w.overdue_chunk.is_none())
             .count();
-        let share = pending.len().div_ceil(available.max(1)).max(1);
+        let share = chunk_len(pending.len(), available, per_rollout);
         // Plan the round first: whether it empties the queue goes into every chunk's header
         // (WorkHeader::QUEUE_EMPTY: its worker then reports Ready without ringing the sampler).
         let mut round: Vec<(u32, Vec<u32>)> = Vec::new();
@@ -448,7 +474,22 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
 
 #[cfg(test)]
 mod tests {
-    use super::raised;
+    use super::*;
+
+    #[test]
+    fn chunks_are_equal_shares_unless_rollouts_are_slow() {
+        // Unknown, or fast: ⌈pending / workers⌉, as guided self-scheduling gives.
+        assert_eq!(chunk_len(15, 2, None), 8);
+        assert_eq!(chunk_len(15, 2, Some(Duration::from_micros(50))), 8);
+        assert_eq!(chunk_len(1, 4, None), 1);
+        assert_eq!(chunk_len(3, 0, None), 3);
+        // Slow: CHUNK_TIME of them, and never none.
+        assert_eq!(chunk_len(15, 1, Some(Duration::from_millis(2))), 15);
+        assert_eq!(chunk_len(15, 1, Some(Duration::from_millis(5))), 10);
+        assert_eq!(chunk_len(15, 3, Some(Duration::from_millis(20))), 2);
+        assert_eq!(chunk_len(15, 1, Some(Duration::from_millis(60))), 1);
+        assert_eq!(chunk_len(15, 1, Some(Duration::ZERO)), 15);
+    }
 
     #[test]
     fn a_rollout_is_handed_out_again_once_per_rise_of_its_count() {

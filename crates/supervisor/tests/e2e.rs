@@ -752,8 +752,9 @@ fn a_worker_hung_in_its_chunks_second_rollout_is_killed_after_about_one_timeout(
     let mut run = Run::start_quiet(&scratch, 1300, &cfg, &result);
     run.wait_exit(Duration::from_secs(60), 0);
     let out = run.text();
-    // K = 15 and 3 workers: chunks of 5 at the start of update 3, so every first incarnation
-    // hangs in its second rollout there.
+    // K = 15, 3 workers and 20 ms rollouts: chunks of 2 (50 ms of rollouts at most, the
+    // sampler's CHUNK_TIME; 5 in update 0) at the start of update 3, so every first
+    // incarnation hangs in its second rollout there.
     let hung: Vec<&str> = out.lines().filter(|l| l.contains(") hung: ")).collect();
     assert_eq!(hung.len(), 3, "{out}");
     for line in hung {
@@ -1179,6 +1180,69 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
         rec.logs
     );
     assert_recorded(&rec, 120);
+    assert_nothing_left(&run);
+}
+
+/// With slow rollouts (60 ms), a worker that joins mid-update takes rollouts of that update:
+/// the sampler keeps work queued (chunks of at most 50 ms of rollouts) instead of handing out
+/// the whole update at its start, which left a scaled-up worker idle until the next update.
+/// Judged for each joiner whose update still had a rollout started 100 ms or more after the
+/// join (by its log time, which is later than the join, never earlier).
+#[test]
+fn a_worker_scaled_up_mid_update_takes_rollouts_of_that_update() {
+    let scratch = Scratch::new("join-mid-update");
+    let text = config(&[
+        ("updates = 40", "updates = 10"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 60.0",
+        ),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "join.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1841, &cfg, &result);
+    for (after, workers) in [(2, "2"), (4, "3"), (6, "4")] {
+        run.wait_status("updates", |s| updates_in(s) >= after);
+        run.ctl_ok(&["scale", "--workers", workers]);
+    }
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert_bit_identical(&text, &result);
+    let rec = record::read_recording(&scratch.recording("A1", 1841)).unwrap();
+    let mut judged = 0;
+    for w in ["worker-1", "worker-2", "worker-3"] {
+        let joined = rec
+            .logs
+            .iter()
+            .find(|l| l.event == "scale" && l.name == w && l.message.contains("joined"))
+            .unwrap_or_else(|| panic!("{w} did not join: {:#?}", rec.logs));
+        let t = joined.timestamp.as_ref().unwrap();
+        let t_join = t.seconds as u64 * 1_000_000_000 + t.nanos as u64;
+        let u_join = rec
+            .rollouts
+            .iter()
+            .filter(|r| r.start_ns <= t_join)
+            .max_by_key(|r| r.start_ns)
+            .map(|r| r.update)
+            .unwrap();
+        let of_update: Vec<_> = rec.rollouts.iter().filter(|r| r.update == u_join).collect();
+        let queued_long_after = of_update
+            .iter()
+            .any(|r| r.worker != w && r.start_ns >= t_join + 100_000_000);
+        if !queued_long_after {
+            continue;
+        }
+        judged += 1;
+        let ran: Vec<_> = of_update
+            .iter()
+            .map(|r| (r.worker.as_str(), r.rollout))
+            .collect();
+        assert!(
+            ran.iter().any(|(name, _)| *name == w),
+            "{w} joined in update {u_join} and ran none of it: {ran:?}"
+        );
+    }
+    assert!(judged > 0, "every worker joined at the end of an update");
     assert_nothing_left(&run);
 }
 
