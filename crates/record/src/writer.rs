@@ -128,12 +128,14 @@ impl Event {
     }
 }
 
-/// zstd's level −1, the fastest "fast" level: literals are stored, not Huffman-coded. A chunk
-/// is mostly f64 step costs, which do not compress: at level 1 zstd spent ~5× longer on
-/// Huffman-coding them (16 µs against 3 µs for a via-point update of 13.6 kB) to save 4 % more
-/// (15 % of the size against 11 %). The `mcap` crate takes the level as `u32` and hands it to
-/// zstd as `i32`, so −1 is written as `u32::MAX`.
-const ZSTD_LEVEL_FAST_1: u32 = u32::MAX;
+/// zstd's level −1000: a "fast" level whose match finder, after a miss, skips ~1000 bytes, so a
+/// chunk is stored nearly as it is, in an ordinary zstd frame every reader decodes. The messages
+/// hardly compress (mostly f64 step costs and samples): level −1 made A1's 13.6 kB updates 8 %
+/// smaller than this but took ~6 µs more per update (`cargo bench -p record --bench
+/// write_update`: 15.5–21 against 10–13.5 µs per update without the `write`), and the
+/// recorder's CPU is what recording costs a busy machine. The `mcap` crate takes the level as
+/// `u32` and hands it to zstd as `i32`, so the level is written as its two's complement.
+const ZSTD_LEVEL: u32 = (-1000i32).cast_unsigned();
 
 /// Channel ids of the topics, in [`topics::ALL`] order.
 struct Channels([u16; topics::ALL.len()]);
@@ -209,7 +211,7 @@ impl<W: Write + Seek> RunWriter<W> {
         let file = file.into();
         let opts = WriteOptions::new()
             .compression(Some(Compression::Zstd))
-            .compression_level(ZSTD_LEVEL_FAST_1)
+            .compression_level(ZSTD_LEVEL)
             .compression_threads(0)
             // Chunks are closed by the flush after every update; this bound only matters for
             // very large updates.
