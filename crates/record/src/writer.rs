@@ -292,9 +292,14 @@ impl<W: Write + Seek> RunWriter<W> {
             prost::encoding::encode_varint(8 * values as u64, &mut self.buf);
             let start = self.buf.len();
             self.buf.resize(start + 8 * values, 0);
-            let steps = (0..costs.rollouts()).flat_map(|r| costs.per_step(r));
-            for (to, v) in self.buf[start..].chunks_exact_mut(8).zip(steps) {
-                to.copy_from_slice(&v.to_le_bytes());
+            // Row by row: over one row's slice the loop compiles to vector moves; through a
+            // flat_map over all rows it moved one double at a time, its iterator state on the
+            // stack (9.7 → 9.1 µs per A1 update for the whole writer, `write_update` bench).
+            let rows = self.buf[start..].chunks_exact_mut(8 * costs.steps());
+            for (row, r) in rows.zip(0..costs.rollouts()) {
+                for (to, v) in row.chunks_exact_mut(8).zip(costs.per_step(r)) {
+                    to.copy_from_slice(&v.to_le_bytes());
+                }
             }
         }
         self.write_buf(CHANNEL_UPDATE, log_time)
@@ -429,20 +434,23 @@ impl<W: Write + Seek> RunWriter<W> {
             mean: after.mean,
         };
         self.put(2, now, &summary)?;
+        // One message refilled for every rollout: its worker name keeps its allocation.
+        let mut msg = proto::Rollout {
+            timestamp: Some(timestamp(now)),
+            update: s.update,
+            ..Default::default()
+        };
         for r in 0..k {
             let (worker, start_ns, end_ns) = match u.rollouts.get(r) {
-                Some(t) => (t.worker.clone(), t.start_ns, t.end_ns),
-                None => (u.default_worker.to_string(), 0, 0),
+                Some(t) => (t.worker.as_str(), t.start_ns, t.end_ns),
+                None => (u.default_worker, 0, 0),
             };
-            let msg = proto::Rollout {
-                timestamp: Some(timestamp(now)),
-                update: s.update,
-                rollout: r as u32,
-                worker,
-                start_ns,
-                end_ns,
-                total_cost: u.costs.total(r),
-            };
+            msg.rollout = r as u32;
+            msg.worker.clear();
+            msg.worker.push_str(worker);
+            msg.start_ns = start_ns;
+            msg.end_ns = end_ns;
+            msg.total_cost = u.costs.total(r);
             self.put(3, now, &msg)?;
         }
         self.flush()
