@@ -107,6 +107,13 @@ impl Optimizer {
         &self.distribution
     }
 
+    /// The update rule, for a caller that resumes one update after another from distributions
+    /// it is given (the pipeline's recorder): building a rule allocates and fills all its
+    /// buffers, reusing one does not.
+    pub fn into_rule(self) -> UpdateRule {
+        self.rule
+    }
+
     pub fn hyperparameters(&self) -> &Hyperparameters {
         self.rule.hyperparameters()
     }

@@ -66,6 +66,8 @@ pub struct Assembler {
     dim: usize,
     steps: usize,
     basis: Option<Vec<f64>>,
+    /// The rule the last update was recomputed with, for the next one ([`Optimizer::into_rule`]).
+    rule: Option<UpdateRule>,
     setting_names: Vec<String>,
     distributions: BTreeMap<u64, Published>,
     pending: BTreeMap<u64, Pending>,
@@ -112,6 +114,7 @@ impl Assembler {
             dim,
             steps,
             basis,
+            rule: None,
             setting_names,
             distributions: BTreeMap::new(),
             pending: BTreeMap::new(),
@@ -306,13 +309,14 @@ impl Assembler {
         pending: Pending,
         after: Distribution,
     ) -> Result<Assembled, String> {
-        let rule = UpdateRule::new(self.hp.clone(), self.dim, self.steps, self.basis.as_deref())
-            .map_err(|e| format!("update {u}: cannot build the update rule: {e}"))?;
+        let rule = match self.rule.take() {
+            Some(rule) => rule,
+            None => UpdateRule::new(self.hp.clone(), self.dim, self.steps, self.basis.as_deref())
+                .map_err(|e| format!("update {u}: cannot build the update rule: {e}"))?,
+        };
         let mut opt = Optimizer::resume(rule, before.distribution.clone(), before.seed, u);
         let samples = opt.ask().clone();
-        let summary = opt
-            .tell(&pending.costs)
-            .map_err(|e| format!("update {u}: {e}"))?;
+        let told = opt.tell(&pending.costs);
         let recomputed = opt.distribution();
         let same = crate::recompute::same_bits;
         let recomputed_matches = same(recomputed.mean.as_slice(), after.mean.as_slice())
@@ -320,6 +324,8 @@ impl Assembler {
                 recomputed.covariance.as_slice(),
                 after.covariance.as_slice(),
             );
+        self.rule = Some(opt.into_rule());
+        let summary = told.map_err(|e| format!("update {u}: {e}"))?;
         // The updater fails the run when rollouts disagree, so the first one speaks for all.
         let ran = pending
             .ran_with
