@@ -68,6 +68,8 @@ pub struct Assembler {
     basis: Option<Vec<f64>>,
     /// The rule the last update was recomputed with, for the next one ([`Optimizer::into_rule`]).
     rule: Option<UpdateRule>,
+    /// Cost batches of updates already written, for the next ones ([`Assembler::recycle`]).
+    spare: Vec<CostBatch>,
     setting_names: Vec<String>,
     distributions: BTreeMap<u64, Published>,
     pending: BTreeMap<u64, Pending>,
@@ -115,6 +117,7 @@ impl Assembler {
             steps,
             basis,
             rule: None,
+            spare: Vec::new(),
             setting_names,
             distributions: BTreeMap::new(),
             pending: BTreeMap::new(),
@@ -194,8 +197,9 @@ impl Assembler {
             return Ok(CostOutcome::Stale);
         }
         let (k, n) = (self.hp.rollouts, self.steps);
+        let spare = &mut self.spare;
         let p = self.pending.entry(update).or_insert_with(|| Pending {
-            costs: CostBatch::new(k, n),
+            costs: spare.pop().unwrap_or_else(|| CostBatch::new(k, n)),
             timings: vec![None; k],
             duplicates: 0,
             ran_with: None,
@@ -213,6 +217,19 @@ impl Assembler {
                 Ok(CostOutcome::Duplicate)
             }
             Err(e) => Err(e),
+        }
+    }
+
+    /// Takes back the cost batch of an update handed out and written, for a later update: a
+    /// new one is K × N zeroed values (12 kB for A1) allocated per update.
+    pub fn recycle(&mut self, mut costs: CostBatch) {
+        // As many as updates can be in progress at once is plenty; more only hold memory.
+        if self.spare.len() < 4
+            && costs.rollouts() == self.hp.rollouts
+            && costs.steps() == self.steps
+        {
+            costs.clear();
+            self.spare.push(costs);
         }
     }
 

@@ -307,6 +307,7 @@ struct WriterState {
     /// Events a restarted recorder took in before its first distribution ([`Self::log`]).
     deferred: Vec<(Event, String, u32, String)>,
     slots: WorkerSlots,
+    worker_names: WorkerNames,
     /// The rejected executions of each update's rollouts whose costs were not finite, counted
     /// as the updater counts them (`run.nonfinite_reruns`): a rejected execution it runs again
     /// is a warning, the one that fails the run an error (why not from the updater's
@@ -418,6 +419,7 @@ impl WriterState {
             restart: None,
             deferred: Vec::new(),
             slots: WorkerSlots::default(),
+            worker_names: WorkerNames::default(),
             reruns: Default::default(),
         })
     }
@@ -575,7 +577,7 @@ impl WriterState {
                 }
             }
             Msg::Cost(h, costs, received_ns) => {
-                let timing = rollout_timing(&h, received_ns);
+                let timing = rollout_timing(&h, received_ns, &mut self.worker_names);
                 let ran_with = (h.settings_len > 0).then(|| h.ran_with(&[]));
                 match self.assembler.cost(
                     h.update,
@@ -856,6 +858,7 @@ impl WriterState {
                     )?;
                 }
                 written(a.update)?;
+                self.assembler.recycle(a.costs);
             }
             if !skip_lost {
                 return Ok(());
@@ -879,15 +882,37 @@ impl WriterState {
     }
 }
 
+/// `worker-<w>` for the workers seen, each formatted once: every cost message names its worker,
+/// and a `format!` per message showed in the recorder's profile.
+#[derive(Debug, Default)]
+struct WorkerNames(Vec<String>);
+
+impl WorkerNames {
+    /// Worker ids are slots below `pipeline.max_workers`; a larger one is formatted, not kept.
+    const KEPT: usize = session::PipelineSection::WORKER_LIMIT;
+
+    fn name(&mut self, worker: u32) -> String {
+        let w = worker as usize;
+        if w >= Self::KEPT {
+            return format!("worker-{worker}");
+        }
+        while self.0.len() <= w {
+            let next = self.0.len();
+            self.0.push(format!("worker-{next}"));
+        }
+        self.0[w].clone()
+    }
+}
+
 /// When rollout `h` ran: as its worker stamped it, or, from a worker that does not
 /// (`start_ns` = 0), the interval that ended when the costs were taken in (up to a round late).
-fn rollout_timing(h: &CostHeader, received_ns: u64) -> RolloutTiming {
+fn rollout_timing(h: &CostHeader, received_ns: u64, names: &mut WorkerNames) -> RolloutTiming {
     let start_ns = match h.start_ns {
         0 => received_ns.saturating_sub(h.duration_ns),
         t => t,
     };
     RolloutTiming {
-        worker: format!("worker-{}", h.worker),
+        worker: names.name(h.worker),
         start_ns,
         end_ns: start_ns.saturating_add(h.duration_ns),
     }
@@ -993,14 +1018,19 @@ mod tests {
             ..Default::default()
         };
         // Taken in a round later: the worker's stamp, not the arrival, places it.
-        let t = rollout_timing(&h, 900_000);
+        let mut names = WorkerNames::default();
+        let t = rollout_timing(&h, 900_000, &mut names);
         assert_eq!(
             (t.worker.as_str(), t.start_ns, t.end_ns),
             ("worker-2", 1_000, 1_300)
         );
         // A worker that does not stamp: the interval ending at the arrival.
         let unstamped = CostHeader { start_ns: 0, ..h };
-        let t = rollout_timing(&unstamped, 900_000);
+        let t = rollout_timing(&unstamped, 900_000, &mut names);
         assert_eq!((t.start_ns, t.end_ns), (899_700, 900_000));
+        // Names kept or not, each is the worker's own.
+        for w in [0, 2, 7, 2, 255, 256, u32::MAX] {
+            assert_eq!(names.name(w), format!("worker-{w}"));
+        }
     }
 }
