@@ -569,3 +569,40 @@ fn an_unbounded_config_is_refused_naming_updates() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// `pi2cma run` ends with the final mean as the supervisor's summary shows it: a long one as
+/// its first 3 values and the count (it printed all 400 values for P = 400); a short one whole,
+/// as `a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one` compares. A resumed run
+/// too. The recording keeps the whole mean. P = 10: the run's summary searches the optimum
+/// from the final mean, which takes minutes for P = 400.
+#[test]
+fn a_run_abbreviates_a_long_final_mean() {
+    let d = scratch("long-mean");
+    let text = session::DEFAULT_CONFIG.replace("basis_functions = 2", "basis_functions = 10");
+    std::fs::write(d.join("long.toml"), text).expect("write config");
+    let check = |args: &[&str], out: &str| {
+        let lines = final_lines(&pi2cma(&[args, &["--quiet", "--out", out]].concat(), &d));
+        let line = lines
+            .iter()
+            .find_map(|l| l.strip_prefix("final mean θ = "))
+            .unwrap_or_else(|| panic!("no final mean: {lines:?}"));
+        let rec = record::read_recording(&d.join(out).join("run.mcap")).expect("recording");
+        let last = rec.updates.last().expect("an update");
+        let mean = record::distribution_from_proto(last.after.as_ref().expect("after"))
+            .expect("distribution")
+            .mean;
+        assert_eq!(mean.len(), 10);
+        let first: Vec<String> = mean.iter().take(3).map(|v| format!("{v:?}")).collect();
+        assert_eq!(
+            line,
+            format!("[{}, …] (10 values)", first.join(", ")),
+            "{}",
+            &line[..line.len().min(300)]
+        );
+    };
+    check(&["run", "long.toml", "--updates", "2"], "first");
+    check(
+        &["run", "--resume", "first/run.mcap", "--updates", "3"],
+        "second",
+    );
+}

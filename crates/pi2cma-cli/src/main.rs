@@ -235,7 +235,7 @@ fn run_resumed(
     })?;
     say_if_interrupted(exec.optimizer().update_index() - origin_update, !no_record);
     let d = exec.optimizer().distribution();
-    say!("final mean θ = {:?}", d.mean.as_slice());
+    say!("final mean θ = {}", session::mean_text(d.mean.as_slice()));
     say!("final λ = {:.4}", exec.optimizer().lambda());
     if !no_record {
         print_recording(&mcap, out, Some(&origin));
@@ -390,7 +390,7 @@ fn run(cli: Cli) -> Result<()> {
             let table = write_outputs(&out, std::slice::from_ref(&result))?;
             say!("\n{table}");
             if let Some((mean, _)) = result.sessions[0].distributions.last() {
-                say!("final mean θ = {:?}", mean.as_slice());
+                say!("final mean θ = {}", session::mean_text(mean.as_slice()));
             }
             if let Some(s) = result.sessions[0].summaries.last() {
                 say!("final λ = {:.4}", s.lambda_next);

@@ -562,6 +562,20 @@ pub fn run_session(
     Ok((collect.out, exec.optimizer().distribution().clone()))
 }
 
+/// A final mean as the binaries print it at the end of a run (`pi2cma run`, the supervisor's
+/// summary): whole up to 8 values (the via-point task's 2 as
+/// `[-134.33814993070465, -681.537558832857]`), else the first 3 and the count; a mean of
+/// P = 400 filled screens, and the recording and the supervisor's `--result` hold it whole.
+pub fn mean_text(mean: &[f64]) -> String {
+    const WHOLE: usize = 8;
+    const SHOWN: usize = 3;
+    if mean.len() <= WHOLE {
+        return format!("{mean:?}");
+    }
+    let first: Vec<String> = mean[..SHOWN].iter().map(|v| format!("{v:?}")).collect();
+    format!("[{}, …] ({} values)", first.join(", "), mean.len())
+}
+
 /// Mean and covariance as bits, for tests that compare distributions exactly.
 #[cfg(test)]
 pub(crate) fn bits(d: &Distribution) -> Vec<u64> {
@@ -575,6 +589,17 @@ pub(crate) fn bits(d: &Distribution) -> Vec<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_long_final_mean_is_abbreviated_and_a_short_one_shown_whole() {
+        assert_eq!(
+            mean_text(&[-134.33814993070465, -681.537558832857]),
+            "[-134.33814993070465, -681.537558832857]"
+        );
+        assert_eq!(mean_text(&[1.0; 8]), format!("{:?}", [1.0; 8]));
+        let long: Vec<f64> = (0..400).map(f64::from).collect();
+        assert_eq!(mean_text(&long), "[0.0, 1.0, 2.0, …] (400 values)");
+    }
 
     /// Printed with its whole chain, as the binaries print errors, the cost error appears once.
     #[test]

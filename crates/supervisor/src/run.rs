@@ -2387,7 +2387,7 @@ impl Supervisor {
                     reading(r.lambda)
                 ));
             }
-            say(&format!("  final mean θ = {}", mean_text(&r.mean)));
+            say(&format!("  final mean θ = {}", session::mean_text(&r.mean)));
             for c in &r.task_changes {
                 // A resumed run's settings were in force where it resumed; when they were set
                 // is in the recording it resumed from.
@@ -2929,19 +2929,6 @@ fn reading(v: f64) -> String {
     }
 }
 
-/// A final mean as the summary shows it: whole up to 8 values (the via-point task's 2 as
-/// `[-134.33814993070465, -681.537558832857]`), else the first 3 and the count; a mean of
-/// P = 400 filled screens, and the recording and `--result` hold it whole.
-fn mean_text(mean: &[f64]) -> String {
-    const WHOLE: usize = 8;
-    const SHOWN: usize = 3;
-    if mean.len() <= WHOLE {
-        return format!("{mean:?}");
-    }
-    let first: Vec<String> = mean[..SHOWN].iter().map(|v| format!("{v:?}")).collect();
-    format!("[{}, …] ({} values)", first.join(", "), mean.len())
-}
-
 /// A time between updates as the stall warning shows it: in seconds, in milliseconds below
 /// 10 ms (a run at thousands of updates per second came "every 0.000 s").
 fn interval_text(secs: f64) -> String {
@@ -2993,17 +2980,6 @@ mod tests {
         assert_eq!(reading(-3.5e15), "-3.5000e15");
         assert_eq!(reading(f64::NAN), "NaN");
         assert_eq!(reading(f64::INFINITY), "inf");
-    }
-
-    #[test]
-    fn a_long_final_mean_is_abbreviated_and_a_short_one_shown_whole() {
-        assert_eq!(
-            mean_text(&[-134.33814993070465, -681.537558832857]),
-            "[-134.33814993070465, -681.537558832857]"
-        );
-        assert_eq!(mean_text(&[1.0; 8]), format!("{:?}", [1.0; 8]));
-        let long: Vec<f64> = (0..400).map(f64::from).collect();
-        assert_eq!(mean_text(&long), "[0.0, 1.0, 2.0, …] (400 values)");
     }
 
     /// The parts restarts began say which updates are missing; with none of them left (moved
