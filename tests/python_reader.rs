@@ -391,3 +391,36 @@ fn check_update_checks_every_file_and_names_each_that_failed() {
     assert!(!failed.contains(" run.mcap"), "{failed}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A file that is not there, or not MCAP, is one line on stderr naming it and what is wrong,
+/// with exit status 2 (a bad argument, as argparse exits): it was a Python traceback
+/// (`FileNotFoundError`, `struct.error: unpack requires a buffer of 8 bytes`), with status 1.
+/// An empty file passed as a recording with nothing decoded.
+#[test]
+fn plot_learning_curve_names_a_file_it_cannot_read() {
+    let dir = common::scratch("h3-plot-unreadable");
+    std::fs::write(dir.join("notes.mcap"), "not a recording\n").expect("write");
+    std::fs::write(dir.join("empty.mcap"), "").expect("write");
+    std::fs::create_dir(dir.join("folder.mcap")).expect("mkdir");
+    let repo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    for (file, problem) in [
+        (
+            "missing.mcap",
+            "missing.mcap: cannot be read: No such file or directory",
+        ),
+        ("notes.mcap", "notes.mcap: not an MCAP file"),
+        ("empty.mcap", "empty.mcap: not an MCAP file"),
+        ("folder.mcap", "folder.mcap: cannot be read: Is a directory"),
+    ] {
+        let out = Command::new("python3")
+            .arg(repo.join("tools/plot_learning_curve.py"))
+            .args(["--check", file])
+            .current_dir(&dir)
+            .output()
+            .expect("python3 starts");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{file}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{file}: {stderr}");
+        assert!(stderr.contains(problem), "{file}: {stderr}");
+    }
+}

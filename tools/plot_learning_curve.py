@@ -15,6 +15,8 @@ on any failure. A recording without updates (a run that ended before its first: 
 /log, or /log alone) passes, as `analyze` reads it. Files whose writer was killed (no summary section) are read as a stream.
 Every chunk's CRC is checked: a damaged file (a bad sector, a bad copy) fails, naming the file,
 rather than giving other numbers (`pi2cma recover FILE` keeps every undamaged chunk).
+A file that is not there, or not MCAP, is named on stderr with what is wrong (exit status 2),
+before any file is read.
 
 --join takes the files as one run, in order: the parts of a split recording (`recording.split_mb`)
 or a run and the runs resumed from it (`--resume`). It checks that each file goes on exactly where
@@ -41,6 +43,25 @@ EXPECTED_TOPICS = {
     "/log": "foxglove.Log",
     "/unfinished_update": "pi2cma.record.UnfinishedUpdate",
 }
+
+
+# What every MCAP file begins with, a killed writer's too: a file without it is no recording.
+MAGIC = b"\x89MCAP0\r\n"
+
+
+def unreadable(path):
+    """Why `path` cannot be read as a recording (not there, a directory, not MCAP), or None:
+    checked before anything is read, so a wrong argument is one line naming it, not a traceback
+    from inside the `mcap` package."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MAGIC))
+    except OSError as e:
+        return f"{path}: cannot be read: {e.strerror}"
+    if head != MAGIC:
+        what = "it is empty" if not head else "it does not begin with the MCAP magic bytes"
+        return f"{path}: not an MCAP file ({what})"
+    return None
 
 
 class Damaged(Exception):
@@ -204,6 +225,12 @@ def main(argv=None):
     ap.add_argument("--check", action="store_true", help="decode every topic and check invariants")
     ap.add_argument("--join", action="store_true", help="the files are one run, in order (parts, resumptions)")
     args = ap.parse_args(argv)
+    # Exit status 2, as argparse's for a bad argument: the files named are not recordings.
+    wrong = [why for why in map(unreadable, args.files) if why]
+    for why in wrong:
+        print(f"plot_learning_curve: {why}", file=sys.stderr)
+    if wrong:
+        return 2
     failures = []
     failed_files = 0
     read_files = []
