@@ -606,3 +606,37 @@ fn a_run_abbreviates_a_long_final_mean() {
         "second",
     );
 }
+
+/// A run's length or seed typed as `--updates` / `--seed` is named as that option, not as
+/// `run.updates` / `run.seed` of a config that says otherwise: the note on a change scheduled
+/// past the end said "(run.updates = 2)" of the default config's 40 updates, and the resumes
+/// refused "… has run.updates = 20" and "the config run.seed = 5".
+#[test]
+fn a_length_or_seed_given_as_an_option_is_named_as_the_option() {
+    let d = scratch("h3-option-names");
+    let out = pi2cma(&["run", "--updates", "20", "--quiet", "--out", "first"], &d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let note = "schedule[0].from_update = 20 is not before the run's end (--updates 20)";
+    assert!(stderr.contains(note), "{stderr}");
+    let resume = |more: &[&str]| {
+        let args = [
+            &["run", "--resume", "first/run.mcap", "--out", "second"],
+            more,
+        ]
+        .concat();
+        let out = pi2cma(&args, &d);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let err = resume(&["--updates", "20"]);
+    assert!(
+        err.contains("ends with update 19, and --updates 20 was given: nothing left to run"),
+        "{err}"
+    );
+    let err = resume(&["--updates", "40", "--seed", "5"]);
+    assert!(
+        err.contains("the recording has seed 1; --seed 5 was given"),
+        "{err}"
+    );
+}

@@ -388,9 +388,13 @@ impl ResumePoint {
             )));
         }
         if config.run.seed != self.seed {
+            let given = config
+                .option_setting("seed", config.run.seed)
+                .map(|o| format!("{o} was given"))
+                .unwrap_or_else(|| format!("the config run.seed = {}", config.run.seed));
             return Err(refuse(format!(
-                "the recording has seed {}; the config run.seed = {}",
-                self.seed, config.run.seed
+                "the recording has seed {}; {given}",
+                self.seed
             )));
         }
         let (r, c) = (&self.hyperparameters, &config.hyperparameters());
@@ -455,11 +459,14 @@ impl ResumePoint {
             }
         }
         if let Some(n) = config.run.updates.filter(|n| *n <= self.start.update) {
+            let given = config
+                .option_setting("updates", n)
+                .map(|o| format!("{o} was given"))
+                .unwrap_or_else(|| format!("{cfg} has run.updates = {n}"));
             return Err(RecordError::invalid(
                 file,
                 format!(
-                    "ends with update {}, and {cfg} has run.updates = {n}: nothing left to run \
-                     (give more updates)",
+                    "ends with update {}, and {given}: nothing left to run (give more updates)",
                     self.start.update - 1
                 ),
             ));
@@ -681,6 +688,28 @@ mod tests {
         let refused = |c: RunConfig| point.check(&c).unwrap_err().to_string();
         let e = refused(config(&[("updates = 40", "updates = 25")]));
         assert!(e.ends_with("ends with update 24, and c.toml has run.updates = 25: nothing left to run (give more updates)"), "{e}");
+        // Values typed as options are named as typed, not as keys of a file that lacks them.
+        let option = |field, value| {
+            RunConfig::with_run_overrides(
+                session::DEFAULT_CONFIG,
+                Path::new("c.toml"),
+                &[(field, Some(value))],
+            )
+            .unwrap()
+            .0
+        };
+        let e = refused(option("updates", 20));
+        assert!(e.ends_with("ends with update 24, and --updates 20 was given: nothing left to run (give more updates)"), "{e}");
+        let e = refused(option("seed", 2));
+        assert!(
+            e.contains("the recording has seed 1; --seed 2 was given"),
+            "{e}"
+        );
+        let e = refused(config(&[("seed = 1", "seed = 2")]));
+        assert!(
+            e.contains("the recording has seed 1; the config run.seed = 2"),
+            "{e}"
+        );
         let e = refused(config(&[("basis_functions = 2", "basis_functions = 3")]));
         assert!(
             e.contains("the recorded task has P = 2, N = 101; the config's has P = 3, N = 101"),

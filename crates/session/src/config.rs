@@ -52,6 +52,11 @@ impl ConfigError {
     }
 }
 
+/// The command-line option that sets the `run` field `field` (`--updates` for `updates`).
+fn option_of(field: &str) -> String {
+    format!("--{}", field.replace('_', "-"))
+}
+
 /// A whole run: what to learn, with which update rule, for how long.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -72,6 +77,10 @@ pub struct RunConfig {
     /// Where the file came from, for error messages; not a TOML key.
     #[serde(skip)]
     pub origin: PathBuf,
+    /// The `run` fields the command line set (`updates`, `seed`): their values are in no file,
+    /// so messages about them name the option ([`RunConfig::option_setting`]); not a TOML key.
+    #[serde(skip)]
+    pub set_by_options: Vec<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -511,15 +520,27 @@ impl RunConfig {
             .filter(|(_, c)| c.from_update >= updates)
             .map(|(i, c)| {
                 format!(
-                    "{}: schedule[{i}].from_update = {} is not before the run's end (run.updates = \
-                     {updates}): {} = {} takes effect only if the run is resumed with more updates",
+                    "{}: schedule[{i}].from_update = {} is not before the run's end ({}): {} = {} \
+                     takes effect only if the run is resumed with more updates",
                     self.origin.display(),
                     c.from_update,
+                    self.option_setting("updates", updates)
+                        .unwrap_or_else(|| format!("run.updates = {updates}")),
                     c.set,
                     num(c.value)
                 )
             })
             .collect()
+    }
+
+    /// `--updates 5` when the command line set the `run` field `field` (to `value`): what a
+    /// message about the value names, as the user typed it; `None` when the value is the
+    /// config's, which the message names by its key and file.
+    pub fn option_setting(&self, field: &str, value: impl std::fmt::Display) -> Option<String> {
+        self.set_by_options
+            .iter()
+            .any(|f| f == field)
+            .then(|| format!("{} {value}", option_of(field)))
     }
 
     /// A `task` table without exactly one section, which serde would report as "wanted
@@ -571,26 +592,28 @@ impl RunConfig {
         let Some(run) = run.as_table_mut() else {
             return Err(parse_error(&"`run` is not a table"));
         };
-        let option = |field: &str| format!("--{}", field.replace('_', "-"));
         for &(field, value) in overrides {
             let Some(value) = value else { continue };
             // TOML integers are i64; a larger value cannot be written, so it is refused here.
             let n = i64::try_from(value).map_err(|_| ConfigError::Option {
-                option: option(field),
+                option: option_of(field),
                 value: value.to_string(),
                 reason: format!("too large (at most {})", i64::MAX),
             })?;
             run.insert(field.into(), toml::Value::Integer(n));
         }
         let text = toml::to_string(&table).map_err(|e| parse_error(&e))?;
-        let cfg = Self::parse(&text, origin).map_err(|e| {
-            overrides
-                .iter()
-                .filter(|(_, v)| v.is_some())
-                .fold(e, |e, (field, _)| {
-                    e.of_option(&format!("run.{field}"), &option(field))
-                })
+        let set: Vec<&str> = overrides
+            .iter()
+            .filter(|(_, v)| v.is_some())
+            .map(|(field, _)| *field)
+            .collect();
+        let mut cfg = Self::parse(&text, origin).map_err(|e| {
+            set.iter().fold(e, |e, field| {
+                e.of_option(&format!("run.{field}"), &option_of(field))
+            })
         })?;
+        cfg.set_by_options = set.into_iter().map(str::to_string).collect();
         Ok((cfg, text))
     }
 
@@ -1694,6 +1717,20 @@ mod tests {
         assert!(parse(DEFAULT_CONFIG).unwrap().notes().is_empty());
         let continual = late.replace("updates = 40\n", "");
         assert!(parse(&continual).unwrap().notes().is_empty());
+        // The run's end set by `--updates 5` is named as typed: the file says 40.
+        let (cfg, _) = RunConfig::with_run_overrides(
+            DEFAULT_CONFIG,
+            Path::new("a.toml"),
+            &[("updates", Some(5))],
+        )
+        .unwrap();
+        let notes = cfg.notes();
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(
+            notes[0].starts_with("a.toml: schedule[0].from_update = 20 is not before the run's end (--updates 5): viapoint = 0.1"),
+            "{}",
+            notes[0]
+        );
     }
 
     /// A value of the wrong type is reported with its table, not only its line: `rollouts`,
@@ -1746,8 +1783,11 @@ mod tests {
         expected.run.updates = Some(55);
         expected.run.seed = 7;
         expected.origin = origin.into();
+        expected.set_by_options = vec!["updates".into(), "seed".into()];
         assert_eq!(cfg, expected);
-        assert_eq!(RunConfig::parse(&text, origin).unwrap(), cfg);
+        // The text reruns the run; its values are then the file's.
+        expected.set_by_options.clear();
+        assert_eq!(RunConfig::parse(&text, origin).unwrap(), expected);
     }
 
     /// A value the user typed as an option is reported as that option, not as a field of a

@@ -5146,3 +5146,42 @@ fn an_external_run_resumed_without_its_config_says_to_give_it() {
     assert!(scratch.path("day2.mcap").is_file());
     assert_nothing_left(&run);
 }
+
+/// A run's length typed as `--updates` is named as that option, not as `run.updates` of a file
+/// that says otherwise: the resume with nothing left to run said "… has run.updates = 5", and
+/// the note on a change scheduled past the run's end "(run.updates = 2)" of a config whose
+/// `updates = 40`.
+#[test]
+fn a_length_given_as_updates_is_named_as_the_option() {
+    let scratch = Scratch::new("h3-updates-option");
+    let first = scratch.path("first.mcap");
+    let text = config(&[("updates = 40", "updates = 5")]);
+    let cfg = RunConfig::parse(&text, Path::new("short.toml")).unwrap();
+    let mut rec = record::McapRecorder::create(&first)
+        .unwrap()
+        .with_config_text(text);
+    session::run_session(&cfg, 1, &mut rec).unwrap();
+    rec.finish().unwrap();
+    let first_s = first.to_str().unwrap();
+    let mut run = Run::start(&scratch, 1820, &["--resume", first_s, "--updates", "5"]);
+    assert!(!run.wait(Duration::from_secs(30)).success());
+    assert!(
+        run.text()
+            .contains("ends with update 4, and --updates 5 was given: nothing left to run"),
+        "{}",
+        run.text()
+    );
+    // The default config's change at update 20, past the end of 2 updates.
+    let mut run = Run::start(
+        &scratch,
+        1821,
+        &["--updates", "2", "--quiet", "--no-record"],
+    );
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(
+        run.text()
+            .contains("is not before the run's end (--updates 2): viapoint = 0.1"),
+        "{}",
+        run.text()
+    );
+}
