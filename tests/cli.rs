@@ -640,3 +640,57 @@ fn a_length_or_seed_given_as_an_option_is_named_as_the_option() {
         "{err}"
     );
 }
+
+/// A run with a task change ends with the re-convergence table, whose reference optimum is a
+/// compass search from the final mean. For a policy of many parameters that search took O(P²)
+/// rollouts: `pi2cma run` with P = 400 was still summarising 20 minutes after its last update.
+/// It now stops at its budget and the table says so; the paper's tasks (P = 2) are unaffected.
+#[test]
+fn a_large_policy_run_ends_and_says_its_reference_search_stopped_at_its_budget() {
+    let d = scratch("large-policy-summary");
+    let text = session::DEFAULT_CONFIG.replace("basis_functions = 2", "basis_functions = 400");
+    std::fs::write(d.join("large.toml"), text).expect("write config");
+    let args = [
+        "run",
+        "large.toml",
+        "--updates",
+        "21",
+        "--quiet",
+        "--no-record",
+    ];
+    let out = pi2cma(&[&args[..], &["--out", "large"]].concat(), &d);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let row = stdout
+        .lines()
+        .find(|l| l.starts_with("| A1 |"))
+        .unwrap_or_else(|| panic!("no table row:\n{stdout}"));
+    assert!(
+        row.ends_with("(reference search stopped at its budget) |"),
+        "{row}"
+    );
+    // The paper's via-point task: an exact reference, no remark.
+    let out = pi2cma(
+        &[
+            "run",
+            "--updates",
+            "21",
+            "--quiet",
+            "--no-record",
+            "--out",
+            "small",
+        ],
+        &d,
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!stdout.contains("budget"), "{stdout}");
+}
