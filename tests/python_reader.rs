@@ -357,7 +357,8 @@ with open(src, "rb") as f, open(dst, "wb") as o:
 
 /// Given several files, `check_update.py` checks each and names every one that failed: it
 /// stopped at the first damaged file (`sys.exit` from its reader), so the files after it were
-/// never recomputed, and a missing file ended it with a traceback.
+/// never recomputed, and a missing file ended it with a traceback, as did a file that is not
+/// MCAP (`struct.error` from inside the `mcap` package).
 #[test]
 fn check_update_checks_every_file_and_names_each_that_failed() {
     let dir = common::scratch("h3-check-update-several");
@@ -370,13 +371,27 @@ fn check_update_checks_every_file_and_names_each_that_failed() {
         .expect("python3 starts");
     // Its stderr, inherited, is in the test's output.
     assert!(tamper.success(), "the tampering script failed");
-    let files = ["damaged.mcap", "run.mcap", "disagrees.mcap", "missing.mcap"];
+    std::fs::write(dir.join("notes.mcap"), "not a recording\n").expect("write");
+    std::fs::write(dir.join("empty.mcap"), "").expect("write");
+    let files = [
+        "damaged.mcap",
+        "notes.mcap",
+        "run.mcap",
+        "empty.mcap",
+        "disagrees.mcap",
+        "missing.mcap",
+    ];
     let (ok, text) = python_tool("check_update.py", &files, &dir);
     assert!(!ok, "check_update.py passed:\n{text}");
     assert!(!text.contains("Traceback"), "{text}");
     assert!(text.contains("damaged.mcap: damaged"), "{text}");
     // The good file and the one after the damaged file were recomputed.
-    assert!(text.contains("4 recording(s), 80 updates"), "{text}");
+    assert!(text.contains("6 recording(s), 80 updates"), "{text}");
+    assert!(
+        text.contains("notes.mcap: not an MCAP file (it does not begin with the MCAP magic")
+            && text.contains("empty.mcap: not an MCAP file (it is empty)"),
+        "{text}"
+    );
     let failed = text
         .lines()
         .find(|l| l.starts_with("check_update: failed:"))
@@ -385,6 +400,8 @@ fn check_update_checks_every_file_and_names_each_that_failed() {
         "damaged.mcap (damaged",
         "disagrees.mcap (disagrees",
         "missing.mcap (",
+        "notes.mcap (not MCAP)",
+        "empty.mcap (not MCAP)",
     ] {
         assert!(failed.contains(name), "{name} not in {failed}\n{text}");
     }

@@ -85,6 +85,10 @@ def dist(d):
     return np.array(d.mean, float), np.array(d.covariance, float).reshape(p, p)
 
 
+# What every MCAP file begins with, a killed writer's too.
+MAGIC = b"\x89MCAP0\r\n"
+
+
 class Unreadable(Exception):
     """A file that cannot be checked (damaged, or not there): `main` names it among the failed
     and goes on with the next file."""
@@ -101,9 +105,15 @@ def decoded_messages(path):
     than being recomputed from other numbers."""
     try:
         f = open(path, "rb")
+        head = f.read(len(MAGIC))
     except OSError as e:
         raise Unreadable("cannot be read", f"{path}: cannot be read: {e.strerror}") from e
     with f:
+        if head != MAGIC:
+            # The `mcap` package fails on such a file with a bare struct.error traceback.
+            what = "it is empty" if not head else "it does not begin with the MCAP magic bytes"
+            raise Unreadable("not MCAP", f"{path}: not an MCAP file ({what})")
+        f.seek(0)
         try:
             reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             indexed = reader.get_summary() is not None
