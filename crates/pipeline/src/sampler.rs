@@ -3,8 +3,8 @@
 //! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts, pending as at the start of the hand-out:
 //! equal shares at the start of an update, smaller ones while some workers are still busy
 //! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. When rollouts
-//! are slow, a chunk holds at most [`CHUNK_TIME`] of them (as measured on the chunks before), so
-//! that work stays queued through the update: a worker that joins mid-update (a scale-up), or
+//! are slow, a chunk holds at most [`CHUNK_TIME`] of them (as measured on the chunks before; one
+//! until the first chunk is back), so that work stays queued through the update: a worker that joins mid-update (a scale-up), or
 //! finishes early, takes rollouts of this update instead of waiting for the next. Rollouts of a
 //! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
@@ -46,15 +46,19 @@ fn raised(seen: &mut [u32], counts: &[u32]) -> Vec<u32> {
 const CHUNK_TIME: Duration = Duration::from_millis(50);
 
 /// Rollouts in each chunk of a hand-out round: ⌈pending / available⌉, at most [`CHUNK_TIME`]
-/// of rollouts that take `per_rollout` each, at least 1.
+/// of rollouts that take `per_rollout` each, at least 1. Before any chunk came back
+/// (`per_rollout` unknown) one: a rollout may take seconds on a robot, and a whole first update
+/// handed out blind would leave a worker that joins during it idle to its end; fast rollouts
+/// pay one round trip per worker for it, once.
 fn chunk_len(pending: usize, available: usize, per_rollout: Option<Duration>) -> usize {
     let share = pending.div_ceil(available.max(1)).max(1);
     match per_rollout {
-        Some(t) if !t.is_zero() => {
+        None => 1,
+        Some(t) if t.is_zero() => share,
+        Some(t) => {
             let fit = (CHUNK_TIME.as_nanos() / t.as_nanos()).max(1);
             share.min(usize::try_from(fit).unwrap_or(usize::MAX))
         }
-        _ => share,
     }
 }
 
@@ -478,11 +482,12 @@ mod tests {
 
     #[test]
     fn chunks_are_equal_shares_unless_rollouts_are_slow() {
-        // Unknown, or fast: ⌈pending / workers⌉, as guided self-scheduling gives.
-        assert_eq!(chunk_len(15, 2, None), 8);
+        // Fast: ⌈pending / workers⌉, as guided self-scheduling gives.
         assert_eq!(chunk_len(15, 2, Some(Duration::from_micros(50))), 8);
-        assert_eq!(chunk_len(1, 4, None), 1);
-        assert_eq!(chunk_len(3, 0, None), 3);
+        assert_eq!(chunk_len(1, 4, Some(Duration::from_micros(50))), 1);
+        assert_eq!(chunk_len(3, 0, Some(Duration::from_micros(50))), 3);
+        // Not yet timed: one each, until the first chunk comes back.
+        assert_eq!(chunk_len(15, 2, None), 1);
         // Slow: CHUNK_TIME of them, and never none.
         assert_eq!(chunk_len(15, 1, Some(Duration::from_millis(2))), 15);
         assert_eq!(chunk_len(15, 1, Some(Duration::from_millis(5))), 10);

@@ -1187,7 +1187,8 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
 /// the sampler keeps work queued (chunks of at most 50 ms of rollouts) instead of handing out
 /// the whole update at its start, which left a scaled-up worker idle until the next update.
 /// Judged for each joiner whose update still had a rollout started 100 ms or more after the
-/// join (by its log time, which is later than the join, never earlier).
+/// join (by its log time, which is later than the join, never earlier). The first joins in
+/// update 0, before any rollout was timed.
 #[test]
 fn a_worker_scaled_up_mid_update_takes_rollouts_of_that_update() {
     let scratch = Scratch::new("join-mid-update");
@@ -1202,7 +1203,11 @@ fn a_worker_scaled_up_mid_update_takes_rollouts_of_that_update() {
     let cfg = write_config(&scratch, "join.toml", &text);
     let result = scratch.path("result.toml");
     let mut run = Run::start_quiet(&scratch, 1841, &cfg, &result);
-    for (after, workers) in [(2, "2"), (4, "3"), (6, "4")] {
+    // The first scale-up lands in update 0 (0.9 s with one worker), before the sampler has
+    // timed any rollout: 0.3 s after the worker is up.
+    run.wait_status("1 worker", |s| s.contains("workers: 1 running"));
+    std::thread::sleep(Duration::from_millis(300));
+    for (after, workers) in [(0, "2"), (3, "3"), (6, "4")] {
         run.wait_status("updates", |s| updates_in(s) >= after);
         run.ctl_ok(&["scale", "--workers", workers]);
     }
@@ -1214,7 +1219,8 @@ fn a_worker_scaled_up_mid_update_takes_rollouts_of_that_update() {
         let joined = rec
             .logs
             .iter()
-            .find(|l| l.event == "scale" && l.name == w && l.message.contains("joined"))
+            // Before the first update is recorded a joiner is logged as `ready` (a start).
+            .find(|l| l.name == w && (l.message.contains("joined") || l.message.ends_with("ready")))
             .unwrap_or_else(|| panic!("{w} did not join: {:#?}", rec.logs));
         let t = joined.timestamp.as_ref().unwrap();
         let t_join = t.seconds as u64 * 1_000_000_000 + t.nanos as u64;

@@ -41,10 +41,10 @@
 //!    the task settings in force for u, and rings `wake/sampler`.
 //! 2. The sampler draws the K parameter vectors (a pure function of seed, u and k), and hands
 //!    them out in chunks: each worker that announced [`Ready`] gets ⌈pending / workers⌉
-//!    rollouts (pending as at the start of the hand-out; with slow rollouts, no more than
-//!    the sampler's `CHUNK_TIME` of them, so work stays queued for workers that join), one
-//!    `work/<w>` sample per rollout, all with the same [`WorkHeader::chunk`]; it rings the
-//!    workers after publishing every chunk.
+//!    rollouts (pending as at the start of the hand-out; with slow rollouts, or none timed
+//!    yet, no more than the sampler's `CHUNK_TIME` of them, so work stays queued for workers
+//!    that join), one `work/<w>` sample per rollout, all with the same [`WorkHeader::chunk`];
+//!    it rings the workers after publishing every chunk.
 //! 3. The worker executes each θ and writes the N immediate costs straight into a loaned `costs`
 //!    sample ([`CostHeader::terminal`] holds the terminal cost, [`CostHeader::settings`] the
 //!    task settings it ran with: the work item's unless its task refused a change). After the
