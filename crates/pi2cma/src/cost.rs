@@ -166,7 +166,9 @@ impl CostBatch {
 }
 
 /// The first non-finite cost of rollout `rollout`, terminal cost first, as an error naming it.
-fn check_finite(rollout: usize, per_step: &[f64], terminal: f64) -> Result<(), CostError> {
+/// [`CostBatch::insert`] checks it after refusing a rollout told twice; a reader that must tell
+/// a rejected execution from a twin (the recorder) asks it of the second as well.
+pub fn check_finite(rollout: usize, per_step: &[f64], terminal: f64) -> Result<(), CostError> {
     if !terminal.is_finite() {
         return Err(CostError::NonFinite {
             rollout,

@@ -213,6 +213,11 @@ impl Assembler {
                 Ok(CostOutcome::Stored)
             }
             Err(CostError::Duplicate { .. }) => {
+                // A rejected execution taken in after the rerun that replaced it: the
+                // subscriber does not keep the order between two workers' messages (the
+                // updater, which asked for the rerun, had it first). It is the rejection it
+                // was, not a twin after a worker loss.
+                pi2cma::check_finite(rollout, per_step, terminal)?;
                 p.duplicates += 1;
                 Ok(CostOutcome::Duplicate)
             }

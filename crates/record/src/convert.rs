@@ -164,7 +164,9 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
     }
     if let Some(f) = cfg.run.fault_nan_first_attempt {
         let mut t = Table::new();
-        t.insert("update".into(), int(f.update));
+        if let Some(u) = f.update {
+            t.insert("update".into(), int(u));
+        }
         if let Some(k) = f.rollout {
             t.insert("rollout".into(), int(k as u64));
         }
@@ -321,8 +323,8 @@ mod tests {
         let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
         assert_eq!(back, cfg, "{text}");
         cfg.run.nonfinite_reruns = 3;
-        for rollout in [Some(2), None] {
-            cfg.run.fault_nan_first_attempt = Some(session::RolloutAt { update: 7, rollout });
+        for (update, rollout) in [(Some(7), Some(2)), (Some(7), None), (None, None)] {
+            cfg.run.fault_nan_first_attempt = Some(session::RolloutAt { update, rollout });
             let text = config_to_toml(&cfg);
             let back = RunConfig::parse(&text, Path::new("<built-in default>")).unwrap();
             assert_eq!(back, cfg, "{text}");

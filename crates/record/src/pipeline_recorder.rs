@@ -697,7 +697,9 @@ impl WriterState {
     ///   through it).
     ///
     /// The counts agree with the updater's because both count the same messages per rollout,
-    /// and a rollout's next execution is handed out only after its rejection. What re-deriving
+    /// and a rollout's next execution is handed out only after its rejection; one taken in
+    /// after the rerun that replaced it still comes here (the assembler checks a second
+    /// execution's costs before it calls it a twin). What re-deriving
     /// cannot know (the updater's counts would give it): a recorder restarted between
     /// a rollout's rejected executions counts from its restart, so it logs lower attempt
     /// numbers and rerun count than the updater's; and with two executions of one rollout

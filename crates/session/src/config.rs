@@ -97,18 +97,21 @@ pub struct RunSection {
     /// update waits for it. 0: the first such cost fails the run.
     #[serde(default)]
     pub nonfinite_reruns: u32,
-    /// FAULT INJECTION, for tests only: the first execution of this rollout (of every rollout of
-    /// the update, without `rollout`) reports a NaN terminal cost, its reruns what the task
-    /// computes (a transient fault; both executors).
+    /// FAULT INJECTION, for tests only: the first execution of this rollout (without `rollout`:
+    /// of every rollout of the update; without `update` too: of every rollout of every update)
+    /// reports a NaN terminal cost, its reruns what the task computes (a transient fault; both
+    /// executors).
     #[serde(default)]
     pub fault_nan_first_attempt: Option<RolloutAt>,
 }
 
-/// One rollout of one update (`{ update = 3, rollout = 2 }`), or all of them (`{ update = 3 }`).
+/// One rollout of one update (`{ update = 3, rollout = 2 }`), all of an update's
+/// (`{ update = 3 }`), or all rollouts of all updates (`{}`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RolloutAt {
-    pub update: u64,
+    #[serde(default)]
+    pub update: Option<u64>,
     #[serde(default)]
     pub rollout: Option<usize>,
 }
@@ -118,9 +121,9 @@ impl RunSection {
     /// `rollout` of update `update` (`rerun`: not its first) into a NaN terminal cost.
     pub fn fault_nan(&self, update: u64, rollout: usize, rerun: bool) -> bool {
         !rerun
-            && self
-                .fault_nan_first_attempt
-                .is_some_and(|f| f.update == update && f.rollout.is_none_or(|k| k == rollout))
+            && self.fault_nan_first_attempt.is_some_and(|f| {
+                f.update.is_none_or(|u| u == update) && f.rollout.is_none_or(|k| k == rollout)
+            })
     }
 }
 
