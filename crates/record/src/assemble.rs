@@ -462,6 +462,18 @@ mod tests {
                     .unwrap();
                 assert_ne!(o, CostOutcome::Stale);
             }
+            // A rejected execution of rollout 5 taken in after the rerun that replaced it: a
+            // rejection, not a twin, and the update it belongs to is unchanged.
+            let t = RolloutTiming {
+                worker: "worker-2".into(),
+                start_ns: 1,
+                end_ns: 2,
+            };
+            let late = a.cost(u, 5, costs.per_step(5), f64::NAN, t, None);
+            assert!(
+                matches!(late, Err(CostError::NonFinite { rollout: 5, .. })),
+                "{late:?}"
+            );
             a.distribution(
                 u,
                 4,

@@ -934,6 +934,29 @@ mod tests {
         assert!(told.0.is_empty());
     }
 
+    /// `fault_nan_first_attempt` without `rollout` faults every rollout of its update, and
+    /// without `update` every rollout of every update; reruns leave the run the one without.
+    #[test]
+    fn a_fault_of_every_rollout_is_rerun_every_time_and_changes_nothing() {
+        let reference = capture(InProcess::new(&RunConfig::default_config(), 1).unwrap());
+        for (fault, reruns) in [("{ update = 3 }", 15), ("{}", 15 * 40)] {
+            let cfg = default_with_run(&format!(
+                "nonfinite_reruns = 1\nfault_nan_first_attempt = {fault}"
+            ));
+            let mut told = Reruns::default();
+            InProcess::new(&cfg, 1)
+                .unwrap()
+                .run(&mut told, &|| false)
+                .unwrap();
+            assert_eq!(told.0.len(), reruns, "{fault}");
+            assert_eq!(
+                capture(InProcess::new(&cfg, 1).unwrap()),
+                reference,
+                "{fault}"
+            );
+        }
+    }
+
     #[test]
     fn a_cost_that_stays_non_finite_fails_the_run_after_the_reruns_saying_so() {
         /// The via-point task whose rollouts of a negative first parameter cost +∞ at step 4.
