@@ -349,12 +349,13 @@ pub fn summary_table(results: &[ConfigResult]) -> String {
             fmt(l[l.len() - 1]),
             match (r.change_at, r.reconvergence_update()) {
                 (None, _) => "no change".to_string(),
-                (Some(_), Some(u)) if r.optimum_converged => u.to_string(),
-                (Some(_), None) if r.optimum_converged => "not re-converged".to_string(),
-                (Some(_), u) => format!(
-                    "{} (reference search stopped at its budget)",
-                    u.map_or("not re-converged".to_string(), |u| u.to_string())
-                ),
+                (Some(_), at) => {
+                    let at = at.map_or("not re-converged".to_string(), |u| u.to_string());
+                    match r.optimum_converged {
+                        true => at,
+                        false => format!("{at} (reference search stopped at its budget)"),
+                    }
+                }
             }
         );
     }

@@ -4,15 +4,16 @@
 //! equal shares at the start of an update, smaller ones while some workers are still busy
 //! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. When rollouts
 //! are slow, a chunk holds at most [`CHUNK_TIME`] of them (as measured on the chunks before; one
-//! until the first chunk is back), so that work stays queued through the update: a worker that joins mid-update (a scale-up), or
-//! finishes early, takes rollouts of this update instead of waiting for the next. Rollouts of a
+//! until the first chunk is back), so that work stays queued through the update: a worker that
+//! joins mid-update (a scale-up), or finishes early, takes rollouts of this update instead of
+//! waiting for the next. Rollouts of a
 //! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
 //! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
 //! restarts it. A rollout the updater asks for again (on `reruns`: its costs were not finite)
 //! goes back to the front of the queue.
 
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::notifier::Notifier;
@@ -123,10 +124,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
     let mut idle: VecDeque<u32> = VecDeque::new();
     let mut pending: VecDeque<u32> = VecDeque::new();
-    // Rollouts of the current update the updater asked for again: their work items say so
-    // (WorkHeader::RERUN). `rerun_counts`: the updater's rejected executions per rollout of
-    // the current update, as of the newest `reruns` sample read.
-    let mut reruns: BTreeSet<u32> = BTreeSet::new();
+    // The updater's rejected executions per rollout of the current update, as of the newest
+    // `reruns` sample read: a rollout with a count is a rerun, and its work items say so
+    // (WorkHeader::RERUN).
     let mut rerun_counts: Vec<u32> = vec![0; k_total];
     let mut current: Option<Current> = None;
     let mut next_chunk: u64 = 0;
@@ -218,7 +218,6 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 settings_len: h.settings_len,
             });
             pending = (0..k_total as u32).collect();
-            reruns.clear();
             rerun_counts.fill(0);
             if trace {
                 eprintln!("{} dist {} idle {:?}", us(), h.update, idle);
@@ -235,7 +234,6 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 continue;
             }
             for k in raised(&mut rerun_counts, sample.payload()) {
-                reruns.insert(k);
                 if !pending.contains(&k) {
                     pending.push_front(k);
                 }
@@ -402,7 +400,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     worker: id,
                     steps: steps as u32,
                     settings_len: cur.settings_len,
-                    flags: if reruns.contains(&k) {
+                    flags: if rerun_counts[k as usize] > 0 {
                         flags | WorkHeader::RERUN
                     } else {
                         flags

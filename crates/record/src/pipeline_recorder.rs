@@ -699,13 +699,13 @@ impl WriterState {
     /// The counts agree with the updater's because both count the same messages per rollout,
     /// and a rollout's next execution is handed out only after its rejection; one taken in
     /// after the rerun that replaced it still comes here (the assembler checks a second
-    /// execution's costs before it calls it a twin). What re-deriving
-    /// cannot know (the updater's counts would give it): a recorder restarted between
-    /// a rollout's rejected executions counts from its restart, so it logs lower attempt
-    /// numbers and rerun count than the updater's; and with two executions of one rollout
-    /// waiting in its costs subscriber at once (a recorder busy writing; receiving does not
-    /// keep the order between two workers' messages), the workers named for attempts 1 and 2
-    /// may be swapped. Both only change the wording of the health log.
+    /// execution's costs before it calls it a twin). What re-deriving cannot know (the
+    /// updater's counts would give it): a recorder restarted between a rollout's rejected
+    /// executions counts from its restart, so it logs lower attempt numbers and rerun count
+    /// than the updater's; and with two executions of one rollout waiting in its costs
+    /// subscriber at once (a recorder busy writing; receiving does not keep the order between
+    /// two workers' messages), the workers named for attempts 1 and 2 may be swapped. Both only
+    /// change the wording of the health log.
     fn cost_rejected(&mut self, h: &CostHeader, e: &CostError) -> anyhow::Result<()> {
         let by = format!("worker-{}", h.worker);
         let limit = self.config.run.nonfinite_reruns;

@@ -216,8 +216,8 @@ impl WorkHeader {
     /// always rings is still correct, only slower.
     pub const QUEUE_EMPTY: u32 = 1;
     /// An execution of this rollout reported costs that were not finite, and the updater asked
-    /// for it again (on `reruns`, [`RerunHeader`]). Information for the worker (a robot may want to reset
-    /// before it tries again); the parameters are the same.
+    /// for it again (on `reruns`, [`RerunHeader`]). Information for the worker (a robot may
+    /// want to reset before it tries again); the parameters are the same.
     pub const RERUN: u32 = 2;
 }
 
