@@ -3,6 +3,7 @@
 //! force for it. Scheduled task changes and runtime ones (`supervisor set`) take effect at the
 //! update they are published with, which is recorded in the result file.
 
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail};
@@ -80,6 +81,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     };
     let mut reruns = NonfiniteReruns::new(cfg.run.nonfinite_reruns, k_total);
     let mut reruns_done: u64 = 0;
+    // Rejections not yet published on `reruns`: held back while the recorder could not take
+    // in their costs (see `RecorderLink::may_rerun`).
+    let mut reruns_unissued: u32 = 0;
     let _announced = announce_ready(&ctx, wire::role::UPDATER, 0, 0)?;
 
     let mut batch = optimizer.cost_batch();
@@ -235,14 +239,16 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 Control::START if started.is_none() => {
                     started = Some(Instant::now());
                     last_progress = Instant::now();
-                    recorder.attach_if_running(optimizer.update_index());
+                    let first = optimizer.update_index();
+                    recorder.attach_if_running(first, first);
                     to_publish = Some(0);
                 }
                 Control::RECORDER_LOST => recorder.detach("the supervisor reports it gone"),
                 // The dead recorder's unwritten updates are lost with it: the lag is counted
                 // from here, where the new one begins.
                 Control::RECORDER_BACK if started.is_some() => {
-                    recorder.attach_if_running(optimizer.update_index())
+                    let u = optimizer.update_index();
+                    recorder.attach_if_running(u, u + u64::from(to_publish.is_none()))
                 }
                 Control::SET_TASK => {
                     let change = TaskChange {
@@ -310,9 +316,11 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 optimizer.ask();
             }
             let u = optimizer.update_index();
-            let mut rejected = false;
             while let Some(sample) = iox(costs.receive(), "receive costs")? {
                 let h = *sample.user_header();
+                if h.run_id == ctx.run_id {
+                    recorder.cost_received(h.update);
+                }
                 if h.run_id != ctx.run_id || h.update != u {
                     continue; // a re-executed rollout of an earlier update
                 }
@@ -333,7 +341,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                                 let limit = reruns.limit();
                                 println!("{}", rerun_message(u, &e, attempt, limit, &by));
                                 reruns_done += 1;
-                                rejected = true;
+                                reruns_unissued += 1;
                                 continue;
                             }
                             Verdict::Fail { reruns } => reruns,
@@ -349,7 +357,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     after_reruns(tried)
                 );
             }
-            if let (true, Some(requests)) = (rejected, &rerun_requests) {
+            let issue =
+                reruns_unissued > 0 && recorder.may_rerun(u, u64::from(reruns_unissued), &ctx)?;
+            if let (true, Some(requests)) = (issue, &rerun_requests) {
+                reruns_unissued = 0;
                 // One sample for all the rejections this round: it holds every count.
                 let sample = iox(requests.loan_slice_uninit(k_total), "loan reruns")?;
                 let mut sample = sample.write_from_slice(reruns.rejected());
@@ -739,6 +750,7 @@ struct RecorderLink {
     attached: bool,
     /// The recorder's newest acknowledgement: every update before it is written.
     next_update: u64,
+    costs: UnrecordedCosts,
     held_since: Option<Instant>,
     last_scan: Instant,
     last_ring: Option<Instant>,
@@ -756,6 +768,10 @@ impl RecorderLink {
             lag: ctx.limits.recorder_max_lag(),
             attached: false,
             next_update: 0,
+            costs: UnrecordedCosts::new(
+                ctx.limits.recorder_cost_room(),
+                ctx.limits.rollouts as u64,
+            ),
             held_since: None,
             last_scan: Instant::now(),
             last_ring: None,
@@ -763,10 +779,17 @@ impl RecorderLink {
     }
 
     /// At START, or at RECORDER_BACK: a recorder that is running then has its publisher on
-    /// `recorded` (the supervisor starts it first and waits for it).
-    fn attach_if_running(&mut self, first_update: u64) {
+    /// `recorded` (the supervisor starts it first and waits for it). Its cost messages are
+    /// counted from update `count_from`: a restarted recorder begins at the first distribution
+    /// published after it announced itself, so the update whose distribution is out already is
+    /// not counted. (If that distribution went out between the announcement and RECORDER_BACK,
+    /// the recorder takes in that update's costs uncounted; they fit its buffer unless the
+    /// update reruns more than K + 4 executions — within the update in flight, the most a
+    /// recorder's restart may lose.)
+    fn attach_if_running(&mut self, first_update: u64, count_from: u64) {
         self.attached = self.service.dynamic_config().number_of_publishers() > 0;
         self.next_update = first_update;
+        self.costs.attach(first_update, count_from);
         self.held_since = None;
         self.last_ring = None;
         if self.attached {
@@ -786,11 +809,20 @@ impl RecorderLink {
 
     fn drain_acks(&mut self) -> anyhow::Result<()> {
         while let Some(a) = iox(self.acks.receive(), "receive recorder ack")? {
-            if a.payload().run_id == self.run_id {
-                self.next_update = self.next_update.max(a.payload().next_update);
+            let a = *a.payload();
+            if a.run_id == self.run_id && a.next_update >= self.next_update {
+                self.next_update = a.next_update;
+                self.costs.acknowledged(a.next_update, a.taken);
             }
         }
         Ok(())
+    }
+
+    /// A cost message of update `update` received (any: accepted, rejected, a twin).
+    fn cost_received(&mut self, update: u64) {
+        if self.attached {
+            self.costs.received(update);
+        }
     }
 
     /// Whether the distribution of update `u` may be published now; if not, asks the
@@ -800,10 +832,30 @@ impl RecorderLink {
             return Ok(true);
         }
         self.drain_acks()?;
-        if u < self.next_update + self.lag {
+        if u < self.next_update + self.lag && self.costs.fit(self.costs.rollouts) {
             self.held_since = None;
             return Ok(true);
         }
+        self.held(ctx)
+    }
+
+    /// Whether `n` more executions of update `u` (reruns) may be issued now; if so, they are
+    /// counted. If not, asks the recorder (HOLD) to ring back after it has taken more in.
+    fn may_rerun(&mut self, u: u64, n: u64, ctx: &Context) -> anyhow::Result<bool> {
+        if !self.attached {
+            return Ok(true);
+        }
+        self.drain_acks()?;
+        if self.costs.fit(n) {
+            self.held_since = None;
+            self.costs.issued(u, n);
+            return Ok(true);
+        }
+        self.held(ctx)
+    }
+
+    /// Held back: true (go on) if the recorder turns out to be gone, else rings it.
+    fn held(&mut self, ctx: &Context) -> anyhow::Result<bool> {
         let since = *self.held_since.get_or_insert_with(Instant::now);
         if since.elapsed() >= RECORDER_SCAN_AFTER && self.last_scan.elapsed() >= RECORDER_SCAN_AFTER
         {
@@ -832,6 +884,7 @@ impl RecorderLink {
         if !self.attached {
             return Ok(());
         }
+        self.costs.issued(u, self.costs.rollouts);
         self.drain_acks()?;
         let due = last
             || self
@@ -846,10 +899,157 @@ impl RecorderLink {
     }
 }
 
+/// The count behind [`RecorderLink::may_rerun`]: how many cost messages may be waiting in the
+/// recorder's subscriber buffer, which holds [`wire::Limits::recorder_cost_room`] (see
+/// [`RecorderAck`]). The updater receives every cost message the recorder does.
+#[derive(Debug, Clone, PartialEq)]
+struct UnrecordedCosts {
+    room: u64,
+    /// K: the executions a distribution issues.
+    rollouts: u64,
+    /// Of the newest acknowledgement: cost messages taken in of the updates it has not written
+    /// (0 if it counts from an update before `counted_from`, which this side did not count).
+    taken: u64,
+    /// The cost messages received of each update from `counted_from` on.
+    counted_from: u64,
+    received: VecDeque<u64>,
+    /// The newest update issued and its executions: K, and each rerun.
+    issued: (u64, u64),
+}
+
+impl UnrecordedCosts {
+    fn new(room: u64, rollouts: u64) -> Self {
+        Self {
+            room,
+            rollouts,
+            taken: 0,
+            counted_from: 0,
+            received: VecDeque::new(),
+            issued: (0, 0),
+        }
+    }
+
+    /// A recorder attached whose first update is `first_update`, counted from `count_from`.
+    fn attach(&mut self, first_update: u64, count_from: u64) {
+        *self = Self {
+            counted_from: count_from,
+            issued: (first_update, 0),
+            ..Self::new(self.room, self.rollouts)
+        };
+    }
+
+    /// An acknowledgement: every update before `next_update` written, `taken` cost messages of
+    /// the later ones taken in. Acknowledgements come in order.
+    fn acknowledged(&mut self, next_update: u64, taken: u64) {
+        self.taken = if next_update >= self.counted_from {
+            taken
+        } else {
+            0
+        };
+        let written = next_update.saturating_sub(self.counted_from);
+        let written = usize::try_from(written)
+            .unwrap_or(usize::MAX)
+            .min(self.received.len());
+        self.received.drain(..written);
+        self.counted_from = self.counted_from.max(next_update);
+    }
+
+    fn received(&mut self, update: u64) {
+        // Only issued updates have costs: a bogus update index allocates nothing.
+        if update < self.counted_from || update > self.issued.0 {
+            return;
+        }
+        let i = (update - self.counted_from) as usize;
+        if i >= self.received.len() {
+            self.received.resize(i + 1, 0);
+        }
+        self.received[i] += 1;
+    }
+
+    /// `n` executions of update `u` issued (a distribution, K; or reruns).
+    fn issued(&mut self, u: u64, n: u64) {
+        if self.issued.0 == u {
+            self.issued.1 += n;
+        } else {
+            self.issued = (u, n);
+        }
+    }
+
+    /// The most cost messages that can be waiting in the recorder's buffer: those received of
+    /// the updates it has not written, less those it has taken in, plus the executions of the
+    /// update in progress that have not reported yet.
+    fn waiting(&self) -> u64 {
+        let received: u64 = self.received.iter().sum();
+        let (u, issued) = self.issued;
+        let of_u = u
+            .checked_sub(self.counted_from)
+            .and_then(|i| self.received.get(usize::try_from(i).ok()?))
+            .copied()
+            .unwrap_or(0);
+        (received + issued.saturating_sub(of_u)).saturating_sub(self.taken)
+    }
+
+    /// Whether `n` more executions fit.
+    fn fit(&self, n: u64) -> bool {
+        self.waiting() + n <= self.room
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use tasks::Task as _;
+
+    /// Room for 30 cost messages, K = 10: the recorder's buffer as the updater counts it.
+    #[test]
+    fn unrecorded_costs_count_what_the_recorder_has_not_taken() {
+        let mut c = UnrecordedCosts::new(30, 10);
+        c.attach(0, 0);
+        c.issued(0, 10);
+        (0..10).for_each(|_| c.received(0));
+        assert_eq!(c.waiting(), 10);
+        assert!(c.fit(10));
+        c.issued(1, 10);
+        (0..10).for_each(|_| c.received(1));
+        c.issued(2, 10);
+        (0..5).for_each(|_| c.received(2));
+        // 25 received, 5 executions of update 2 still out.
+        assert_eq!(c.waiting(), 30);
+        assert!(!c.fit(1), "a rerun beyond the room");
+        // Update 0 written, 3 messages of the later ones taken in.
+        c.acknowledged(1, 3);
+        assert_eq!(c.waiting(), 10 + 5 + 5 - 3);
+        assert!(c.fit(1));
+        c.issued(2, 1);
+        assert_eq!(c.waiting(), 10 + 5 + 6 - 3);
+        // The recorder has taken in everything received; what is out remains.
+        c.acknowledged(2, 5);
+        assert_eq!(c.waiting(), 6);
+        // A cost of an update not issued (a bogus header) or already written counts nothing.
+        c.received(u64::MAX);
+        c.received(0);
+        assert_eq!(c.waiting(), 6);
+        // A twin of update 2 waits like any message; the executions out are not fewer than 0.
+        (0..12).for_each(|_| c.received(2));
+        assert_eq!(c.waiting(), 17 - 5);
+    }
+
+    #[test]
+    fn unrecorded_costs_ignore_what_an_acknowledgement_counts_from_before_the_count() {
+        // A recorder restarted after update 7's distribution went out: counted from 8.
+        let mut c = UnrecordedCosts::new(30, 10);
+        c.attach(7, 8);
+        (0..10).for_each(|_| c.received(7));
+        assert_eq!(c.waiting(), 0);
+        c.issued(8, 10);
+        (0..4).for_each(|_| c.received(8));
+        assert_eq!(c.waiting(), 10);
+        // It began with update 7 after all; its `taken` includes 7's costs: not subtracted.
+        c.acknowledged(7, 14);
+        assert_eq!(c.waiting(), 10);
+        c.acknowledged(8, 4);
+        assert_eq!(c.waiting(), 6);
+    }
 
     fn reach() -> tasks::External {
         let settings = [("target_x".to_string(), 0.3), ("target_y".to_string(), 0.7)];

@@ -8,11 +8,13 @@
 //! the updater publishes the distribution of update 0: start it first and wait for its
 //! `lifecycle` message (role [`ROLE_RECORDER`]) before sending START.
 //!
-//! Delivery is lossless by back-pressure, not by buffer size: after each round of draining,
-//! writing and flushing it acknowledges on `recorded` ([`wire::RecorderAck`]), and the updater
-//! stays at most `Limits::recorder_max_lag` updates ahead of the acknowledgement, a lag the
-//! subscriber buffers are sized for. When the updater is held back it rings with
-//! [`wire::HOLD`], and the recorder rings `wake/updater` after its next acknowledgement.
+//! Delivery is lossless by back-pressure, not by buffer size: it acknowledges each update it
+//! has written and flushed on `recorded` ([`wire::RecorderAck`], with the cost messages of
+//! later updates it has taken in), and the updater stays at most `Limits::recorder_max_lag`
+//! updates ahead of the acknowledgement, a lag the subscriber buffers are sized for, and issues
+//! a rerun only while its costs fit. When the updater is held back it rings with
+//! [`wire::HOLD`], and the recorder acknowledges at the end of its round and rings
+//! `wake/updater`.
 //!
 //! One thread: drain every subscriber (distributions first), recompute each complete update
 //! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k)),
@@ -142,6 +144,10 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let lag = ctx.limits.recorder_max_lag();
     // The first distribution not yet taken in.
     let mut next_update: Option<u64> = None;
+    // What the acknowledgements say: every update before `acked` written (from the first
+    // distribution taken in), and the cost messages taken in of each update since.
+    let mut acked: Option<u64> = None;
+    let mut taken = TakenCosts::default();
     let mut hold = false;
     // For the exit line: rounds of draining and writing, and requests of a held updater.
     let (mut rounds, mut holds) = (0u64, 0u64);
@@ -171,6 +177,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 );
             }
             next_update = Some(next_update.unwrap_or(0).max(h.update + 1));
+            acked.get_or_insert(h.update);
             took_in = true;
             state.handle(Msg::Distribution(h, &payload[..p + p * p]))?;
         }
@@ -178,6 +185,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             let h = *s.user_header();
             if h.run_id == ctx.run_id {
                 took_in = true;
+                taken.add(h.update);
                 // A clock read per cost message showed in the recorder's profile; a worker
                 // that stamps its rollouts does not need it.
                 let received_ns = if h.start_ns == 0 { now_ns() } else { 0 };
@@ -209,19 +217,26 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 let _ = updater_bell.notify_with_custom_event_id(wire::WAKE);
             }
         };
+        let ack = |next_update: u64, taken: &mut TakenCosts| {
+            let ack = wire::RecorderAck {
+                run_id: ctx.run_id,
+                next_update,
+                taken: taken.from(next_update),
+            };
+            iox(acks.send_copy(ack), "send recorder ack").map(drop)
+        };
         state.write_complete(true, &mut |u| {
-            iox(
-                acks.send_copy(wire::RecorderAck {
-                    run_id: ctx.run_id,
-                    next_update: u + 1,
-                }),
-                "send recorder ack",
-            )?;
+            acked = Some(u + 1);
+            ack(u + 1, &mut taken)?;
             if newest.saturating_sub(u + 1) <= lag / 2 {
                 ring_back(&mut hold);
             }
             Ok(())
         })?;
+        // A held updater may wait for cost messages to be taken in, not for an update.
+        if let (true, Some(a)) = (hold, acked) {
+            ack(a, &mut taken)?;
+        }
         ring_back(&mut hold);
         if state.done() {
             break false;
@@ -266,6 +281,23 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
          by a held updater)"
     );
     Ok(())
+}
+
+/// The cost messages taken in of each update not yet acknowledged as written: what
+/// [`wire::RecorderAck::taken`] counts.
+#[derive(Debug, Default)]
+struct TakenCosts(std::collections::BTreeMap<u64, u64>);
+
+impl TakenCosts {
+    fn add(&mut self, update: u64) {
+        *self.0.entry(update).or_default() += 1;
+    }
+
+    /// Those of updates from `update` on; the earlier ones are forgotten.
+    fn from(&mut self, update: u64) -> u64 {
+        self.0 = self.0.split_off(&update);
+        self.0.values().sum()
+    }
 }
 
 /// Drops what a restarted recorder's subscribers hold (each `receive_*` takes one message,

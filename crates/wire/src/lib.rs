@@ -74,9 +74,11 @@
 //! the data paths pays for it. It acknowledges on `recorded` ([`RecorderAck`]). The updater
 //! applies back-pressure when a recorder was running at START (`recorded` has a publisher): it
 //! publishes distribution u only while u − `next_update` < [`Limits::recorder_max_lag`],
-//! otherwise it rings `wake/recorder` with [`HOLD`] and waits; the recorder acknowledges each
-//! update as soon as it is written and rings `wake/updater` once half the lag bound is free
-//! (or at the end of its round). After publishing u, the updater rings `wake/recorder` if the
+//! and while the cost messages the recorder has not taken fit its buffer (reruns make more
+//! than K per update; see [`RecorderAck`]), otherwise it rings `wake/recorder` with [`HOLD`]
+//! and waits; the recorder acknowledges each update as soon as it is written and rings
+//! `wake/updater` once half the lag bound is free (or at the end of its round, after an
+//! acknowledgement of the cost messages it has taken). After publishing u, the updater rings `wake/recorder` if the
 //! recorder has written everything before u − 1 (it may be asleep) and its last ring is a
 //! millisecond ago; a busy recorder looks for new samples before it sleeps. The
 //! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits and is not restarted, and
@@ -137,9 +139,9 @@ pub const WAKE: EventId = EventId::new(1);
 /// (sysexits' `EX_CONFIG`).
 pub const EXIT_CONFIG_REFUSED: u8 = 78;
 
-/// On `wake/recorder` only, from the updater: "I am holding back a distribution until you
-/// acknowledge more updates (see [`RecorderAck`]); ring `wake/updater` after your next
-/// acknowledgement."
+/// On `wake/recorder` only, from the updater: "I am holding back a distribution or a rerun
+/// until you acknowledge more updates or cost messages (see [`RecorderAck`]); acknowledge
+/// what you have taken at the end of your round and ring `wake/updater`."
 pub const HOLD: EventId = EventId::new(2);
 
 /// The iceoryx2 service flavour of every port in the pipeline.
@@ -337,17 +339,23 @@ impl Progress {
 }
 
 /// The recorder's acknowledgement on `recorded`, sent after each update it has written and
-/// flushed: every update before `next_update` is in the file. The updater publishes the
-/// distribution of update u only while u − `next_update` < [`Limits::recorder_max_lag`]:
-/// then at most that many distributions and the costs of that many updates can be waiting in
-/// the recorder's buffers, which are sized for it, so delivery to the recorder is lossless; and
-/// a recorder killed with SIGKILL loses at most that many updates.
+/// flushed, and at the end of a round in which a held updater rang it: every update before
+/// `next_update` is in the file, and `taken` cost messages of updates from `next_update` on
+/// are out of its subscriber's buffer. The updater publishes the distribution of update u only
+/// while u − `next_update` < [`Limits::recorder_max_lag`]: then at most that many
+/// distributions can be waiting in the recorder's buffers, and a recorder killed with SIGKILL
+/// loses at most that many updates. Reruns make an update's cost messages more than K, so
+/// the updater also counts them: it receives every cost message the recorder does, and issues
+/// a distribution or a rerun only while those of updates from `next_update` on, less
+/// `taken`, plus the executions still out, fit in [`Limits::recorder_cost_room`]. So nothing
+/// is dropped by safe overflow, however many reruns there are.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.RecorderAck.v1")]
+#[type_name("pi2cma.RecorderAck.v2")]
 pub struct RecorderAck {
     pub run_id: u64,
     pub next_update: u64,
+    pub taken: u64,
 }
 
 /// Process roles in [`Lifecycle`].
@@ -697,13 +705,21 @@ impl Limits {
         4usize.max(RECORDER_SLACK_UPDATES.min(affordable))
     }
 
+    /// The cost messages the recorder's subscriber can hold, less room for re-executions after
+    /// crashes and late twins (`max_workers` + 4), which nobody issues: the most the updater
+    /// lets wait for the recorder (see [`RecorderAck`]). Each worker's publisher has a buffer
+    /// of its own in the subscriber; one is counted, as if one worker sent them all.
+    pub fn recorder_cost_room(&self) -> u64 {
+        (self.cost_buffer() - self.max_workers - 4) as u64
+    }
+
     /// How far the updater may run ahead of the recorder's acknowledgement ([`RecorderAck`]):
     /// at most [`RECORDER_MAX_LAG`] updates, and only as many as the recorder's buffers hold
     /// (L distributions, and the costs of L + 1 updates plus re-executions, which leaves a
     /// margin), so nothing is dropped by safe overflow. At least 1.
     pub fn recorder_max_lag(&self) -> u64 {
         let by_costs =
-            ((self.cost_buffer() - self.max_workers - 4) / self.rollouts.max(1)).saturating_sub(1);
+            (self.recorder_cost_room() as usize / self.rollouts.max(1)).saturating_sub(1);
         RECORDER_MAX_LAG
             .min(self.distribution_buffer() as u64)
             .min(by_costs as u64)
@@ -1208,7 +1224,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
         assert_eq!(std::mem::size_of::<Progress>(), 88 + 8 * MAX_SETTINGS);
-        assert_eq!(std::mem::size_of::<RecorderAck>(), 16);
+        assert_eq!(std::mem::size_of::<RecorderAck>(), 24);
         assert_eq!(std::mem::size_of::<Overdue>(), 56);
         assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);
     }
@@ -1235,6 +1251,11 @@ mod tests {
             let lag = l.recorder_max_lag() as usize;
             assert!(lag <= l.distribution_buffer());
             assert!((lag + 1) * l.rollouts + l.max_workers + 4 <= l.cost_buffer());
+            // Without reruns the count of cost messages never holds the updater (L updates of
+            // K, the next one's K), and a held rerun always goes once the recorder has taken
+            // everything: K rollouts rerun at once fit.
+            assert!(((lag + 1) * l.rollouts) as u64 <= l.recorder_cost_room());
+            assert!(2 * l.rollouts as u64 <= l.recorder_cost_room());
         }
     }
 
