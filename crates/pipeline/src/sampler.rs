@@ -3,10 +3,10 @@
 //! [`wire::Ready`] gets ⌈pending / workers⌉ rollouts, pending as at the start of the hand-out:
 //! equal shares at the start of an update, smaller ones while some workers are still busy
 //! (guided self-scheduling), so a fast worker takes more rollouts than a slow one. When rollouts
-//! are slow, a chunk holds at most [`CHUNK_TIME`] of them (as measured on the chunks before; one
-//! until the first chunk is back), so that work stays queued through the update: a worker that
-//! joins mid-update (a scale-up), or finishes early, takes rollouts of this update instead of
-//! waiting for the next. Rollouts of a
+//! are slow, a chunk holds at most 50 ms of them (`CHUNK_TIME`; as measured on the chunks
+//! before; one until the first chunk is back), so that work stays queued through the update:
+//! a worker that joins mid-update (a scale-up), or finishes early, takes rollouts of this
+//! update instead of waiting for the next. Rollouts of a
 //! lost worker go back to the pending queue. A worker that holds a chunk and shows no progress
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
 //! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
