@@ -906,8 +906,9 @@ impl WriterState {
                 "recorder",
                 pid,
                 &format!(
-                    "update {u} not recorded: {what} never reached the recorder (the services' \
-                 safe overflow dropped them)"
+                    "update {u} not recorded: {what} never reached the recorder (dropped by the \
+                     services' safe overflow, or sent by a worker that exited before the \
+                     recorder connected to it: see \"Nothing lost\" in the README)"
                 ),
             )?;
             self.writer.flush()?;
