@@ -106,6 +106,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let notes_sub = wire::notes(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("notes")?;
     let doorbell = ctx.listener("recorder")?;
     let updater_bell = ctx.notifier("updater")?;
+    let supervisor_bell = ctx.notifier("supervisor")?;
     let acks = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("recorded")?;
 
     let mut writer = match cli.part {
@@ -148,6 +149,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     // distribution taken in), and the cost messages taken in of each update since.
     let mut acked: Option<u64> = None;
     let mut taken = TakenCosts::default();
+    // The newest RECORDER_SYNC asked for, and carried out.
+    let (mut sync_asked, mut synced) = (0u64, 0u64);
     let mut hold = false;
     // For the exit line: rounds of draining and writing, and requests of a held updater.
     let (mut rounds, mut holds) = (0u64, 0u64);
@@ -193,8 +196,14 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             }
         }
         while let Some(s) = iox(control_sub.receive(), "receive control")? {
-            if s.payload().run_id == ctx.run_id {
-                state.handle(Msg::Control(*s.payload()))?;
+            let c = *s.payload();
+            if c.run_id != ctx.run_id {
+                continue;
+            }
+            if c.kind == Control::RECORDER_SYNC {
+                sync_asked = sync_asked.max(c.seq);
+            } else {
+                state.handle(Msg::Control(c))?;
             }
         }
         while let Some(s) = iox(lifecycle_sub.receive(), "receive lifecycle")? {
@@ -217,25 +226,40 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 let _ = updater_bell.notify_with_custom_event_id(wire::WAKE);
             }
         };
-        let ack = |next_update: u64, taken: &mut TakenCosts| {
+        let ack = |next_update: u64, taken: &mut TakenCosts, synced: u64| {
             let ack = wire::RecorderAck {
                 run_id: ctx.run_id,
                 next_update,
                 taken: taken.from(next_update),
+                synced,
             };
             iox(acks.send_copy(ack), "send recorder ack").map(drop)
         };
         state.write_complete(true, &mut |u| {
             acked = Some(u + 1);
-            ack(u + 1, &mut taken)?;
+            ack(u + 1, &mut taken, synced)?;
             if newest.saturating_sub(u + 1) <= lag / 2 {
                 ring_back(&mut hold);
             }
             Ok(())
         })?;
-        // A held updater may wait for cost messages to be taken in, not for an update.
-        if let (true, Some(a)) = (hold, acked) {
-            ack(a, &mut taken)?;
+        if sync_asked > synced {
+            // Connects every subscriber whose service has a publisher it has not seen (what
+            // `has_samples` does first): from now on what they send is kept for this process
+            // even after they exit.
+            for (has, what) in [
+                (costs_sub.has_samples(), "costs subscriber"),
+                (lifecycle_sub.has_samples(), "lifecycle subscriber"),
+            ] {
+                iox(has, what)?;
+            }
+            synced = sync_asked;
+            ack(acked.unwrap_or(0), &mut taken, synced)?;
+            // Not fatal: the supervisor may be exiting.
+            let _ = supervisor_bell.notify_with_custom_event_id(wire::WAKE);
+        } else if let (true, Some(a)) = (hold, acked) {
+            // A held updater may wait for cost messages to be taken in, not for an update.
+            ack(a, &mut taken, synced)?;
         }
         ring_back(&mut hold);
         if state.done() {

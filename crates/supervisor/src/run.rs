@@ -23,7 +23,7 @@ use iceoryx2::prelude::*;
 use pipeline::iox;
 use pipeline::result::RunResult;
 use session::{executable_file, PipelineSection, RunConfig};
-use wire::{Control, Lifecycle, Limits, Overdue, Progress, RunNote, Service};
+use wire::{Control, Lifecycle, Limits, Overdue, Progress, RecorderAck, RunNote, Service};
 
 use crate::control::{self, Command as Cmd, Request};
 use crate::shm::{self, size, SHM_DIR};
@@ -220,7 +220,21 @@ struct Proc {
     stop_by: Option<Instant>,
     /// Killed because it held its chunk too long (`pipeline.rollout_timeout_ms`): why.
     hung: Option<String>,
+    /// When it announced itself: its ports exist from then on.
+    ready_at: Option<Instant>,
+    /// A worker asked to stop whose SIGTERM waits for the recorder to connect to its ports:
+    /// the RECORDER_SYNC it waits for, and until when (see [`Supervisor::stop_worker`]).
+    term_wait: Option<(u64, Instant)>,
     last_line: Arc<Mutex<String>>,
+}
+
+/// The supervisor's [`Control::RECORDER_SYNC`]s: the last number given, the one sent and not
+/// yet carried out (with when it was sent), and the newest the recorder has carried out.
+#[derive(Debug, Default)]
+struct RecorderSync {
+    seq: u64,
+    outstanding: Option<(u64, Instant)>,
+    done: u64,
 }
 
 #[derive(Default)]
@@ -253,6 +267,7 @@ struct Ports {
     lifecycle: Subscriber<Service, Lifecycle, ()>,
     overdue: Subscriber<Service, Overdue, ()>,
     progress: Subscriber<Service, Progress, ()>,
+    recorded: Subscriber<Service, RecorderAck, ()>,
     control: Publisher<Service, Control, ()>,
     notes: Publisher<Service, RunNote, ()>,
     sampler_bell: Notifier<Service>,
@@ -378,6 +393,7 @@ struct Supervisor {
     /// update it takes effect from once the updater has said). A new change is checked with the
     /// settings they and that report give ([`Self::settings_in_force`]).
     unreflected_sets: Vec<(u64, String, f64, Option<u64>)>,
+    recorder_sync: RecorderSync,
     /// The sizes of the run's services (`pipeline::limits` of the config).
     limits: Limits,
     /// `run --no-shm-check`: scale-ups are not checked against /dev/shm either.
@@ -660,6 +676,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         answered_sets: VecDeque::new(),
         pending_sets: Vec::new(),
         unreflected_sets: Vec::new(),
+        recorder_sync: RecorderSync::default(),
         limits,
         no_shm_check: opts.no_shm_check,
         spawned: Default::default(),
@@ -710,6 +727,12 @@ impl Supervisor {
                     .subscriber_builder()
                     .create(),
                 "overdue subscriber",
+            )?,
+            recorded: iox(
+                wire::recorded(&node, self.run_id, limits)?
+                    .subscriber_builder()
+                    .create(),
+                "recorded subscriber",
             )?,
             control: iox(
                 wire::control(&node, self.run_id, limits)?
@@ -804,6 +827,7 @@ impl Supervisor {
                 self.handle(ev)?;
             }
             self.poll_ports()?;
+            self.release_stops()?;
             self.answer_sets(0, None, self.phase == Phase::Stopping);
             self.check_deadlines();
             self.check_stall();
@@ -875,6 +899,11 @@ impl Supervisor {
         d.extend(
             self.procs
                 .values()
+                .filter_map(|p| p.term_wait.map(|(_, t)| t)),
+        );
+        d.extend(
+            self.procs
+                .values()
                 .filter(|p| !p.sigkilled)
                 .filter_map(|p| p.stop_by),
         );
@@ -913,6 +942,97 @@ impl Supervisor {
             signal_group(*pid, libc::SIGKILL);
             p.sigkilled = true;
         }
+    }
+
+    /// Sends worker `pid` SIGTERM, once the recorder has connected to its ports if it may
+    /// not have: iceoryx2 keeps what a departed publisher sent only for subscribers that had
+    /// connected to it, and a recorder connects to a new publisher when it next looks, so a
+    /// worker that joined while the recorder was stalled (stopped, or held in a write) would
+    /// take its last costs and its announcement with it. It asks the recorder to connect
+    /// (RECORDER_SYNC, answered within a millisecond by a running one) and waits at most half
+    /// of `pipeline.shutdown_timeout_ms` ([`Self::release_stops`]).
+    fn stop_worker(&mut self, pid: u32) {
+        let ready_at = self.procs.get(&pid).and_then(|p| p.ready_at);
+        let sync = match ready_at {
+            Some(t) if self.recorder_listening() => self.recorder_sync_after(t),
+            _ => None,
+        };
+        let wait = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
+        match (sync, self.procs.get_mut(&pid)) {
+            (Some(seq), Some(p)) => p.term_wait = Some((seq, Instant::now() + wait)),
+            _ => signal_group(pid, libc::SIGTERM),
+        }
+    }
+
+    /// Whether a recorder is running and will answer a RECORDER_SYNC.
+    fn recorder_listening(&self) -> bool {
+        self.role_pid(Role::Recorder)
+            .and_then(|pid| self.procs.get(&pid))
+            .is_some_and(|p| p.ready && !p.stopping)
+    }
+
+    /// The number of a RECORDER_SYNC sent after `t`: the one not yet carried out if it was,
+    /// else a new one. `None` if it could not be sent.
+    fn recorder_sync_after(&mut self, t: Instant) -> Option<u64> {
+        if let Some((seq, at)) = self.recorder_sync.outstanding {
+            if at >= t {
+                return Some(seq);
+            }
+        }
+        let seq = self.recorder_sync.seq + 1;
+        self.send_control(Control::recorder_sync(self.run_id, seq), false)
+            .ok()?;
+        self.recorder_sync.seq = seq;
+        self.recorder_sync.outstanding = Some((seq, Instant::now()));
+        Some(seq)
+    }
+
+    /// Sends SIGTERM to the workers [`Self::stop_worker`] held back whose RECORDER_SYNC the
+    /// recorder has carried out, or that waited long enough, or whose recorder is gone.
+    fn release_stops(&mut self) -> anyhow::Result<()> {
+        if let Some(ports) = &self.ports {
+            while let Some(a) = iox(ports.recorded.receive(), "receive recorder ack")? {
+                if a.payload().run_id == self.run_id {
+                    self.recorder_sync.done = self.recorder_sync.done.max(a.payload().synced);
+                }
+            }
+        }
+        let done = self.recorder_sync.done;
+        if self
+            .recorder_sync
+            .outstanding
+            .is_some_and(|(seq, _)| seq <= done)
+        {
+            self.recorder_sync.outstanding = None;
+        }
+        let listening = self.recorder_listening();
+        let now = Instant::now();
+        let mut late = Vec::new();
+        for (pid, p) in &mut self.procs {
+            let Some((seq, until)) = p.term_wait else {
+                continue;
+            };
+            if seq > done && listening {
+                if now < until {
+                    continue;
+                }
+                late.push(format!("{} (pid {pid})", p.role.name()));
+            }
+            p.term_wait = None;
+            signal_group(*pid, libc::SIGTERM);
+        }
+        if !late.is_empty() {
+            let text = format!(
+                "the recorder did not say within {} ms (half pipeline.shutdown_timeout_ms) that \
+                 it is connected to {}, which are stopping now: is it stalled? What they sent \
+                 since they started may be missing from the recording",
+                self.pipe.shutdown_timeout_ms / 2,
+                late.join(", ")
+            );
+            say(&format!("warning: {text}"));
+            self.note(RunNote::WARNING, &text);
+        }
+        Ok(())
     }
 
     fn begin_stop(&mut self) {
@@ -1176,7 +1296,11 @@ impl Supervisor {
                     if !p.stopping {
                         p.stopping = true;
                         asked = true;
-                        signal_group(pid, libc::SIGTERM);
+                        if matches!(p.role, Role::Worker(_)) {
+                            self.stop_worker(pid);
+                        } else {
+                            signal_group(pid, libc::SIGTERM);
+                        }
                     }
                 }
                 // Each stage has `shutdown_timeout_ms` of its own, from when it is asked.
@@ -1323,7 +1447,7 @@ impl Supervisor {
                         p.stop_by = Some(
                             Instant::now() + Duration::from_millis(self.pipe.shutdown_timeout_ms),
                         );
-                        signal_group(pid, libc::SIGTERM);
+                        self.stop_worker(pid);
                     }
                 }
             }
@@ -1423,6 +1547,8 @@ impl Supervisor {
                 sigkilled: false,
                 stop_by: None,
                 hung: None,
+                ready_at: None,
+                term_wait: None,
                 last_line,
             },
         );
@@ -1507,6 +1633,7 @@ impl Supervisor {
             }
             if let Some(p) = self.procs.get_mut(&l.pid) {
                 p.ready = true;
+                p.ready_at.get_or_insert_with(Instant::now);
                 if p.role == Role::Recorder {
                     self.recorder_back()?;
                 }

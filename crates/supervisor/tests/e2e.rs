@@ -1183,6 +1183,54 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     assert_nothing_left(&run);
 }
 
+/// Workers that join and are scaled away while the recorder is stopped (SIGSTOP): the
+/// recorder connects to a new publisher only when it next looks, and iceoryx2 keeps what a
+/// departed publisher sent only for subscribers that had connected to it. Before the
+/// supervisor asked the recorder to connect (RECORDER_SYNC) before stopping a worker, such a
+/// run lost whole updates ("update N not recorded: the costs of rollouts […] never reached the
+/// recorder") and every join of the scaled-up workers from the recording.
+#[test]
+fn workers_scaled_up_and_down_while_the_recorder_is_stopped_are_all_recorded() {
+    let scratch = Scratch::new("scale-stopped-recorder");
+    let text = config(&[
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+        ),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "scale.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1910, &cfg, &result);
+    let s = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let recorder = pid_of(&s, "recorder");
+    signal(recorder, "-STOP");
+    run.ctl_ok(&["scale", "--workers", "8"]);
+    let s = run.wait_status("8 workers", |s| {
+        s.contains("workers: 8 running") && !s.contains("(starting)")
+    });
+    // Rollouts for the joined workers: the updater runs on until the lag bound holds it.
+    let at8 = updates_in(&s);
+    run.wait_status("progress with 8 workers", |s| updates_in(s) >= at8 + 2);
+    run.ctl_ok(&["scale", "--workers", "1"]);
+    std::thread::sleep(Duration::from_millis(800));
+    signal(recorder, "-CONT");
+    run.wait_exit(Duration::from_secs(120), 0);
+    assert_eq!(RunResult::read(&result).unwrap().updates, 40);
+    let rec = record::read_recording(&scratch.recording("A1", 1910)).unwrap();
+    let errors: Vec<_> = rec.logs.iter().filter(|l| l.event == "error").collect();
+    assert!(errors.is_empty(), "{errors:#?}");
+    assert_recorded(&rec, 40);
+    for w in 1..8 {
+        let w = format!("worker-{w}");
+        let joined = rec.logs.iter().any(|l| {
+            l.event == "scale" && l.name == w && l.message.contains("joined the running run")
+        });
+        assert!(joined, "{w}: {:#?}", rec.logs);
+    }
+    assert_nothing_left(&run);
+}
+
 /// With slow rollouts (60 ms), a worker that joins mid-update takes rollouts of that update:
 /// the sampler keeps work queued (chunks of at most 50 ms of rollouts) instead of handing out
 /// the whole update at its start, which left a scaled-up worker idle until the next update.

@@ -21,7 +21,7 @@
 //! | `costs` | `[f64]`: immediate costs (N) | [`CostHeader`] | workers → updater |
 //! | `ready` | [`Ready`] | – | workers → sampler |
 //! | `progress` | [`Progress`] | – | updater → supervisor |
-//! | `recorded` | [`RecorderAck`] | – | recorder → updater |
+//! | `recorded` | [`RecorderAck`] | – | recorder → updater, supervisor |
 //! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
 //! | `control` | [`Control`] | – | supervisor → sampler, updater |
 //! | `reruns` | `[u32]`: rejected executions per rollout (K) | [`RerunHeader`] | updater → sampler (only with `run.nonfinite_reruns` > 0) |
@@ -88,7 +88,10 @@
 //! in a new part, and once it has announced itself sends [`Control::RECORDER_BACK`]; the updater,
 //! held meanwhile by the lag bound, counts the lag from the update at hand again. The new
 //! recorder drops what its subscribers held when it announced itself and begins at the first
-//! distribution after, whose costs all follow it.
+//! distribution after, whose costs all follow it. Before it stops a worker, the supervisor
+//! sends [`Control::RECORDER_SYNC`] and waits (at most half of `pipeline.shutdown_timeout_ms`)
+//! for an acknowledgement whose `synced` has reached it: the recorder has then connected to
+//! the worker's ports, and iceoryx2 keeps what the worker sent for it after the worker exits.
 //!
 //! A worker that holds a chunk and sends no cost for longer than `pipeline.rollout_timeout_ms`
 //! (it reports the rollouts it finishes within a chunk with [`Ready::ROLLOUT_DONE`]) is
@@ -348,7 +351,8 @@ impl Progress {
 /// the updater also counts them: it receives every cost message the recorder does, and issues
 /// a distribution or a rerun only while those of updates from `next_update` on, less
 /// `taken`, plus the executions still out, fit in [`Limits::recorder_cost_room`]. So nothing
-/// is dropped by safe overflow, however many reruns there are.
+/// is dropped by safe overflow, however many reruns there are. `synced` is the newest
+/// [`Control::RECORDER_SYNC`] the recorder has carried out (for the supervisor).
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
 #[type_name("pi2cma.RecorderAck.v2")]
@@ -356,6 +360,7 @@ pub struct RecorderAck {
     pub run_id: u64,
     pub next_update: u64,
     pub taken: u64,
+    pub synced: u64,
 }
 
 /// Process roles in [`Lifecycle`].
@@ -532,6 +537,20 @@ impl Control {
     // Kind 6 was a rerun request from the updater, one message per rejected execution: a
     // burst of them overflowed the sampler's buffer, losing requests and hanging the update.
     // Reruns now travel on their own service as a state ([`RerunHeader`]); 6 stays unused.
+    /// Connect to every publisher there is now and say so with [`RecorderAck::synced`] =
+    /// `seq` (recorder), ringing `wake/supervisor`. The supervisor asks it before it stops a
+    /// worker: iceoryx2 keeps what a departed publisher sent only for subscribers that had
+    /// connected to it, so a worker that joined while the recorder was stalled would take its
+    /// last costs and its announcement with it.
+    pub const RECORDER_SYNC: u32 = 7;
+
+    /// [`Self::RECORDER_SYNC`] number `seq`.
+    pub fn recorder_sync(run_id: u64, seq: u64) -> Self {
+        Self {
+            seq,
+            ..Self::plain(run_id, Self::RECORDER_SYNC)
+        }
+    }
 
     /// A message of `kind` without arguments.
     pub fn plain(run_id: u64, kind: u32) -> Self {
@@ -1224,7 +1243,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
         assert_eq!(std::mem::size_of::<Progress>(), 88 + 8 * MAX_SETTINGS);
-        assert_eq!(std::mem::size_of::<RecorderAck>(), 24);
+        assert_eq!(std::mem::size_of::<RecorderAck>(), 32);
         assert_eq!(std::mem::size_of::<Overdue>(), 56);
         assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);
     }

@@ -150,11 +150,12 @@ impl Limits {
         }
 
         // (service, message size, publishers, subscribers): the crate documentation's table
-        // for a run of `w` workers; `recorded` has its updater subscriber with or without one.
+        // for a run of `w` workers; `recorded` has its updater and supervisor subscribers with or
+        // without one.
         let small = [
             (PubSub::Ready, size_of::<Ready>(), w, 1),
             (PubSub::Progress, size_of::<Progress>(), 1, 1),
-            (PubSub::Recorded, size_of::<RecorderAck>(), rec, 1),
+            (PubSub::Recorded, size_of::<RecorderAck>(), rec, 2),
             (
                 PubSub::Lifecycle,
                 size_of::<Lifecycle>(),
