@@ -151,6 +151,9 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let mut taken = TakenCosts::default();
     // The newest RECORDER_SYNC asked for, and carried out.
     let (mut sync_asked, mut synced) = (0u64, 0u64);
+    // The number of the last control message (`Control::sent`), to see what was lost.
+    let mut control_last: Option<u64> = None;
+    let control_buffer = control_sub.buffer_size();
     let mut hold = false;
     // For the exit line: rounds of draining and writing, and requests of a held updater.
     let (mut rounds, mut holds) = (0u64, 0u64);
@@ -199,6 +202,13 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             let c = *s.payload();
             if c.run_id != ctx.run_id {
                 continue;
+            }
+            if c.sent > 0 {
+                let lost = control_last.map_or(0, |last| c.sent.saturating_sub(last + 1));
+                control_last = Some(c.sent);
+                if lost > 0 {
+                    state.control_lost(lost, control_buffer)?;
+                }
             }
             if c.kind == Control::RECORDER_SYNC {
                 sync_asked = sync_asked.max(c.seq);
@@ -792,6 +802,19 @@ impl WriterState {
             after_reruns(tried)
         );
         self.log_at(h.update, Event::Error, &by, 0, &message)
+    }
+
+    /// `lost` messages of the supervisor on `control` overflowed this process's buffer
+    /// (`buffer` of them): health events and task-change requests among them are missing.
+    fn control_lost(&mut self, lost: u64, buffer: usize) -> anyhow::Result<()> {
+        let message = format!(
+            "{lost} message{} of the supervisor on `control` never reached the recorder (its \
+             buffer of {buffer} overflowed: the recorder was stalled): worker exits, scale-downs, \
+             crashes or task-change requests among them are missing from /log",
+            if lost == 1 { "" } else { "s" }
+        );
+        let pid = self.pid;
+        self.log(Event::Error, "recorder", pid, &message)
     }
 
     /// An event on /log at the update at hand. A restarted recorder keeps what comes before

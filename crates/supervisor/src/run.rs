@@ -274,6 +274,8 @@ struct Ports {
     updater_bell: Notifier<Service>,
     /// Rung after every control message, so the recorder logs it when it happens.
     recorder_bell: Notifier<Service>,
+    /// Control messages sent ([`Control::sent`] of the last).
+    control_sent: std::cell::Cell<u64>,
     // Dropped last: ports above belong to it.
     _node: Node<Service>,
 }
@@ -764,6 +766,7 @@ impl Supervisor {
                     .create(),
                 "recorder notifier",
             )?,
+            control_sent: std::cell::Cell::new(0),
             _node: node,
         });
         let tx = self.tx.clone();
@@ -1594,7 +1597,12 @@ impl Supervisor {
         let Some(ports) = &self.ports else {
             return Ok(());
         };
-        iox(ports.control.send_copy(msg), "send control")?;
+        let sent = ports.control_sent.get() + 1;
+        ports.control_sent.set(sent);
+        iox(
+            ports.control.send_copy(Control { sent, ..msg }),
+            "send control",
+        )?;
         let bell = if to_updater {
             &ports.updater_bell
         } else {

@@ -1231,6 +1231,51 @@ fn workers_scaled_up_and_down_while_the_recorder_is_stopped_are_all_recorded() {
     assert_nothing_left(&run);
 }
 
+/// The supervisor's `control` messages beyond the recorder's buffer (2 · max_workers + 16 =
+/// 48) are dropped while the recorder is stopped: the recording says how many were lost
+/// (they are numbered, `Control::sent`), instead of silently missing their events.
+#[test]
+fn control_messages_a_stopped_recorder_missed_are_counted_in_the_recording() {
+    let scratch = Scratch::new("control-overflow");
+    let text = config(&[DELAYED]);
+    let cfg = write_config(&scratch, "sets.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1911, &cfg, &result);
+    let s = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let recorder = pid_of(&s, "recorder");
+    signal(recorder, "-STOP");
+    for i in 0..60 {
+        let value = if i % 2 == 0 { "0.2" } else { "0.25" };
+        run.ctl_ok(&["set", "viapoint", value]);
+    }
+    signal(recorder, "-CONT");
+    run.wait_exit(Duration::from_secs(60), 0);
+    let rec = record::read_recording(&scratch.recording("A1", 1911)).unwrap();
+    let requested = rec
+        .logs
+        .iter()
+        .filter(|l| l.message.starts_with("task change requested"))
+        .count();
+    let lost: Vec<u64> = rec
+        .logs
+        .iter()
+        .filter(|l| l.event == "error")
+        .filter_map(|l| {
+            let (n, rest) = l.message.split_once(' ')?;
+            rest.contains("of the supervisor on `control` never reached the recorder")
+                .then(|| n.parse().ok())?
+        })
+        .collect();
+    assert!(requested < 60, "none lost: {requested} requests logged");
+    assert_eq!(
+        lost.iter().sum::<u64>() as usize,
+        60 - requested,
+        "{:#?}",
+        rec.logs
+    );
+    assert_nothing_left(&run);
+}
+
 /// With slow rollouts (60 ms), a worker that joins mid-update takes rollouts of that update:
 /// the sampler keeps work queued (chunks of at most 50 ms of rollouts) instead of handing out
 /// the whole update at its start, which left a scaled-up worker idle until the next update.

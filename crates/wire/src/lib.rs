@@ -472,7 +472,7 @@ pub struct Overdue {
 /// A command from the supervisor.
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Control.v3")]
+#[type_name("pi2cma.Control.v4")]
 pub struct Control {
     pub run_id: u64,
     pub kind: u32,
@@ -491,8 +491,12 @@ pub struct Control {
     pub name: [u8; MAX_NAME],
     pub value: f64,
     /// For [`Control::SET_TASK`]: the sender's number for the change (from 1), echoed in
-    /// [`Progress::last_change_seq`].
+    /// [`Progress::last_change_seq`]; for [`Control::RECORDER_SYNC`], the sync's number.
     pub seq: u64,
+    /// The supervisor numbers every message it sends, from 1: a subscriber that sees a gap
+    /// lost messages to the safe overflow of its buffer (a recorder stalled for long); 0 from
+    /// a sender that does not number them.
+    pub sent: u64,
 }
 
 /// Header of a `reruns` sample, from the updater. Payload: for each of the K rollouts of
@@ -1241,7 +1245,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<CostHeader>(), 56 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
-        assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 16);
+        assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 24);
         assert_eq!(std::mem::size_of::<Progress>(), 88 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 32);
         assert_eq!(std::mem::size_of::<Overdue>(), 56);

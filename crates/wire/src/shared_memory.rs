@@ -351,7 +351,8 @@ mod tests {
         assert_eq!(chunk_bytes::<CostHeader>(8 * 101, 8), 976);
         assert_eq!(chunk_bytes::<DistributionHeader>(8 * 6, 8), 280);
         assert_eq!(chunk_bytes::<WorkHeader>(8 * 2, 8), 240);
-        assert_eq!(chunk_bytes::<()>(size_of::<Control>(), 8), 128);
+        // Control (88 B since `sent`): its segment of 202 chunks was 28 430 bytes (2026-11-24).
+        assert_eq!(chunk_bytes::<()>(size_of::<Control>(), 8), 136);
         let via_point = Limits {
             max_workers: 16,
             rollouts: 15,
