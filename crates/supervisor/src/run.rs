@@ -956,11 +956,12 @@ impl Supervisor {
     /// of `pipeline.shutdown_timeout_ms` ([`Self::release_stops`]).
     fn stop_worker(&mut self, pid: u32) {
         let ready_at = self.procs.get(&pid).and_then(|p| p.ready_at);
+        let wait = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
+        // A shutdown timeout of 1 ms leaves no time to wait in.
         let sync = match ready_at {
-            Some(t) if self.recorder_listening() => self.recorder_sync_after(t),
+            Some(t) if !wait.is_zero() && self.recorder_listening() => self.recorder_sync_after(t),
             _ => None,
         };
-        let wait = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
         match (sync, self.procs.get_mut(&pid)) {
             (Some(seq), Some(p)) => p.term_wait = Some((seq, Instant::now() + wait)),
             _ => signal_group(pid, libc::SIGTERM),
