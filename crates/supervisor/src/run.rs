@@ -235,6 +235,8 @@ struct RecorderSync {
     seq: u64,
     outstanding: Option<(u64, Instant)>,
     done: u64,
+    /// The newest acknowledgement's `next_update`: every update before it is written.
+    written: Option<u64>,
 }
 
 #[derive(Default)]
@@ -994,13 +996,7 @@ impl Supervisor {
     /// Sends SIGTERM to the workers [`Self::stop_worker`] held back whose RECORDER_SYNC the
     /// recorder has carried out, or that waited long enough, or whose recorder is gone.
     fn release_stops(&mut self) -> anyhow::Result<()> {
-        if let Some(ports) = &self.ports {
-            while let Some(a) = iox(ports.recorded.receive(), "receive recorder ack")? {
-                if a.payload().run_id == self.run_id {
-                    self.recorder_sync.done = self.recorder_sync.done.max(a.payload().synced);
-                }
-            }
-        }
+        self.drain_recorder_acks()?;
         let done = self.recorder_sync.done;
         if self
             .recorder_sync
@@ -1035,6 +1031,23 @@ impl Supervisor {
             );
             say(&format!("warning: {text}"));
             self.note(RunNote::WARNING, &text);
+        }
+        Ok(())
+    }
+
+    /// Takes in the recorder's acknowledgements (only the newest few are kept: each carries
+    /// everything this process reads of them).
+    fn drain_recorder_acks(&mut self) -> anyhow::Result<()> {
+        let Some(ports) = &self.ports else {
+            return Ok(());
+        };
+        let sync = &mut self.recorder_sync;
+        while let Some(a) = iox(ports.recorded.receive(), "receive recorder ack")? {
+            let a = a.payload();
+            if a.run_id == self.run_id {
+                sync.done = sync.done.max(a.synced);
+                sync.written = sync.written.max(Some(a.next_update));
+            }
         }
         Ok(())
     }
@@ -1847,7 +1860,11 @@ impl Supervisor {
 
     fn command(&mut self, cmd: Cmd) -> Result<String, String> {
         match cmd {
-            Cmd::Status => Ok(self.status()),
+            Cmd::Status => {
+                // The recorder's progress as of now, not of the last loop round.
+                self.drain_recorder_acks().map_err(|e| format!("{e:#}"))?;
+                Ok(self.status())
+            }
             Cmd::Stop => {
                 if self.outcome.is_none() {
                     self.outcome = Some(Outcome::Stopped);
@@ -2092,12 +2109,25 @@ impl Supervisor {
                     }
                     (n, _) => format!(" (the recorder was restarted {n} time(s))"),
                 };
+                // A stalled recorder holds the updater back: this says which of the two lags.
+                let written = match (self.recorder_sync.written, &self.progress) {
+                    (None | Some(0), _) => String::new(),
+                    (Some(n), p) => format!(
+                        "; written through update {}{}",
+                        n - 1,
+                        // Progress comes every 200 ms: the recorder may be ahead of it.
+                        p.map_or(String::new(), |p| match p.updates.saturating_sub(n) {
+                            0 => ", up to date".to_string(),
+                            behind => format!(", {behind} behind the updater"),
+                        })
+                    ),
+                };
                 // By its number: earlier parts may have been archived meanwhile.
                 let last = record::last_part(&r.path);
                 match record::part_number(&last) {
-                    1 => format!("recording: {}{restarted}\n", last.display()),
+                    1 => format!("recording: {}{restarted}{written}\n", last.display()),
                     n => format!(
-                        "recording: {}, part {n} of the recording begun in {}{restarted}\n",
+                        "recording: {}, part {n} of the recording begun in {}{restarted}{written}\n",
                         last.display(),
                         r.path.display()
                     ),

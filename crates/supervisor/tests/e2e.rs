@@ -1248,6 +1248,15 @@ fn control_messages_a_stopped_recorder_missed_are_counted_in_the_recording() {
         let value = if i % 2 == 0 { "0.2" } else { "0.25" };
         run.ctl_ok(&["set", "viapoint", value]);
     }
+    // `status` shows that the recorder is what holds the run.
+    let s = run.wait_status("the recorder behind", |s| {
+        s.lines()
+            .find(|l| l.starts_with("recording: "))
+            .and_then(|l| l.split(", ").last()?.strip_suffix(" behind the updater"))
+            .and_then(|n| n.parse::<u64>().ok())
+            .is_some_and(|n| n >= 10)
+    });
+    assert!(s.contains("; written through update "), "{s}");
     signal(recorder, "-CONT");
     run.wait_exit(Duration::from_secs(60), 0);
     let rec = record::read_recording(&scratch.recording("A1", 1911)).unwrap();
