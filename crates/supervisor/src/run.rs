@@ -856,8 +856,9 @@ impl Supervisor {
     }
 
     /// A run without updates for [`Self::stall_after`] is reported once (until updates go on):
-    /// a hung worker without `rollout_timeout_ms`, a stopped recorder that holds the updater,
-    /// a robot waiting for its operator. Nothing is killed; `status` shows the age as well.
+    /// a hung worker without `rollout_timeout_ms`, a stopped recorder that holds the updater
+    /// (named as such when its acknowledgements lag the updates), a robot waiting for its
+    /// operator. Nothing is killed; `status` shows the age as well.
     fn check_stall(&mut self) {
         let Some(at) = self.last_update_at else {
             return;
@@ -882,9 +883,28 @@ impl Supervisor {
             Some(p) => format!("since update {}", p.updates),
             None => "since the start".to_string(),
         };
+        // The recorder's acknowledgements tell whether it is what holds the updater back.
+        let _ = self.drain_recorder_acks();
+        let behind = match (self.recorder_sync.written, &self.progress) {
+            (Some(w), Some(p)) if self.recorder_listening() && w < p.updates => {
+                Some((w, p.updates - w))
+            }
+            _ => None,
+        };
+        let who = match behind {
+            Some((w, n)) => format!(
+                "the recorder has written only {}({n} behind the updater, which it holds back): is \
+                 it stopped, or is its disk slow?",
+                if w == 0 {
+                    "nothing ".to_string()
+                } else {
+                    format!("through update {} ", w - 1)
+                }
+            ),
+            None => format!("a worker may hang ({timeout})"),
+        };
         let text = format!(
-            "no update for {:.0} s {since}: a worker or the recorder may hang ({timeout}); \
-             `supervisor status` shows the processes",
+            "no update for {:.0} s {since}: {who}; `supervisor status` shows the processes",
             at.elapsed().as_secs_f64(),
         );
         say(&format!("warning: {text}"));

@@ -2487,6 +2487,12 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
     signal_all("-STOP");
     let end = Instant::now() + Duration::from_secs(30);
     run.wait_output("warning: no update for", end);
+    // The recorder has written everything: the warning does not blame it.
+    assert!(
+        run.text().contains(": a worker may hang ("),
+        "{}",
+        run.text()
+    );
     let (_, status) = run.ctl(&["status"]);
     let age: f64 = status
         .split(", the last ")
@@ -2504,6 +2510,39 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
         l.event == "warning" && l.name == "supervisor" && l.message.starts_with("no update for")
     });
     assert!(warned, "{:#?}", rec.logs);
+    assert_nothing_left(&run);
+}
+
+/// A recorder that stops (SIGSTOP) holds the updater back: the stall warning names it, with
+/// how far it has written, instead of "a worker or the recorder may hang".
+#[test]
+fn a_stopped_recorder_is_named_in_the_stall_warning() {
+    let scratch = Scratch::new("stall-recorder");
+    let text = config(&[UNBOUNDED, DELAYED]);
+    let cfg = write_config(&scratch, "stall-recorder.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1912, &cfg, &result);
+    let status = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let recorder = pid_of(&status, "recorder");
+    signal(recorder, "-STOP");
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output("warning: no update for", end);
+    let text = run.text();
+    let warning = text
+        .lines()
+        .find(|l| l.contains("warning: no update for"))
+        .unwrap();
+    assert!(
+        warning.contains(": the recorder has written only through update ")
+            && warning.contains(
+                " behind the updater, which it holds back): is it stopped, or is its disk slow?"
+            ),
+        "{warning}"
+    );
+    signal(recorder, "-CONT");
+    run.wait_output("updates go on: update", end);
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
     assert_nothing_left(&run);
 }
 
