@@ -1231,6 +1231,33 @@ fn workers_scaled_up_and_down_while_the_recorder_is_stopped_are_all_recorded() {
     assert_nothing_left(&run);
 }
 
+/// N = 20 001 steps (K = 15): the 16 MiB budget of the cost buffers holds less than three
+/// updates' costs, and the recorder's lag bound came out as 1 update. But the recorder writes
+/// update u only once it has the distribution of u + 1, which a bound of 1 held back: the run
+/// stopped after its first update for good ("no update for 10 s since update 1"). The bound is
+/// at least 2 now, the buffers sized for it.
+#[test]
+fn a_recorded_run_with_very_long_rollouts_goes_on() {
+    let scratch = Scratch::new("long-rollouts");
+    let text = config(&[
+        ("updates = 40", "updates = 10"),
+        ("dt = 0.01", "dt = 0.00005"),
+    ]);
+    let cfg = write_config(&scratch, "long.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 1913, &cfg, &result);
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert!(
+        run.text()
+            .contains("the updater stays at most 2 updates ahead of it"),
+        "{}",
+        run.text()
+    );
+    let rec = record::read_recording(&scratch.recording("A1", 1913)).unwrap();
+    assert_recorded(&rec, 10);
+    assert_nothing_left(&run);
+}
+
 /// The supervisor's `control` messages beyond the recorder's buffer (2 · max_workers + 16 =
 /// 48) are dropped while the recorder is stopped: the recording says how many were lost
 /// (they are numbered, `Control::sent`), instead of silently missing their events.

@@ -713,9 +713,10 @@ impl Limits {
 
     /// Cost samples a subscriber can hold: one per rollout plus re-executions after a crash, and
     /// room for the recorder's lag: [`RECORDER_SLACK_UPDATES`] updates' worth, as far as
-    /// [`SEGMENT_BUDGET_BYTES`] allows (the lag bound shrinks to what fits).
+    /// [`SEGMENT_BUDGET_BYTES`] allows (the lag bound shrinks to what fits), and never less
+    /// than the least lag bound, [`MIN_RECORDER_LAG`] updates, needs.
     fn cost_buffer(&self) -> usize {
-        let needed = 2 * self.rollouts + self.max_workers + 4;
+        let needed = (MIN_RECORDER_LAG as usize + 1) * self.rollouts + self.max_workers + 4;
         let slack = RECORDER_SLACK_UPDATES * self.rollouts;
         let affordable = SEGMENT_BUDGET_BYTES / (2 * 8 * self.steps.max(1));
         needed.max(slack.min(affordable))
@@ -739,16 +740,22 @@ impl Limits {
     /// How far the updater may run ahead of the recorder's acknowledgement ([`RecorderAck`]):
     /// at most [`RECORDER_MAX_LAG`] updates, and only as many as the recorder's buffers hold
     /// (L distributions, and the costs of L + 1 updates plus re-executions, which leaves a
-    /// margin), so nothing is dropped by safe overflow. At least 1.
+    /// margin), so nothing is dropped by safe overflow. At least [`MIN_RECORDER_LAG`].
     pub fn recorder_max_lag(&self) -> u64 {
         let by_costs =
             (self.recorder_cost_room() as usize / self.rollouts.max(1)).saturating_sub(1);
         RECORDER_MAX_LAG
             .min(self.distribution_buffer() as u64)
             .min(by_costs as u64)
-            .max(1)
+            .max(MIN_RECORDER_LAG)
     }
 }
+
+/// The least lag bound that lets a run go on: the recorder writes update u once it has the
+/// distribution of u + 1 (the update's "after"), so the updater must be allowed to publish
+/// u + 1 while u is not yet acknowledged. A bound of 1 (what the buffers allowed from about
+/// N = 20 000 steps at K = 15) held the run after its first update for good.
+pub const MIN_RECORDER_LAG: u64 = 2;
 
 /// The updater rings an idle recorder at most this often; in return, a recorder that took in
 /// anything in its last round waits at most this long before it looks again, so an update
@@ -1270,7 +1277,16 @@ mod tests {
         };
         assert_eq!(large.distribution_buffer(), 4);
         assert_eq!(large.recorder_max_lag(), 4);
-        for l in [via_point, large] {
+        // Long rollouts: the 16 MiB budget holds 52 cost messages of N = 20 001 steps, less
+        // than 3 updates' worth; the buffer is made large enough for the least lag anyway.
+        let long = Limits {
+            max_workers: 16,
+            rollouts: 15,
+            dim: 2,
+            steps: 20_001,
+        };
+        assert_eq!(long.recorder_max_lag(), MIN_RECORDER_LAG);
+        for l in [via_point, large, long] {
             let lag = l.recorder_max_lag() as usize;
             assert!(lag <= l.distribution_buffer());
             assert!((lag + 1) * l.rollouts + l.max_workers + 4 <= l.cost_buffer());
