@@ -386,6 +386,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
             reruns.clear();
+            // A rerun held back while a twin completed the rollout is not wanted any more.
+            reruns_unissued = 0;
             // A refusal is reported at once: `supervisor status` shows it.
             let news = RanWith::settle(
                 &mut ran_with,
@@ -783,9 +785,9 @@ impl RecorderLink {
     /// counted from update `count_from`: a restarted recorder begins at the first distribution
     /// published after it announced itself, so the update whose distribution is out already is
     /// not counted. (If that distribution went out between the announcement and RECORDER_BACK,
-    /// the recorder takes in that update's costs uncounted; they fit its buffer unless the
-    /// update reruns more than K + 4 executions — within the update in flight, the most a
-    /// recorder's restart may lose.)
+    /// the recorder takes in that update's costs uncounted, beside up to the room's worth of
+    /// counted ones; only their excess over the margin of `max_workers` + 4 can overflow its
+    /// buffer — within the update in flight, the most a recorder's restart may lose.)
     fn attach_if_running(&mut self, first_update: u64, count_from: u64) {
         self.attached = self.service.dynamic_config().number_of_publishers() > 0;
         self.next_update = first_update;
@@ -977,16 +979,23 @@ impl UnrecordedCosts {
 
     /// The most cost messages that can be waiting in the recorder's buffer: those received of
     /// the updates it has not written, less those it has taken in, plus the executions of the
-    /// update in progress that have not reported yet.
+    /// update in progress that have not reported yet. None of an update before `counted_from`
+    /// (written, or not counted after a restart): its executions are not waited for.
     fn waiting(&self) -> u64 {
         let received: u64 = self.received.iter().sum();
         let (u, issued) = self.issued;
-        let of_u = u
-            .checked_sub(self.counted_from)
-            .and_then(|i| self.received.get(usize::try_from(i).ok()?))
-            .copied()
-            .unwrap_or(0);
-        (received + issued.saturating_sub(of_u)).saturating_sub(self.taken)
+        let out = match u.checked_sub(self.counted_from) {
+            Some(i) => {
+                let of_u = usize::try_from(i)
+                    .ok()
+                    .and_then(|i| self.received.get(i))
+                    .copied()
+                    .unwrap_or(0);
+                issued.saturating_sub(of_u)
+            }
+            None => 0,
+        };
+        (received + out).saturating_sub(self.taken)
     }
 
     /// Whether `n` more executions fit.
@@ -1049,6 +1058,19 @@ mod tests {
         assert_eq!(c.waiting(), 10);
         c.acknowledged(8, 4);
         assert_eq!(c.waiting(), 6);
+    }
+
+    /// Reruns of the update that was under way when a restarted recorder attached are not
+    /// counted, like its costs: counted as executions still out, they held the next
+    /// distribution for good once they were more than the room less K.
+    #[test]
+    fn unrecorded_costs_do_not_wait_for_an_update_they_do_not_count() {
+        let mut c = UnrecordedCosts::new(30, 10);
+        c.attach(7, 8);
+        c.issued(7, 25);
+        (0..35).for_each(|_| c.received(7));
+        assert_eq!(c.waiting(), 0);
+        assert!(c.fit(10));
     }
 
     fn reach() -> tasks::External {

@@ -892,14 +892,11 @@ impl Supervisor {
             _ => None,
         };
         let who = match behind {
+            // `written` is never 0 (see `drain_recorder_acks`).
             Some((w, n)) => format!(
-                "the recorder has written only {}({n} behind the updater, which it holds back): is \
-                 it stopped, or is its disk slow?",
-                if w == 0 {
-                    "nothing ".to_string()
-                } else {
-                    format!("through update {} ", w - 1)
-                }
+                "the recorder has written only through update {} ({n} behind the updater, which \
+                 it holds back): is it stopped, or is its disk slow?",
+                w.saturating_sub(1)
             ),
             None => format!("a worker may hang ({timeout})"),
         };
@@ -977,12 +974,19 @@ impl Supervisor {
     /// (RECORDER_SYNC, answered within a millisecond by a running one) and waits at most half
     /// of `pipeline.shutdown_timeout_ms` ([`Self::release_stops`]).
     fn stop_worker(&mut self, pid: u32) {
-        let ready_at = self.procs.get(&pid).and_then(|p| p.ready_at);
+        // A worker not yet seen to be ready may have announced itself just now: a sync sent
+        // from now on covers whatever ports it has.
+        let since = self
+            .procs
+            .get(&pid)
+            .and_then(|p| p.ready_at)
+            .unwrap_or_else(Instant::now);
         let wait = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
         // A shutdown timeout of 1 ms leaves no time to wait in.
-        let sync = match ready_at {
-            Some(t) if !wait.is_zero() && self.recorder_listening() => self.recorder_sync_after(t),
-            _ => None,
+        let sync = if !wait.is_zero() && self.recorder_listening() {
+            self.recorder_sync_after(since)
+        } else {
+            None
         };
         match (sync, self.procs.get_mut(&pid)) {
             (Some(seq), Some(p)) => p.term_wait = Some((seq, Instant::now() + wait)),
@@ -1000,8 +1004,13 @@ impl Supervisor {
     /// The number of a RECORDER_SYNC sent after `t`: the one not yet carried out if it was,
     /// else a new one. `None` if it could not be sent.
     fn recorder_sync_after(&mut self, t: Instant) -> Option<u64> {
+        // One sent to a recorder that has died since is never answered.
+        let recorder_ready = self
+            .role_pid(Role::Recorder)
+            .and_then(|pid| self.procs.get(&pid))
+            .and_then(|p| p.ready_at);
         if let Some((seq, at)) = self.recorder_sync.outstanding {
-            if at >= t {
+            if at >= t && recorder_ready.is_some_and(|r| at >= r) {
                 return Some(seq);
             }
         }
@@ -1040,6 +1049,14 @@ impl Supervisor {
             }
             p.term_wait = None;
             signal_group(*pid, libc::SIGTERM);
+            // The whole shutdown timeout from the SIGTERM, as without the wait.
+            let grace = now + Duration::from_millis(self.pipe.shutdown_timeout_ms);
+            if p.stop_by.is_some() {
+                p.stop_by = Some(grace);
+            }
+            if self.phase == Phase::Stopping {
+                self.phase_deadline = self.phase_deadline.max(Some(grace));
+            }
         }
         if !late.is_empty() {
             let text = format!(
@@ -1066,7 +1083,10 @@ impl Supervisor {
             let a = a.payload();
             if a.run_id == self.run_id {
                 sync.done = sync.done.max(a.synced);
-                sync.written = sync.written.max(Some(a.next_update));
+                // 0 comes from a recorder that has taken in no distribution yet.
+                if a.next_update > 0 {
+                    sync.written = sync.written.max(Some(a.next_update));
+                }
             }
         }
         Ok(())
