@@ -220,7 +220,8 @@ struct Proc {
     stop_by: Option<Instant>,
     /// Killed because it held its chunk too long (`pipeline.rollout_timeout_ms`): why.
     hung: Option<String>,
-    /// When it announced itself: its ports exist from then on.
+    /// When it was started, and when it announced itself (its ports exist from then on).
+    spawned_at: Instant,
     ready_at: Option<Instant>,
     /// A worker asked to stop whose SIGTERM waits for the recorder to connect to its ports:
     /// the RECORDER_SYNC it waits for, and until when (see [`Supervisor::stop_worker`]).
@@ -975,12 +976,15 @@ impl Supervisor {
     /// of `pipeline.shutdown_timeout_ms` ([`Self::release_stops`]).
     fn stop_worker(&mut self, pid: u32) {
         // A worker not yet seen to be ready may have announced itself just now: a sync sent
-        // from now on covers whatever ports it has.
-        let since = self
+        // after it was started covers the ports it had by then (one sync for all of a batch).
+        let Some(since) = self
             .procs
             .get(&pid)
-            .and_then(|p| p.ready_at)
-            .unwrap_or_else(Instant::now);
+            .map(|p| p.ready_at.unwrap_or(p.spawned_at))
+        else {
+            signal_group(pid, libc::SIGTERM);
+            return;
+        };
         let wait = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
         // A shutdown timeout of 1 ms leaves no time to wait in.
         let sync = if !wait.is_zero() && self.recorder_listening() {
@@ -1604,6 +1608,7 @@ impl Supervisor {
                 sigkilled: false,
                 stop_by: None,
                 hung: None,
+                spawned_at: Instant::now(),
                 ready_at: None,
                 term_wait: None,
                 last_line,

@@ -1073,7 +1073,7 @@ pub fn work(
 }
 
 /// `costs`: 2·max_workers + 2 publishers, 2 subscribers (updater, recorder), a buffer of
-/// 2K + max_workers + 4, raised towards 32·K for the recorder (see `Limits::cost_buffer`).
+/// 3K + max_workers + 4, raised towards 32·K for the recorder (see `Limits::cost_buffer`).
 /// Publishers use `initial_max_slice_len(N)`.
 pub fn costs(
     node: &Node<Service>,
