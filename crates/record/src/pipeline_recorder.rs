@@ -257,12 +257,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             // Connects every subscriber whose service has a publisher it has not seen (what
             // `has_samples` does first): from now on what they send is kept for this process
             // even after they exit.
-            for (has, what) in [
-                (costs_sub.has_samples(), "costs subscriber"),
-                (lifecycle_sub.has_samples(), "lifecycle subscriber"),
-            ] {
-                iox(has, what)?;
-            }
+            iox(costs_sub.has_samples(), "costs subscriber")?;
+            iox(lifecycle_sub.has_samples(), "lifecycle subscriber")?;
             synced = sync_asked;
             ack(acked.unwrap_or(0), &mut taken, synced)?;
             // Not fatal: the supervisor may be exiting.

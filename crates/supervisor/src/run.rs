@@ -886,20 +886,12 @@ impl Supervisor {
         };
         // The recorder's acknowledgements tell whether it is what holds the updater back.
         let _ = self.drain_recorder_acks();
-        let behind = match (self.recorder_sync.written, &self.progress) {
-            (Some(w), Some(p)) if self.recorder_listening() && w < p.updates => {
-                Some((w, p.updates - w))
-            }
-            _ => None,
-        };
-        let who = match behind {
-            // `written` is never 0 (see `drain_recorder_acks`).
-            Some((w, n)) => format!(
-                "the recorder has written only through update {} ({n} behind the updater, which \
-                 it holds back): is it stopped, or is its disk slow?",
-                w.saturating_sub(1)
+        let who = match self.recorder_written() {
+            Some((last, Some(n))) if n > 0 && self.recorder_listening() => format!(
+                "the recorder has written only through update {last} ({n} behind the updater, \
+                 which it holds back): is it stopped, or is its disk slow?"
             ),
-            None => format!("a worker may hang ({timeout})"),
+            _ => format!("a worker may hang ({timeout})"),
         };
         let text = format!(
             "no update for {:.0} s {since}: {who}; `supervisor status` shows the processes",
@@ -998,21 +990,31 @@ impl Supervisor {
         }
     }
 
-    /// Whether a recorder is running and will answer a RECORDER_SYNC.
-    fn recorder_listening(&self) -> bool {
+    fn recorder(&self) -> Option<&Proc> {
         self.role_pid(Role::Recorder)
             .and_then(|pid| self.procs.get(&pid))
-            .is_some_and(|p| p.ready && !p.stopping)
+    }
+
+    /// Whether a recorder is running and will answer a RECORDER_SYNC.
+    fn recorder_listening(&self) -> bool {
+        self.recorder().is_some_and(|p| p.ready && !p.stopping)
+    }
+
+    /// The last update the recorder has written, and how many updates the updater's last
+    /// report is ahead of it (none if there was no report; 0 if the recorder is ahead of the
+    /// report, which comes every 200 ms).
+    fn recorder_written(&self) -> Option<(u64, Option<u64>)> {
+        // `written` is never 0 (see `drain_recorder_acks`).
+        let n = self.recorder_sync.written?;
+        let behind = self.progress.map(|p| p.updates.saturating_sub(n));
+        Some((n - 1, behind))
     }
 
     /// The number of a RECORDER_SYNC sent after `t`: the one not yet carried out if it was,
     /// else a new one. `None` if it could not be sent.
     fn recorder_sync_after(&mut self, t: Instant) -> Option<u64> {
         // One sent to a recorder that has died since is never answered.
-        let recorder_ready = self
-            .role_pid(Role::Recorder)
-            .and_then(|pid| self.procs.get(&pid))
-            .and_then(|p| p.ready_at);
+        let recorder_ready = self.recorder().and_then(|p| p.ready_at);
         if let Some((seq, at)) = self.recorder_sync.outstanding {
             if at >= t && recorder_ready.is_some_and(|r| at >= r) {
                 return Some(seq);
@@ -2155,16 +2157,15 @@ impl Supervisor {
                     (n, _) => format!(" (the recorder was restarted {n} time(s))"),
                 };
                 // A stalled recorder holds the updater back: this says which of the two lags.
-                let written = match (self.recorder_sync.written, &self.progress) {
-                    (None | Some(0), _) => String::new(),
-                    (Some(n), p) => format!(
-                        "; written through update {}{}",
-                        n - 1,
-                        // Progress comes every 200 ms: the recorder may be ahead of it.
-                        p.map_or(String::new(), |p| match p.updates.saturating_sub(n) {
-                            0 => ", up to date".to_string(),
-                            behind => format!(", {behind} behind the updater"),
-                        })
+                let written = match self.recorder_written() {
+                    None => String::new(),
+                    Some((last, behind)) => format!(
+                        "; written through update {last}{}",
+                        match behind {
+                            None => String::new(),
+                            Some(0) => ", up to date".to_string(),
+                            Some(n) => format!(", {n} behind the updater"),
+                        }
                     ),
                 };
                 // By its number: earlier parts may have been archived meanwhile.
