@@ -694,3 +694,55 @@ fn a_large_policy_run_ends_and_says_its_reference_search_stopped_at_its_budget()
     );
     assert!(!stdout.contains("budget"), "{stdout}");
 }
+
+/// `rollout_delay_ms` stands in for a slow robot. The reference search after the last update
+/// ran the task with that delay too: hundreds of rollouts per start, so `pi2cma run` printed its
+/// last update and then nothing for minutes (here ≥ 2 × 240 × 0.2 s). The search needs only the
+/// cost, so it runs without the delay; the run takes 2 × 4 × 0.2 s of rollouts and its summary.
+#[test]
+fn a_run_with_slow_rollouts_summarises_without_waiting_for_them_again() {
+    let d = scratch("slow-rollouts-summary");
+    let text = session::DEFAULT_CONFIG
+        .replace("rollouts = 15", "rollouts = 4")
+        .replace("from_update = 20", "from_update = 1")
+        .replace(
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 200",
+        );
+    std::fs::write(d.join("slow.toml"), text).expect("write config");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args([
+            "run",
+            "slow.toml",
+            "--updates",
+            "2",
+            "--quiet",
+            "--no-record",
+        ])
+        .args(["--out", "slow"])
+        .current_dir(&d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("pi2cma starts");
+    let t = std::time::Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t.elapsed() > std::time::Duration::from_secs(40) {
+            let _ = child.kill();
+            let out = child.wait_with_output().expect("output");
+            panic!(
+                "pi2cma run still running after 40 s; it printed:\n{}",
+                String::from_utf8_lossy(&out.stdout)
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let out = child.wait_with_output().expect("output");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.lines().any(|l| l.starts_with("| A1 |")), "{stdout}");
+}
