@@ -41,8 +41,9 @@ pub struct RunOptions {
     #[arg(long, value_parser = pipeline::parse_run_id)]
     pub run_id: Option<u64>,
     /// Directory holding the `updater`, `sampler` and `rollout-worker` binaries, and
-    /// optionally `recorder` (default: the supervisor's own directory if they are there;
-    /// whatever is missing, the supervisor's own executable hosts).
+    /// optionally `recorder` (else the supervisor's own executable runs it); each of the
+    /// three must be there. Without it: the supervisor's own directory if all three are there,
+    /// else the supervisor's own executable runs every role.
     #[arg(long)]
     pub bin_dir: Option<PathBuf>,
     /// Also write the result (final distribution with exact bits) to this file.
@@ -182,7 +183,14 @@ impl Binaries {
             for b in BINARIES {
                 let p = dir.join(b);
                 if !p.exists() {
-                    bail!("missing binary `{b}`: {} does not exist", p.display());
+                    bail!(
+                        "missing binary `{b}`: {} does not exist (--bin-dir {} must hold {}; \
+                         without --bin-dir the supervisor runs them from its own directory, \
+                         or its own executable runs them)",
+                        p.display(),
+                        dir.display(),
+                        BINARIES.join(", ")
+                    );
                 }
                 // Found now rather than when it is started, after the processes before it.
                 if !executable_file(&p) {
@@ -2214,9 +2222,13 @@ impl Supervisor {
                         p.last_refused_update
                     ),
                 };
+                // The updater reports every 200 ms; the recorder acknowledges each update it
+                // writes, so it can be ahead of the report, and "written through update 16" above
+                // "updates: 15" read as a contradiction.
+                let updates = p.updates.max(self.recorder_sync.written.unwrap_or(0));
                 s += &format!(
                     "updates: {} of {}, {:.1} updates/s, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n{refused}",
-                    p.updates,
+                    updates,
                     self.cfg
                         .run
                         .updates

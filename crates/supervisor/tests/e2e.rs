@@ -1808,7 +1808,12 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     let mut run = Run::start(&scratch, 503, &["--bin-dir", bins.to_str().unwrap()]);
     assert!(!run.wait(Duration::from_secs(10)).success());
     assert!(
-        run.text().contains("missing binary `rollout-worker`"),
+        run.text().contains(&format!(
+            "missing binary `rollout-worker`: {} does not exist (--bin-dir {} must hold \
+             updater, sampler, rollout-worker;",
+            bins.join("rollout-worker").display(),
+            bins.display()
+        )),
         "{}",
         run.text()
     );
