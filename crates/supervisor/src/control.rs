@@ -175,7 +175,13 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
     if let Some(id) = run {
         let dir = base.join(id);
         if !socket_path(&dir).exists() {
-            bail!("no active run `{id}` under {}", base.display());
+            // A mistyped id is the usual cause: the ids there are what the user wants.
+            let active = active_runs(&base);
+            let which = match active.len() {
+                0 => "there is none".to_string(),
+                _ => format!("active: {}", describe_runs(&active)),
+            };
+            bail!("no active run `{id}` under {} ({which})", base.display());
         }
         if !serving(&dir) {
             bail!(

@@ -5077,6 +5077,19 @@ fn a_run_is_found_by_its_id_without_leading_zeros() {
         assert!(out.status.success(), "--run {id}: {text}");
         assert!(text.contains(&run.run_id), "--run {id}: {text}");
     }
+    // An id that names no run: the error lists the active ones.
+    let out = Command::new(SUPERVISOR)
+        .args(["status", "--run", "fff"])
+        .env("PI2CMA_RUN_DIR", scratch.runs())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        text.contains("no active run `fff` under")
+            && text.contains(&format!("(active: {} (A1))", run.run_id)),
+        "{text}"
+    );
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(30), 0);
     assert_nothing_left(&run);
