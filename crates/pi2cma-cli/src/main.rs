@@ -139,7 +139,7 @@ impl Observer for Progress {
         let s = r.summary;
         let total = self.total.map_or("∞".to_string(), |t| t.to_string());
         say!(
-            "update {:>3}/{total}: eval cost {:>10.4}  exploration {:>10.4} ± {:<10.4} λ {:>10.4}",
+            "update {:>3}/{total}: eval cost {:>10.4}  exploration {:>10.4} ± {:<10.4} λ sampled {:>10.4}",
             s.update + 1,
             s.eval_cost,
             s.exploration_cost_mean,
