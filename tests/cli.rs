@@ -746,3 +746,47 @@ fn a_run_with_slow_rollouts_summarises_without_waiting_for_them_again() {
     );
     assert!(stdout.lines().any(|l| l.starts_with("| A1 |")), "{stdout}");
 }
+
+/// The first SIGINT stops after the current update; a second one stops at once, as the
+/// supervisor's does. Before, it was ignored: with rollouts of 1 s (K = 15) the user waited for
+/// the rest of the 15 s update whatever they pressed.
+#[test]
+fn a_second_sigint_stops_a_run_at_once() {
+    let d = scratch("second-sigint");
+    let text = session::DEFAULT_CONFIG.replace(
+        "viapoint_weight = 1000.0",
+        "viapoint_weight = 1000.0\nrollout_delay_ms = 1000",
+    );
+    std::fs::write(d.join("slow.toml"), text).expect("write config");
+    let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args(["run", "slow.toml", "--out", "slow"])
+        .current_dir(&d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("pi2cma starts");
+    // Within the first update, which takes 15 s.
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let sigint = || {
+        let sent = Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status()
+            .expect("kill");
+        assert!(sent.success());
+    };
+    sigint();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let second = std::time::Instant::now();
+    sigint();
+    let out = child.wait_with_output().expect("exit");
+    let waited = second.elapsed();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{stderr}");
+    assert!(
+        stderr.contains("signal received: stopping after the current update")
+            && stderr.contains("second signal: stopping at once"),
+        "{stderr}"
+    );
+    // The update had more than 12 s to go.
+    assert!(waited < std::time::Duration::from_secs(8), "{waited:?}");
+}

@@ -15,7 +15,7 @@ macro_rules! say {
 }
 
 /// Set by SIGINT/SIGTERM during `run`: the session stops after the current update, the
-/// recording is finished, and the process exits with 130.
+/// recording is finished, and the process exits with 130 (a second signal: at once).
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 use anyhow::{bail, Context, Result};
@@ -244,10 +244,29 @@ fn run_resumed(
 }
 
 /// Stops `run` after the current update on SIGINT/SIGTERM, as `mcap-tool record` and the
-/// supervisor do: the recording is finished and the results so far are written.
+/// supervisor do: the recording is finished and the results so far are written. A second
+/// signal stops at once, as the supervisor's does: an update of slow rollouts (a robot) can
+/// take minutes, and a user pressing Ctrl-C again means it.
 fn stop_on_signal() -> Result<()> {
-    ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst))
-        .context("cannot install the SIGINT/SIGTERM handler")
+    ctrlc::set_handler(|| {
+        use std::io::Write as _;
+        // The handler runs on its own thread; stderr may be closed.
+        let mut err = std::io::stderr();
+        if INTERRUPTED.swap(true, Ordering::SeqCst) {
+            let _ = writeln!(
+                err,
+                "second signal: stopping at once, within an update (exit code 130); no results \
+                 are written, and a recording being written keeps the updates before it \
+                 (`pi2cma recover FILE` completes it)"
+            );
+            std::process::exit(130);
+        }
+        let _ = writeln!(
+            err,
+            "signal received: stopping after the current update (again to stop at once)"
+        );
+    })
+    .context("cannot install the SIGINT/SIGTERM handler")
 }
 
 fn interrupted() -> bool {
