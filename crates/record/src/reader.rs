@@ -230,6 +230,22 @@ pub(crate) fn stream(
     #[cfg(test)]
     STREAMS.with(|n| n.set(n.get() + 1));
     let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
+    // A file given by mistake (a config, a text) would otherwise read as a recording cut short
+    // before its /run: its first bytes tell the user what it is. Fewer bytes than the magic that
+    // begin it are a writer killed at once, which is a recording cut short.
+    let mut head = Vec::with_capacity(mcap::MAGIC.len());
+    (&mut file)
+        .take(mcap::MAGIC.len() as u64)
+        .read_to_end(&mut head)
+        .map_err(|e| RecordError::io(path, e))?;
+    if !could_be_mcap(&head) {
+        return Err(RecordError::invalid(
+            path,
+            "not an MCAP file (it does not begin with the MCAP magic bytes), so not a pi2cma \
+             recording",
+        ));
+    }
+    file.rewind().map_err(|e| RecordError::io(path, e))?;
     // A chunk is checked against the CRC its writer computed before any of its messages is
     // handed over: damage is reported, never read as other numbers.
     // A damaged record length must fail as damage, not ask for that much memory. Chunks
@@ -276,6 +292,12 @@ pub(crate) fn stream(
         }
     }
     Ok(None)
+}
+
+/// Whether `head`, the first bytes of a file (up to the MCAP magic's length), is how an MCAP
+/// file begins, or as much of it as a writer killed right after creating the file leaves.
+pub(crate) fn could_be_mcap(head: &[u8]) -> bool {
+    mcap::MAGIC.starts_with(&head[..head.len().min(mcap::MAGIC.len())])
 }
 
 /// Whether the file has a readable summary section (it was finished or recovered), read from
@@ -904,8 +926,19 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    /// A file that is not a recording (a config given by mistake, an empty file, a recording
-    /// cut before its /run was flushed) is an error naming it, not a recording of 0 updates.
+    /// Writes `content` to `path` and returns the error each reader gives for it.
+    fn errors_of_every_reader(path: &Path, content: &[u8]) -> [String; 3] {
+        std::fs::write(path, content).unwrap();
+        [
+            read_recording(path).unwrap_err().to_string(),
+            read_recording_slim(path).unwrap_err().to_string(),
+            read_ends(path).unwrap_err().to_string(),
+        ]
+    }
+
+    /// A file that is not a recording (another program's MCAP, an empty file, a recording cut
+    /// before its /run was flushed, even within the magic) is an error naming it, not a
+    /// recording of 0 updates. (Files that are no MCAP at all: the test after this one.)
     #[test]
     fn a_file_without_a_run_message_is_not_a_recording() {
         let dir = std::env::temp_dir().join(format!("reader-no-run-{}", std::process::id()));
@@ -917,21 +950,40 @@ mod tests {
         session::run_session(&cfg, 1, &mut rec).unwrap();
         rec.finish().unwrap();
         let bytes = std::fs::read(&path).unwrap();
+        let mut other = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+        other.finish().unwrap();
+        let other = other.into_inner().into_inner();
         for (name, content) in [
-            ("config.toml", b"[run]\nupdates = 5\n".to_vec()),
+            ("other.mcap", other),
             ("empty.mcap", Vec::new()),
+            ("magic.mcap", bytes[..5].to_vec()),
             ("head.mcap", bytes[..100].to_vec()),
         ] {
-            let p = dir.join(name);
-            std::fs::write(&p, content).unwrap();
-            for e in [
-                read_recording(&p).unwrap_err(),
-                read_recording_slim(&p).unwrap_err(),
-                read_ends(&p).unwrap_err(),
-            ] {
-                let e = e.to_string();
+            for e in errors_of_every_reader(&dir.join(name), &content) {
                 assert!(
                     e.contains(name) && e.contains("not a pi2cma recording"),
+                    "{e}"
+                );
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A text file given by mistake used to read as an MCAP file cut short ("no /run message
+    /// (records end early: MCAP file ended in the middle of a record)", found by a user test of
+    /// the README). Its first bytes tell that it is no MCAP file at all.
+    #[test]
+    fn a_file_without_the_mcap_magic_is_named_as_no_mcap_file() {
+        let dir = std::env::temp_dir().join(format!("reader-no-magic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, content) in [
+            ("notmcap.mcap", &b"just some text, not a recording\n"[..]),
+            ("config.toml", &b"[run]\nupdates = 5\n"[..]),
+            ("short.mcap", &b"txt"[..]),
+        ] {
+            for e in errors_of_every_reader(&dir.join(name), content) {
+                assert!(
+                    e.contains(name) && e.contains("not an MCAP file") && !e.contains("/run"),
                     "{e}"
                 );
             }

@@ -131,13 +131,13 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError
 /// memory until its first flush): there is nothing to recover, and [`recover`] refuses such a
 /// file as it refuses any file without a readable record.
 pub fn holds_nothing(path: &Path) -> std::io::Result<bool> {
-    const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+    const MAGIC: &[u8] = mcap::MAGIC;
     const HEADER_OPCODE: u8 = 0x01;
     let file = File::open(path)?;
     let len = file.metadata()?.len();
     let mut head = Vec::with_capacity(MAGIC.len() + 9);
     file.take((MAGIC.len() + 9) as u64).read_to_end(&mut head)?;
-    if !MAGIC.starts_with(&head[..head.len().min(MAGIC.len())]) {
+    if !crate::reader::could_be_mcap(&head) {
         return Ok(false);
     }
     let Some(record) = head.get(MAGIC.len()..) else {
