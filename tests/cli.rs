@@ -790,3 +790,31 @@ fn a_second_sigint_stops_a_run_at_once() {
     // The update had more than 12 s to go.
     assert!(waited < std::time::Duration::from_secs(8), "{waited:?}");
 }
+
+/// `pi2cma analyze` of a recording whose writer was killed suggested `mcap-tool recover`, a
+/// command of another binary (found by a user test of the README): it names its own.
+#[test]
+fn analyze_of_an_unfinished_recording_names_pi2cma_recover() {
+    let d = scratch("analyze-unfinished");
+    let run = pi2cma(&["run", "--out", "r", "--updates", "4", "--quiet"], &d);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // What a SIGKILL leaves: the updates flushed so far, no summary section.
+    let bytes = std::fs::read(d.join("r/run.mcap")).expect("recording");
+    std::fs::write(d.join("cut.mcap"), &bytes[..bytes.len() * 2 / 3]).expect("write");
+    let out = pi2cma(&["analyze", "cut.mcap"], &d);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("NOT indexed"), "{stdout}");
+    assert!(
+        stdout.contains("pi2cma recover cut.mcap`") && !stdout.contains("mcap-tool"),
+        "{stdout}"
+    );
+}

@@ -328,17 +328,20 @@ fn run_observed<T>(
     Ok(value)
 }
 
+/// This binary, as a command it prints must be typed (`cargo run` does not put it on PATH).
+fn this_program() -> String {
+    std::env::current_exe()
+        .map(|exe| record::program_name(&exe))
+        .unwrap_or_else(|_| "pi2cma".into())
+}
+
 /// Where the recording is and how to analyse it; a resumed run's analysis joins the file it
 /// resumed (`resumed_from`), for the whole learning curve.
 fn print_recording(mcap: &Path, out: &Path, resumed_from: Option<&str>) {
-    // This binary, as the command must be typed (`cargo run` does not put it on PATH).
-    let pi2cma = std::env::current_exe()
-        .map(|exe| record::program_name(&exe))
-        .unwrap_or_else(|_| "pi2cma".into());
     say!(
         "recording: {}\nanalyse it with: {} --out {}",
         record::describe_parts(mcap),
-        record::analyze_command(&pi2cma, mcap, resumed_from.map(Path::new)),
+        record::analyze_command(&this_program(), mcap, resumed_from.map(Path::new)),
         out.join("analysis").display()
     );
 }
@@ -528,7 +531,10 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
         }
-        Command::Analyze(args) => say!("{}", record::analyze::run(&args)?.trim_end_matches('\n')),
+        Command::Analyze(args) => say!(
+            "{}",
+            record::analyze::run(&args, &this_program())?.trim_end_matches('\n')
+        ),
         Command::Recover(args) => say!("{}", record::recover::run(&args)?.describe()),
         Command::Check { configs } => {
             // Every file is checked, not only those before the first bad one.

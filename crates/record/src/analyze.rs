@@ -58,8 +58,10 @@ pub fn parse_tolerance(s: &str) -> Result<f64, String> {
     }
 }
 
-/// Runs `analyze`; returns the text to print (summaries and the files written).
-pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
+/// Runs `analyze`; returns the text to print (summaries and the files written). `program` is
+/// how the user calls the binary that runs it, for the commands the text suggests
+/// ([`info_for`]).
+pub fn run(args: &AnalyzeArgs, program: &str) -> Result<String, RecordError> {
     let mut out = String::new();
     let mut recs = Vec::with_capacity(args.files.len());
     let mut read: Vec<(PathBuf, &Path)> = Vec::new();
@@ -83,7 +85,7 @@ pub fn run(args: &AnalyzeArgs) -> Result<String, RecordError> {
         } else {
             (read_recording_slim(f)?, None)
         };
-        out.push_str(&info(&rec));
+        out.push_str(&info_for(&rec, program));
         if let Some(r) = verified {
             let _ = writeln!(
                 out,
@@ -394,8 +396,15 @@ fn missing_before(path: &Path, meta: &BTreeMap<String, String>, begins: u64) -> 
     ))
 }
 
-/// A human-readable summary of one recording.
+/// [`info_for`] as `mcap-tool` prints it.
 pub fn info(rec: &Recording) -> String {
+    info_for(rec, "mcap-tool")
+}
+
+/// A human-readable summary of one recording. `program` is how the user calls the binary that
+/// prints it (`mcap-tool`, or `pi2cma` as [`crate::program_name`] gives it): the command it
+/// suggests for an unfinished file must be one the user has at hand.
+pub fn info_for(rec: &Recording, program: &str) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "{} ({} bytes)", rec.path.display(), rec.file_bytes);
     match (&rec.truncated, rec.indexed) {
@@ -411,8 +420,9 @@ pub fn info(rec: &Recording) -> String {
         (t, _) => {
             let _ = writeln!(
                 s,
-                "  NOT indexed (writer did not finish){}; `mcap-tool recover` rewrites it",
-                t.as_ref().map(|t| format!(": {t}")).unwrap_or_default()
+                "  NOT indexed (writer did not finish){}; `{program} recover {}` rewrites it",
+                t.as_ref().map(|t| format!(": {t}")).unwrap_or_default(),
+                rec.path.display()
             );
         }
     }
@@ -2671,10 +2681,10 @@ mod tests {
             }
             found
         };
-        run(&args(true)).unwrap();
+        run(&args(true), "mcap-tool").unwrap();
         assert_eq!(csv_files(), Vec::<PathBuf>::new());
         assert!(out.join("reconvergence.md").is_file());
-        run(&args(false)).unwrap();
+        run(&args(false), "mcap-tool").unwrap();
         assert!(out.join("mean_curves.csv").is_file() && out.join("reconvergence.csv").is_file());
         std::fs::remove_dir_all(&dir).unwrap();
     }
@@ -2702,7 +2712,7 @@ mod tests {
         };
         let streams = || crate::reader::STREAMS.with(std::cell::Cell::get);
         let before = streams();
-        let text = run(&args).unwrap();
+        let text = run(&args, "mcap-tool").unwrap();
         assert_eq!(streams() - before, 2, "{text}");
         assert!(
             text.contains("  recompute: 3 updates, 0 mismatches (bit-identical)\n"),

@@ -594,6 +594,21 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// What `analyze FILES` prints (no output files), or its error.
+    fn analyze_summaries(files: &[PathBuf]) -> Result<String, RecordError> {
+        crate::analyze::run(
+            &crate::analyze::AnalyzeArgs {
+                files: files.to_vec(),
+                out: None,
+                no_csv: true,
+                no_plots: true,
+                verify: false,
+                tolerance: 0.05,
+            },
+            "mcap-tool",
+        )
+    }
+
     #[test]
     fn a_directory_given_for_a_recording_is_named_as_one() {
         let dir = std::env::temp_dir().join(format!("split-dir-{}", std::process::id()));
@@ -678,38 +693,20 @@ mod tests {
         assert!(report.describe().contains("whose last part is"));
         std::fs::remove_file(dir.join("recovered.mcap")).unwrap();
         // `analyze` of some of the parts says which are missing; of all of them, one run.
-        let analyze = |files: &[PathBuf]| {
-            crate::analyze::run(&crate::analyze::AnalyzeArgs {
-                files: files.to_vec(),
-                out: None,
-                no_csv: true,
-                no_plots: true,
-                verify: false,
-                tolerance: 0.05,
-            })
-            .unwrap()
-        };
-        let text = analyze(&parts[..2]);
+        let text = analyze_summaries(&parts[..2]).unwrap();
         assert!(
             text.contains(&format!("not given: {}", parts[2].display())),
             "{text}"
         );
-        let text = analyze(&parts);
+        let text = analyze_summaries(&parts).unwrap();
         assert!(
             !text.contains("not given") && text.contains("one run of 200 updates"),
             "{text}"
         );
         // With a gap, they are no run: refused, naming the missing part.
-        let gap = crate::analyze::run(&crate::analyze::AnalyzeArgs {
-            files: vec![parts[0].clone(), parts[2].clone()],
-            out: None,
-            no_csv: true,
-            no_plots: true,
-            verify: false,
-            tolerance: 0.05,
-        })
-        .unwrap_err()
-        .to_string();
+        let gap = analyze_summaries(&[parts[0].clone(), parts[2].clone()])
+            .unwrap_err()
+            .to_string();
         assert!(
             gap.contains("with a gap") && gap.contains(&parts[1].display().to_string()),
             "{gap}"
@@ -752,16 +749,9 @@ mod tests {
             "{described}"
         );
 
-        let gap = crate::analyze::run(&crate::analyze::AnalyzeArgs {
-            files: vec![first.clone(), third.clone()],
-            out: None,
-            no_csv: true,
-            no_plots: true,
-            verify: false,
-            tolerance: 0.05,
-        })
-        .unwrap_err()
-        .to_string();
+        let gap = analyze_summaries(&[first.clone(), third.clone()])
+            .unwrap_err()
+            .to_string();
         let second = part_path(&first, 2).display().to_string();
         assert!(
             gap.contains("with a gap") && gap.contains(&format!("{second} no longer there")),

@@ -26,14 +26,17 @@ fn analyze_writes_csv_figures_and_the_experiment_table() {
         files.push(f);
     }
     let out = dir.join("analysis");
-    let text = run(&AnalyzeArgs {
-        files: files.clone(),
-        out: Some(out.clone()),
-        no_csv: false,
-        no_plots: false,
-        verify: true,
-        tolerance: 0.05,
-    })
+    let text = run(
+        &AnalyzeArgs {
+            files: files.clone(),
+            out: Some(out.clone()),
+            no_csv: false,
+            no_plots: false,
+            verify: true,
+            tolerance: 0.05,
+        },
+        "mcap-tool",
+    )
     .unwrap();
     assert_eq!(
         text.matches("0 mismatches (bit-identical)").count(),
@@ -232,5 +235,41 @@ fn experiment_joins_the_parts_of_a_split_recording_into_one_session() {
     assert!(!text.contains("NaN"), "{text}");
     let mean = std::fs::read_to_string(out.join("mean_curves.csv")).unwrap();
     assert_eq!(mean.lines().count(), 1 + 150, "{mean}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `mcap-tool analyze` and `info` of a recording whose writer was killed suggest its own
+/// `recover` command, with the file to give it (as `pi2cma analyze` names `pi2cma recover`).
+#[test]
+fn analyze_of_an_unfinished_recording_names_mcap_tool_recover() {
+    let dir = scratch::scratch("analyze-unfinished");
+    let full = dir.join("full.mcap");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+        .args(["record", "--updates", "4", "--out"])
+        .arg(&full)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+    // What a SIGKILL leaves: the updates flushed so far, no summary section.
+    let bytes = std::fs::read(&full).unwrap();
+    let cut = dir.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    for command in ["analyze", "info"] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
+            .arg(command)
+            .arg(&cut)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success() && stdout.contains("NOT indexed"),
+            "{stdout}"
+        );
+        assert!(
+            stdout.contains(&format!("`mcap-tool recover {}`", cut.display())),
+            "{stdout}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

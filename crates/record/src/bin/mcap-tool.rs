@@ -114,12 +114,15 @@ fn run(cli: Cli) -> Result<()> {
             progress,
         ),
         Command::Analyze(args) => {
-            print!("{}", analyze::run(&args)?);
+            print!("{}", analyze::run(&args, "mcap-tool")?);
             Ok(())
         }
         Command::Info { files } => {
             for f in &files {
-                print!("{}", analyze::info(&read_recording_slim(f)?));
+                print!(
+                    "{}",
+                    analyze::info_for(&read_recording_slim(f)?, "mcap-tool")
+                );
             }
             Ok(())
         }
