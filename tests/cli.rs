@@ -818,3 +818,68 @@ fn analyze_of_an_unfinished_recording_names_pi2cma_recover() {
         "{stdout}"
     );
 }
+
+/// The default directory is the latest run's as a whole: `runs/latest/analysis/`, which the
+/// printed `analyze` command writes, held the previous run's CSV files and figures after the
+/// next run (found by a user test of the README). A directory given by `--out` keeps what
+/// else it holds.
+#[test]
+fn the_next_run_replaces_all_of_runs_latest_and_leaves_a_given_out_as_it_is() {
+    let d = scratch("replaces-latest");
+    let first = pi2cma(&["run", "--updates", "3", "--quiet"], &d);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let analyse = pi2cma(
+        &[
+            "analyze",
+            "runs/latest/run.mcap",
+            "--out",
+            "runs/latest/analysis",
+        ],
+        &d,
+    );
+    assert!(
+        analyse.status.success(),
+        "{}",
+        String::from_utf8_lossy(&analyse.stderr)
+    );
+    assert!(d.join("runs/latest/analysis/run/update.csv").is_file());
+    let second = pi2cma(&["run", "--updates", "3", "--quiet", "--seed", "2"], &d);
+    assert!(
+        second.status.success(),
+        "{}",
+        String::from_utf8_lossy(&second.stderr)
+    );
+    assert!(
+        !d.join("runs/latest/analysis").exists(),
+        "the previous run's analysis is still in runs/latest"
+    );
+    assert!(d.join("runs/latest/run.mcap").is_file() && d.join("runs/latest/fig2.svg").is_file());
+
+    std::fs::create_dir_all(d.join("mine/analysis")).expect("mkdir");
+    std::fs::write(d.join("mine/analysis/notes.txt"), "mine").expect("write");
+    let given = pi2cma(&["run", "--updates", "3", "--quiet", "--out", "mine"], &d);
+    assert!(
+        given.status.success(),
+        "{}",
+        String::from_utf8_lossy(&given.stderr)
+    );
+    assert!(d.join("mine/analysis/notes.txt").is_file());
+
+    // `experiment`'s default directory, runs/experiment, likewise.
+    std::fs::create_dir_all(d.join("runs/experiment/analysis")).expect("mkdir");
+    std::fs::write(d.join("runs/experiment/analysis/old.csv"), "old").expect("write");
+    let cfg = repo().join("config/A1.toml");
+    let cfg = cfg.to_str().expect("utf-8 path");
+    let exp = pi2cma(&["experiment", cfg, "--sessions", "1"], &d);
+    assert!(
+        exp.status.success(),
+        "{}",
+        String::from_utf8_lossy(&exp.stderr)
+    );
+    assert!(!d.join("runs/experiment/analysis").exists());
+    assert!(d.join("runs/experiment/summary.md").is_file());
+}

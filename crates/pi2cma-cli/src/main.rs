@@ -50,7 +50,8 @@ enum Command {
         #[arg(long)]
         updates: Option<u64>,
         /// Directory for run.mcap, updates.csv, mean_curves.csv and fig2.svg; one that holds a
-        /// recording is refused. Default: runs/latest, which each run without --out replaces.
+        /// recording is refused. Default: runs/latest, which each run without --out replaces
+        /// with all it holds.
         #[arg(long)]
         out: Option<PathBuf>,
         /// Print nothing per update (a rollout run again for non-finite costs is still printed).
@@ -294,6 +295,57 @@ fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
     }
 }
 
+/// Removes `out`, the default directory, with all the previous run left in it, so that the
+/// run about to write there replaces it as a whole: its `analysis/` (where the printed
+/// `analyze` command writes) held the previous run's CSV files and figures beside this run's
+/// results. Never called for a directory given by `--out`. Refused while a file in it is being
+/// recorded (another run writing there); left as it is when the recording a run resumes lies in
+/// it (it is still read, and its analysis joins it), and when it is not a directory (a link is
+/// not followed).
+fn replace_default_dir(out: &Path, resumed: Option<&Path>) -> Result<()> {
+    if !std::fs::symlink_metadata(out).is_ok_and(|m| m.is_dir()) {
+        return Ok(());
+    }
+    if let Some(live) = file_being_written(out) {
+        bail!(
+            "{}: is being written by another process (a run in progress); wait for it, or give \
+             --out",
+            live.display()
+        );
+    }
+    let inside = |p: &Path| {
+        let (p, out) = (p.canonicalize(), out.canonicalize());
+        p.is_ok_and(|p| out.is_ok_and(|out| p.starts_with(out)))
+    };
+    if resumed.is_some_and(inside) {
+        return Ok(());
+    }
+    std::fs::remove_dir_all(out).with_context(|| {
+        format!(
+            "replacing {} (the previous run's results) for this run's",
+            out.display()
+        )
+    })
+}
+
+/// A file below `dir` that a recorder holds ([`record::being_written`]), if any.
+fn file_being_written(dir: &Path) -> Option<PathBuf> {
+    for entry in std::fs::read_dir(dir).ok()?.flatten() {
+        let Ok(kind) = entry.file_type() else {
+            continue;
+        };
+        let path = entry.path();
+        if kind.is_dir() {
+            if let Some(live) = file_being_written(&path) {
+                return Some(live);
+            }
+        } else if kind.is_file() && record::being_written(&path) {
+            return Some(path);
+        }
+    }
+    None
+}
+
 /// The MCAP recorder of a `run` at `mcap`, recording the config as `text`.
 fn recorder(mcap: &Path, text: String) -> Result<record::McapRecorder> {
     Ok(record::McapRecorder::create(mcap)
@@ -388,6 +440,10 @@ fn run(cli: Cli) -> Result<()> {
             if !replaceable && !no_record {
                 record::refuse_overwrite(&mcap, "--out")?;
             }
+            if replaceable {
+                let resumed = point.as_ref().map(|p| Path::new(&p.start.origin));
+                replace_default_dir(&out, resumed)?;
+            }
             for note in cfg.notes() {
                 eprintln!("note: {note}");
             }
@@ -472,6 +528,9 @@ fn run(cli: Cli) -> Result<()> {
                         }
                     }
                 }
+            }
+            if replaceable {
+                replace_default_dir(&out, None)?;
             }
             // Ctrl-C (or SIGTERM) stops the session under way after its current update, with
             // a finished recording; the outputs hold the sessions completed before it.
