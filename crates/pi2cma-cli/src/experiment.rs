@@ -320,10 +320,20 @@ pub fn write_mean_csv(path: &Path, results: &[ConfigResult]) -> std::io::Result<
     std::fs::write(path, s)
 }
 
-/// The summary table printed after an experiment and saved as `summary.md`.
+/// The summary table printed after an experiment and saved as `summary.md`. Its middle columns
+/// are the updates around each config's last task change: the one before it and its own
+/// (u=19, u=20 for the paper's change after 20 updates), named by number when every config
+/// changes at the same update, else as "before change" / "at change" with the update in
+/// each cell.
 pub fn summary_table(results: &[ConfigResult]) -> String {
-    let mut s = String::from(
-        "| config | weighting | sessions | eval cost u=0 | u=19 | u=20 | last | expl. std u=19 | λ u=0 | λ u=19 | λ max after change | λ last | re-converged at |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    let first = results.first().and_then(|r| r.change_at);
+    let shared = first.filter(|&c| c >= 1 && results.iter().all(|r| r.change_at == Some(c)));
+    let (before, at_change) = match shared {
+        Some(c) => (format!("u={}", c - 1), format!("u={c}")),
+        None => ("before change".to_string(), "at change".to_string()),
+    };
+    let mut s = format!(
+        "| config | weighting | sessions | eval cost u=0 | {before} | {at_change} | last | expl. std {before} | λ u=0 | λ {before} | λ max after change | λ last | re-converged at |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in results {
         let (e, sd, l) = r.mean_curves();
@@ -331,6 +341,14 @@ pub fn summary_table(results: &[ConfigResult]) -> String {
             continue;
         }
         let at = |v: &[f64], u: usize| v.get(u).map_or("–".into(), |x| fmt(*x));
+        // The update a cell is at, said in it where the header cannot say it for every row.
+        let around = |v: &[f64], u: Option<u64>| match u.and_then(|u| Some((u, v.get(u as usize)?)))
+        {
+            None => "–".to_string(),
+            Some((_, x)) if shared.is_some() => fmt(*x),
+            Some((u, x)) => format!("{} (u={u})", fmt(*x)),
+        };
+        let before = r.change_at.and_then(|c| c.checked_sub(1));
         // Without a change (or a change after the last update) there is no such maximum.
         let lmax = r
             .change_at
@@ -344,12 +362,12 @@ pub fn summary_table(results: &[ConfigResult]) -> String {
             weighting_label(r.weighting),
             r.sessions.len(),
             at(&e, 0),
-            at(&e, 19),
-            at(&e, 20),
+            around(&e, before),
+            around(&e, r.change_at),
             fmt(e[e.len() - 1]),
-            at(&sd, 19),
+            around(&sd, before),
             at(&l, 0),
-            at(&l, 19),
+            around(&l, before),
             lmax,
             fmt(l[l.len() - 1]),
             match (r.change_at, r.reconvergence_update()) {
@@ -372,5 +390,46 @@ fn fmt(x: f64) -> String {
         format!("{x:.2e}")
     } else {
         format!("{x:.3}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)] // a failed unwrap is a failed test
+
+    use super::*;
+
+    /// A session of the default config (A1) with its task change at `from_update` and
+    /// `updates` updates.
+    fn a1(from_update: u64, updates: u64) -> ConfigResult {
+        let text = session::DEFAULT_CONFIG
+            .replace("from_update = 20", &format!("from_update = {from_update}"));
+        let mut cfg = RunConfig::parse(&text, Path::new("a1.toml")).unwrap();
+        cfg.run.updates = Some(updates);
+        run_config(&cfg, 1).unwrap()
+    }
+
+    /// The columns were u=19 and u=20 whatever the config, "–" for a run of fewer updates
+    /// with its change at update 1 (found by a user test of the README).
+    #[test]
+    fn the_table_shows_the_updates_around_the_last_task_change() {
+        let table = summary_table(&[a1(1, 3)]);
+        let mut lines = table.lines();
+        let header = lines.next().unwrap();
+        assert!(
+            header.contains("| eval cost u=0 | u=0 | u=1 | last | expl. std u=0 | λ u=0 | λ u=0 |"),
+            "{table}"
+        );
+        let row = lines.nth(1).unwrap();
+        assert!(!row.contains('–'), "{table}");
+
+        // Configs changing at different updates: the header cannot name them.
+        let table = summary_table(&[a1(1, 3), a1(2, 3)]);
+        assert!(
+            table.contains("| before change | at change | last | expl. std before change |"),
+            "{table}"
+        );
+        assert_eq!(table.matches("(u=0)").count(), 3, "{table}");
+        assert_eq!(table.matches("(u=2)").count(), 1, "{table}");
     }
 }
