@@ -78,6 +78,22 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
             }
         }
     }
+    // The limits are the ellipses' bounding box: an ellipse reaching one would run along the
+    // axis, as if cut off there. A margin of 5% of each span keeps every one clear of the frame.
+    for k in [0, 2] {
+        if !lim[k].is_finite() {
+            continue;
+        }
+        let pad = 0.05 * (lim[k + 1] - lim[k]);
+        // A single point (a zero covariance) still needs a range to draw in.
+        let pad = if pad > 0.0 {
+            pad
+        } else {
+            lim[k].abs().max(1.0) * 0.05
+        };
+        lim[k] -= pad;
+        lim[k + 1] += pad;
+    }
     for (i, r) in results.iter().enumerate() {
         let title = format!("{} ({})", r.name, weighting_label(r.weighting));
         // Left: distribution of session 0 (the paper shows one session).
@@ -214,4 +230,67 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)] // a failed unwrap is a failed test
+
+    use super::*;
+
+    /// The points of the polylines in `svg` that `keep` keeps, given their stroke colour.
+    fn polylines(svg: &str, keep: impl Fn(&str, &[(f64, f64)]) -> bool) -> Vec<Vec<(f64, f64)>> {
+        svg.split("<polyline")
+            .skip(1)
+            .filter_map(|p| {
+                let stroke = p.split("stroke=\"").nth(1)?.split('"').next()?;
+                let points: Vec<(f64, f64)> = p
+                    .split("points=\"")
+                    .nth(1)?
+                    .split('"')
+                    .next()?
+                    .split_whitespace()
+                    .filter_map(|xy| {
+                        let (x, y) = xy.split_once(',')?;
+                        Some((x.parse().ok()?, y.parse().ok()?))
+                    })
+                    .collect();
+                keep(stroke, &points).then_some(points)
+            })
+            .collect()
+    }
+
+    /// The later ellipses of A1 (session 0, seed 1) reached the very edge of the axes and
+    /// looked cut off below about −690 (found by a user test of the README): the axes were
+    /// exactly the ellipses' bounding box. Every ellipse now keeps clear of the frame.
+    #[test]
+    fn every_ellipse_lies_inside_the_axes_clear_of_their_frame() {
+        let cfg = session::RunConfig::default_config();
+        let result = crate::experiment::run_config(&cfg, 1).unwrap();
+        let path = std::env::temp_dir().join(format!("fig2-{}.svg", std::process::id()));
+        fig2(&path, &[result]).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        // The left chart's axes: the first long black vertical and horizontal lines.
+        let axes = polylines(&svg, |stroke, p| {
+            stroke == "#000000"
+                && p.len() == 2
+                && (p[1].0 - p[0].0).abs() + (p[1].1 - p[0].1).abs() > 100.0
+        });
+        let y_axis = axes.iter().find(|p| p[0].0 == p[1].0).unwrap();
+        let x_axis = axes.iter().find(|p| p[0].1 == p[1].1).unwrap();
+        let (left, right) = (x_axis[0].0.min(x_axis[1].0), x_axis[0].0.max(x_axis[1].0));
+        let (top, bottom) = (y_axis[0].1.min(y_axis[1].1), y_axis[0].1.max(y_axis[1].1));
+        let ellipses = polylines(&svg, |stroke, p| {
+            stroke != "#000000" && stroke != "#FFFFFF" && p.iter().all(|&(x, _)| x <= right)
+        });
+        assert!(ellipses.len() > 40, "{} ellipses", ellipses.len());
+        let clear = 3.0;
+        for &(x, y) in ellipses.iter().flatten() {
+            assert!(
+                x >= left + clear && x <= right - clear && y >= top + clear && y <= bottom - clear,
+                "({x}, {y}) is not inside the axes x {left}..{right}, y {top}..{bottom} by {clear} px"
+            );
+        }
+    }
 }
