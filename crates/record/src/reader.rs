@@ -357,7 +357,8 @@ fn damaged(path: &Path, why: &str) -> RecordError {
     RecordError::invalid(
         path,
         format!(
-            "{why} (the file is damaged; `mcap-tool recover {}` keeps every undamaged chunk)",
+            "{why} (the file is damaged; `pi2cma recover {0}` or `mcap-tool recover {0}` keeps \
+             every undamaged chunk)",
             path.display()
         ),
     )
