@@ -100,8 +100,10 @@
 //!
 //! A worker that dies (or is scaled away) is reported by the supervisor on `control`
 //! ([`Control::WORKER_LOST`]), announces a higher incarnation when restarted, or is found by the
-//! sampler among the run's dead nodes (node name [`worker_node_name`]); the sampler hands its
-//! unfinished rollouts to the others. Because a
+//! sampler among the run's dead nodes (node name [`worker_node_name`]); the sampler hands the
+//! rollouts of its chunk to the others, all of them: which costs arrived only the updater
+//! knows, and skipping a rollout on the worker's word would hang the update if its cost died
+//! with the worker. Because a
 //! rollout's parameters depend only on (seed, u, k), the result is bit-identical whatever the
 //! worker count, completion order or crashes.
 //!
