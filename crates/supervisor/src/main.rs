@@ -33,6 +33,9 @@ enum Cmd {
     Set {
         #[arg(value_parser = setting_name)]
         name: String,
+        // Negative values are common (T-ball's tee_y = -0.53); without this clap took `-0.5`
+        // for an option and told the user to write `-- -0.5`.
+        #[arg(allow_negative_numbers = true)]
         value: f64,
         #[arg(long)]
         run: Option<String>,

@@ -1718,6 +1718,10 @@ fn a_runtime_change_is_judged_with_the_settings_earlier_changes_left() {
     run.wait_status("tee_y in force", |s| s.contains("tee_y = 1e154"));
     let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
     assert!(!ok && reply.contains("tee_y = 1e154"), "{reply}");
+    // A negative value (config/tball.toml has tee_y = -0.53) is a value, not an option: clap
+    // answered "unexpected argument '-0' found".
+    run.ctl_ok(&["set", "tee_y", "-0.5"]);
+    run.wait_status("tee_y = -0.5 in force", |s| s.contains("tee_y = -0.5"));
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
     assert_nothing_left(&run);
