@@ -54,7 +54,10 @@ QUEUE_EMPTY = 1
 # Ready.flags: a rollout of the chunk other than its last is done (crates/wire Ready::ROLLOUT_DONE);
 # sent at most every ROLLOUT_DONE_INTERVAL_S, only in a run with pipeline.rollout_timeout_ms,
 # which then bounds one rollout rather than the whole chunk.
+# Bits 16-31 of such a report count the chunk's rollouts whose costs have been sent (Ready::rollout_done):
+# a lost worker's reported rollouts are then not run again while the update can finish without them.
 ROLLOUT_DONE = 1
+ROLLOUT_SENT_SHIFT = 16
 ROLLOUT_DONE_INTERVAL_S = 0.001
 ROLE_WORKER = 3
 # Costs are announced to the updater at least this often while a chunk is being worked on.
@@ -616,7 +619,7 @@ def _serve(make_task, args):
             if chunk_done:
                 publish_ready(chunk_id)
             elif report_rollouts and now - reported_at >= ROLLOUT_DONE_INTERVAL_S:
-                publish_ready(chunk_id, ROLLOUT_DONE)
+                publish_ready(chunk_id, ROLLOUT_DONE | min(done_in_chunk, 0xFFFF) << ROLLOUT_SENT_SHIFT)
                 reported_at = now
             if chunk_done or not inbox.has_samples() or now - last_notify >= NOTIFY_INTERVAL_S:
                 updater_bell.notify_with_custom_event_id(WAKE)

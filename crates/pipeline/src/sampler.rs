@@ -66,6 +66,12 @@ fn chunk_len(pending: usize, available: usize, per_rollout: Option<Duration>) ->
 /// How often the sampler looks for dead worker nodes.
 const DEAD_SCAN: Duration = Duration::from_secs(1);
 
+/// How long the update must have waited for nothing but held-back rollouts (queue empty, no
+/// chunk of it out) before they are handed out again: their costs then died with their worker.
+/// The updater publishes the next distribution within micro- to milliseconds of its last cost,
+/// so this is only ever waited out when a cost was really lost.
+const HELD_BACK_RELEASE: Duration = Duration::from_millis(100);
+
 type Inbox = (Publisher<Service, [f64], WorkHeader>, Notifier<Service>);
 
 struct Assignment {
@@ -80,6 +86,9 @@ struct Assignment {
     /// rollout is found about one timeout after its first was done, not chunk-length timeouts
     /// after the hand-out.
     progress: Instant,
+    /// How many of `rollouts` (from the first) the worker reported sent
+    /// ([`Ready::rollout_done`]): if it is lost, those are held back ([`HeldBack`]).
+    sent: usize,
 }
 
 struct WorkerPort {
@@ -124,6 +133,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
     let mut idle: VecDeque<u32> = VecDeque::new();
     let mut pending: VecDeque<u32> = VecDeque::new();
+    let mut held_back = HeldBack::default();
     // The updater's rejected executions per rollout of the current update, as of the newest
     // `reruns` sample read: a rollout with a count is a rerun, and its work items say so
     // (WorkHeader::RERUN).
@@ -186,7 +196,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     let n = w.assignment.as_ref().map_or(0, |a| a.rollouts.len());
                     eprintln!("{} lost w{worker}.{incarnation}, holding {n}", us());
                 }
-                requeue(w.assignment, &current, &mut pending);
+                requeue(w.assignment, &current, &mut pending, &mut held_back);
                 idle.retain(|i| *i != worker);
             }
         }
@@ -218,6 +228,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 settings_len: h.settings_len,
             });
             pending = (0..k_total as u32).collect();
+            held_back.clear();
             rerun_counts.fill(0);
             if trace {
                 eprintln!("{} dist {} idle {:?}", us(), h.update, idle);
@@ -234,6 +245,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 continue;
             }
             for k in raised(&mut rerun_counts, sample.payload()) {
+                held_back.forget(k);
                 if !pending.contains(&k) {
                     pending.push_front(k);
                 }
@@ -244,6 +256,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         }
         if finished {
             pending.clear();
+            held_back.clear();
         }
         // Workers asking for work.
         while let Some(msg) = iox(ready.receive(), "receive ready")? {
@@ -264,6 +277,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     // When read, not when sent: a sampler that was not scheduled for a while
                     // takes the progress as later than it was, never a rollout as longer.
                     a.progress = Instant::now();
+                    a.sent = a.sent.max(r.sent().min(a.rollouts.len()));
                 }
                 continue;
             }
@@ -290,7 +304,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                     let old = workers.remove(&r.worker);
                     let (inbox, bell) = match old {
                         Some(w) => {
-                            requeue(w.assignment, &current, &mut pending);
+                            requeue(w.assignment, &current, &mut pending, &mut held_back);
                             (w.inbox, w.bell)
                         }
                         None => open_inbox(&ctx, r.worker)?,
@@ -346,13 +360,24 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 // (a worker it did not start): should it answer after all, the updater keeps
                 // whichever result of a rollout comes first, and they are the same.
                 w.overdue_chunk = Some(a.chunk);
-                requeue(w.assignment.take(), &current, &mut pending);
+                requeue(w.assignment.take(), &current, &mut pending, &mut held_back);
             }
         }
         // Hand out work.
         let Some(cur) = current.as_ref() else {
             return Ok(Flow::Continue);
         };
+        let busy = !pending.is_empty()
+            || workers.values().any(|w| {
+                w.assignment
+                    .as_ref()
+                    .is_some_and(|a| a.update == cur.update)
+            });
+        let released = held_back.release(busy, Instant::now());
+        if trace && !released.is_empty() {
+            eprintln!("{} released {released:?}", us());
+        }
+        pending.extend(released);
         // The share is fixed for this round: at the start of an update every worker gets
         // ⌈K / workers⌉ (5 and 5 for K = 10 and 2 workers, where shrinking per hand-out gave
         // 5, 3, 1, 1: two more round trips through the sampler on the update's critical path).
@@ -432,6 +457,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 rollouts,
                 since: now,
                 progress: now,
+                sent: 0,
             });
             to_ring.push(id);
         }
@@ -448,13 +474,71 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn requeue(assignment: Option<Assignment>, current: &Option<Current>, pending: &mut VecDeque<u32>) {
+/// Rollouts of the current update that a lost worker reported sent. Their costs almost always
+/// reached the updater, which then finishes the update without them; so they are handed out
+/// again only once the update has waited for nothing else for [`HELD_BACK_RELEASE`] (their
+/// costs died with the worker). Handing them out at once ran finished rollouts again (on a
+/// robot, for real), and a worker that hung every few rollouts, fewer than a chunk holds, kept
+/// an update from ever finishing.
+#[derive(Debug, Default)]
+struct HeldBack {
+    rollouts: Vec<u32>,
+    /// Since when the update has waited for nothing but these.
+    idle_since: Option<Instant>,
+}
+
+impl HeldBack {
+    fn hold(&mut self, k: u32) {
+        if !self.rollouts.contains(&k) {
+            self.rollouts.push(k);
+        }
+    }
+
+    /// Rollout `k` is being handed out again anyway (a rerun of a non-finite cost).
+    fn forget(&mut self, k: u32) {
+        self.rollouts.retain(|&h| h != k);
+    }
+
+    fn clear(&mut self) {
+        self.rollouts.clear();
+        self.idle_since = None;
+    }
+
+    /// Called every round, `busy` if the queue holds rollouts or a chunk of the update is out:
+    /// the rollouts to hand out again now (none until the update has waited for nothing else
+    /// for [`HELD_BACK_RELEASE`]).
+    fn release(&mut self, busy: bool, now: Instant) -> Vec<u32> {
+        if busy || self.rollouts.is_empty() {
+            self.idle_since = None;
+            return Vec::new();
+        }
+        let since = *self.idle_since.get_or_insert(now);
+        if now.duration_since(since) < HELD_BACK_RELEASE {
+            return Vec::new();
+        }
+        self.idle_since = None;
+        std::mem::take(&mut self.rollouts)
+    }
+}
+
+/// A lost worker's chunk of the current update: the rollouts it did not report sent go to the
+/// front of the queue, those it did are held back ([`HeldBack`]).
+fn requeue(
+    assignment: Option<Assignment>,
+    current: &Option<Current>,
+    pending: &mut VecDeque<u32>,
+    held_back: &mut HeldBack,
+) {
     if let (Some(a), Some(c)) = (assignment, current) {
         if a.update == c.update {
-            for k in a.rollouts.into_iter().rev() {
+            let (sent, unsent) = a.rollouts.split_at(a.sent);
+            for &k in unsent.iter().rev() {
                 if !pending.contains(&k) {
                     pending.push_front(k);
                 }
+            }
+            for &k in sent.iter().filter(|k| !pending.contains(k)) {
+                held_back.hold(k);
             }
         }
     }
@@ -477,6 +561,37 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn held_back_rollouts_are_released_only_after_the_update_waited_for_nothing_else() {
+        let t0 = Instant::now();
+        let ms = |n| t0 + Duration::from_millis(n);
+        let mut h = HeldBack::default();
+        assert!(h.release(false, t0).is_empty());
+        h.hold(3);
+        h.hold(4);
+        h.hold(3);
+        // Other rollouts out or queued: the update may still finish without 3 and 4.
+        assert!(h.release(true, ms(0)).is_empty());
+        assert!(h.release(false, ms(10)).is_empty());
+        assert!(h.release(false, ms(60)).is_empty());
+        // Busy again: the wait starts over.
+        assert!(h.release(true, ms(100)).is_empty());
+        assert!(h.release(false, ms(120)).is_empty());
+        assert!(h.release(false, ms(219)).is_empty());
+        assert_eq!(h.release(false, ms(220)), vec![3, 4]);
+        assert!(h.release(false, ms(400)).is_empty());
+        // A rerun hands a rollout out anyway; a new update forgets them all.
+        h.hold(1);
+        h.hold(2);
+        h.forget(1);
+        assert!(h.release(false, ms(500)).is_empty());
+        assert_eq!(h.release(false, ms(600)), vec![2]);
+        h.hold(5);
+        h.clear();
+        assert!(h.release(false, ms(700)).is_empty());
+        assert!(h.release(false, ms(900)).is_empty());
+    }
 
     #[test]
     fn chunks_are_equal_shares_unless_rollouts_are_slow() {

@@ -272,7 +272,7 @@ fn slot<T: Task>(
             if chunk_done {
                 publish_ready(h.chunk, 0)?;
             } else if report_rollouts && reported_at.elapsed() >= wire::ROLLOUT_DONE_INTERVAL {
-                publish_ready(h.chunk, Ready::ROLLOUT_DONE)?;
+                publish_ready(h.chunk, Ready::rollout_done(chunk.1 as usize))?;
                 reported_at = Instant::now();
             }
             let more = iox(inbox.has_samples(), "inbox")?;

@@ -5390,3 +5390,63 @@ fn a_length_given_as_updates_is_named_as_the_option() {
         run.text()
     );
 }
+
+/// A lost worker's chunk: the rollouts it reported sent (`Ready::rollout_done`) are not handed
+/// out again while the update can finish without them. Before, the whole chunk went back to the
+/// queue, so finished rollouts ran again (on a robot, for real), and a worker that hung every
+/// few rollouts, fewer than a chunk, kept an update from ever finishing (found by a user test).
+/// Here every first incarnation hangs in its chunk's second rollout in update 3 (chunks of 2):
+/// only those three rollouts may run twice.
+#[test]
+fn a_lost_workers_finished_rollouts_do_not_run_again() {
+    let scratch = Scratch::new("hung-finished");
+    let text = config(&[
+        ("updates = 40", "updates = 6"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+        ),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 400\nfault_hang_at_update = 3\n\
+             fault_hang_at_chunk_rollout = 2",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "hung-finished.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = start_traced(&scratch, 1921, &cfg, &result);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    // The sampler's trace: "<µs> dist 3 idle …", then "<µs> chunk N -> wW: [k, …]".
+    let mut update = None;
+    let mut handed = vec![0u32; 15];
+    for line in out.lines() {
+        let mut words = line
+            .split_whitespace()
+            .skip_while(|w| !w.starts_with("dist") && !w.starts_with("chunk"));
+        match (words.next(), words.next()) {
+            (Some("dist"), Some(u)) => update = u.parse::<u64>().ok(),
+            (Some("chunk"), _) if update == Some(3) => {
+                let list = line
+                    .rsplit_once('[')
+                    .map_or("", |(_, l)| l.trim_end_matches(']'));
+                for k in list
+                    .split(',')
+                    .filter_map(|k| k.trim().parse::<usize>().ok())
+                {
+                    handed[k] += 1;
+                }
+            }
+            _ => {}
+        }
+    }
+    let hung: Vec<&str> = out.lines().filter(|l| l.contains(") hung: ")).collect();
+    assert_eq!(hung.len(), 3, "{out}");
+    let twice = handed.iter().filter(|&&n| n == 2).count();
+    assert!(
+        handed.iter().all(|&n| (1..=2).contains(&n)) && twice == 3,
+        "update 3's rollouts handed out {handed:?} times:\n{out}"
+    );
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}

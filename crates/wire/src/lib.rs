@@ -101,9 +101,9 @@
 //! A worker that dies (or is scaled away) is reported by the supervisor on `control`
 //! ([`Control::WORKER_LOST`]), announces a higher incarnation when restarted, or is found by the
 //! sampler among the run's dead nodes (node name [`worker_node_name`]); the sampler hands the
-//! rollouts of its chunk to the others, all of them: which costs arrived only the updater
-//! knows, and skipping a rollout on the worker's word would hang the update if its cost died
-//! with the worker. Because a
+//! rollouts of its chunk it did not report sent ([`Ready::rollout_done`]) to the others, and
+//! those it did only if the update still waits for them once everything else is back (their
+//! costs died with the worker). Because a
 //! rollout's parameters depend only on (seed, u, k), the result is bit-identical whatever the
 //! worker count, completion order or crashes.
 //!
@@ -281,7 +281,7 @@ pub struct Ready {
     /// Increases with every restart of worker `worker`.
     pub incarnation: u32,
     pub pid: u32,
-    /// 0 or [`Ready::ROLLOUT_DONE`].
+    /// 0 or [`Ready::ROLLOUT_DONE`], with [`Ready::rollout_done`]'s count in bits 16–31.
     pub flags: u32,
 }
 
@@ -296,6 +296,29 @@ impl Ready {
     /// after a chunk's last Ready until it gets the next chunk, so a full subscriber buffer
     /// drops only older reports of the same worker, never a request for work.
     pub const ROLLOUT_DONE: u32 = 1;
+    /// Where in `flags` a ROLLOUT_DONE report counts the rollouts of the chunk whose costs
+    /// have been sent (in the chunk's order). A worker that leaves these bits 0 (one written
+    /// before they existed) says nothing, and a lost worker's whole chunk is handed out again.
+    const SENT_SHIFT: u32 = 16;
+
+    /// The `flags` of a [`Ready::ROLLOUT_DONE`] report after the costs of the chunk's first
+    /// `sent` rollouts were sent. Those a lost worker reported are held back from the others
+    /// until the update waits for nothing else: their costs almost always reached the updater,
+    /// and on a robot a rollout run again is run for real.
+    pub fn rollout_done(sent: usize) -> u32 {
+        let sent = u32::try_from(sent)
+            .unwrap_or(u32::MAX)
+            .min(u32::MAX >> Self::SENT_SHIFT);
+        Self::ROLLOUT_DONE | sent << Self::SENT_SHIFT
+    }
+
+    /// The count [`Ready::rollout_done`] put into `flags` (0 if none).
+    pub fn sent(&self) -> usize {
+        if self.flags & Self::ROLLOUT_DONE == 0 {
+            return 0;
+        }
+        (self.flags >> Self::SENT_SHIFT) as usize
+    }
 }
 
 /// A worker sends [`Ready::ROLLOUT_DONE`] at most this often. A rollout therefore begins at
@@ -1187,6 +1210,24 @@ pub fn doorbell(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rollout_done_report_carries_the_count_of_rollouts_sent() {
+        let report = |flags| Ready {
+            flags,
+            ..Ready::default()
+        };
+        for sent in [0, 1, 7, 10_000, 65_535] {
+            let r = report(Ready::rollout_done(sent));
+            assert_ne!(r.flags & Ready::ROLLOUT_DONE, 0);
+            assert_eq!(r.sent(), sent);
+        }
+        // Beyond the 16 bits: as many as fit, never a wrapped smaller count.
+        assert_eq!(report(Ready::rollout_done(70_000)).sent(), 65_535);
+        // A worker that does not count (flags 1), and a request for work, say nothing.
+        assert_eq!(report(Ready::ROLLOUT_DONE).sent(), 0);
+        assert_eq!(report(0).sent(), 0);
+    }
 
     #[test]
     fn a_service_of_another_iceoryx2_version_is_named_with_what_to_do() {
