@@ -390,12 +390,18 @@ fn this_program() -> String {
 /// Where the recording is and how to analyse it; a resumed run's analysis joins the file it
 /// resumed (`resumed_from`), for the whole learning curve.
 fn print_recording(mcap: &Path, out: &Path, resumed_from: Option<&str>) {
+    let (earlier, left_out) = resumed_from
+        .map(|r| record::resumed_chain(Path::new(r)))
+        .unwrap_or_default();
     say!(
         "recording: {}\nanalyse it with: {} --out {}",
         record::describe_parts(mcap),
-        record::analyze_command(&this_program(), mcap, resumed_from.map(Path::new)),
+        record::analyze_command(&this_program(), mcap, &earlier),
         out.join("analysis").display()
     );
+    if let Some(note) = left_out {
+        say!("NOTE: {note}");
+    }
 }
 
 fn run(cli: Cli) -> Result<()> {

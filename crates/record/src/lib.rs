@@ -48,12 +48,12 @@ pub use digest::{Digest, UpdatePoint};
 pub use error::RecordError;
 pub use reader::{
     join_resumed, read_ends, read_recording, read_recording_slim, read_recording_slim_with,
-    Decoded, Ends, Recording,
+    read_run_metadata, Decoded, Ends, Recording,
 };
 pub use recorder::McapRecorder;
 pub use split::{
     analyze_command, describe_parts, first_part, last_part, part_number, part_path,
-    part_path_or_first, program_name, recording_parts, refuse_overwrite, RunFiles,
+    part_path_or_first, program_name, recording_parts, refuse_overwrite, resumed_chain, RunFiles,
 };
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 

@@ -383,6 +383,29 @@ pub struct Ends {
     pub truncated: Option<String>,
 }
 
+/// The metadata record `pi2cma.run` of the recording at `path` (any part of one), read from the
+/// file's start, where its writer puts it: what a recording resumed (`resumed_from`), without
+/// streaming a part of gigabytes through.
+pub fn read_run_metadata(path: &Path) -> Result<BTreeMap<String, String>, RecordError> {
+    let mut found = None;
+    let read = stream(path, |item| match item {
+        Item::Metadata(m) if m.name == topics::METADATA => {
+            found = Some(m.metadata);
+            // Ends the reading: nothing after it is needed (the error is not reported).
+            Err(RecordError::invalid(path, "read up to its metadata"))
+        }
+        _ => Ok(()),
+    });
+    match (found, read) {
+        (Some(meta), _) => Ok(meta),
+        (None, Err(e)) => Err(e),
+        (None, Ok(_)) => Err(RecordError::invalid(
+            path,
+            format!("no metadata record {}", topics::METADATA),
+        )),
+    }
+}
+
 /// [`Ends`] of the recording at `path`, read as a stream: memory stays at about one chunk,
 /// whatever the size of the file (a continual run's recording can outgrow the RAM that
 /// [`read_recording`] needs). A file whose writer was killed gives its readable prefix.

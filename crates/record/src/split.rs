@@ -119,15 +119,74 @@ pub fn last_part(path: &Path) -> PathBuf {
         .unwrap_or_else(|| path.to_path_buf())
 }
 
-/// The `analyze` command line for a run's recording `first` (all its parts) that resumed the
-/// recording `resumed_from` (all of its parts, whichever one it names): one learning curve
-/// from the run's very start. `pi2cma` is how to call the `pi2cma` binary ([`program_name`]).
-pub fn analyze_command(pi2cma: &str, first: &Path, resumed_from: Option<&Path>) -> String {
-    let mut files = resumed_from
-        .map(|r| as_shell_words(&first_part(r)))
-        .unwrap_or_default();
+/// The `analyze` command line for a run's recording `first` (all its parts) that continues the
+/// recordings `earlier` (all their parts, whichever one each names; oldest first, as
+/// [`resumed_chain`] gives them): one learning curve from the run's very start. `pi2cma` is how
+/// to call the `pi2cma` binary ([`program_name`]).
+pub fn analyze_command(pi2cma: &str, first: &Path, earlier: &[PathBuf]) -> String {
+    let mut files: Vec<String> = earlier
+        .iter()
+        .flat_map(|r| as_shell_words(&first_part(r)))
+        .collect();
     files.extend(as_shell_words(first));
     format!("{pi2cma} analyze {}", files.join(" "))
+}
+
+/// More recordings back than this are not followed (files that name each other in a circle
+/// are caught before; this bounds the reading).
+const RESUMED_CHAIN_LIMIT: usize = 1000;
+
+/// The recordings a run resumed from `resumed_from` continues, oldest first: `resumed_from`
+/// and, back to the run's start, each one that the one after it resumed (its metadata
+/// `resumed_from`, read from any of its parts there). A recording resumed from a run that was
+/// itself resumed (day1 → day2 → day3) needs them all for the whole curve. When one named is
+/// not there (moved or deleted) or cannot be read, the chain begins after it and the note says
+/// so: the command then gives a curve that does not begin at the run's start.
+pub fn resumed_chain(resumed_from: &Path) -> (Vec<PathBuf>, Option<String>) {
+    let mut chain: Vec<PathBuf> = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    let mut next = Some(resumed_from.to_path_buf());
+    while let Some(path) = next.take() {
+        let named_by = chain.last().map_or_else(
+            || "this run resumed".to_string(),
+            |p| format!("{} resumed", p.display()),
+        );
+        let Some(there) = recording_parts(&first_part(&path))
+            .into_iter()
+            .find(|p| p.exists())
+        else {
+            chain.reverse();
+            return (
+                chain,
+                Some(not_followed(&named_by, &path, "it is not there")),
+            );
+        };
+        let key = there.canonicalize().unwrap_or_else(|_| there.clone());
+        if !seen.insert(key) || chain.len() >= RESUMED_CHAIN_LIMIT {
+            break;
+        }
+        match crate::read_run_metadata(&there) {
+            Ok(meta) => next = meta.get("resumed_from").map(PathBuf::from),
+            Err(e) => {
+                chain.reverse();
+                return (chain, Some(not_followed(&named_by, &path, &e.to_string())));
+            }
+        }
+        chain.push(path);
+    }
+    chain.reverse();
+    (chain, None)
+}
+
+/// The note for an earlier recording of a resumed run's chain that is left out of the
+/// `analyze` command.
+fn not_followed(named_by: &str, path: &Path, why: &str) -> String {
+    format!(
+        "{named_by} {} ({why}): the command leaves it and what it resumed out, so its curve \
+         begins later than the run; add them before the others, from where they are now, for \
+         the whole curve",
+        path.display()
+    )
 }
 
 /// More parts than this are named by a pattern in a printed command (a day's run in 1 GB parts
@@ -760,14 +819,14 @@ mod tests {
 
         // The command printed at the end names what `analyze` takes together.
         assert_eq!(
-            analyze_command("pi2cma", &first, None),
+            analyze_command("pi2cma", &first, &[]),
             format!("pi2cma analyze {}", third.display())
         );
         // The first part moved away too: what is left is still a recording there.
         std::fs::remove_file(&first).unwrap();
         assert_eq!(last_part(&first), third);
         assert_eq!(
-            analyze_command("pi2cma", &first, None),
+            analyze_command("pi2cma", &first, &[]),
             format!("pi2cma analyze {}", third.display())
         );
         let e = refuse_overwrite(&first, "--record")
@@ -833,15 +892,11 @@ mod tests {
             .map(|n| dir.join(n).display().to_string())
             .collect();
         assert_eq!(
-            analyze_command(
-                "pi2cma",
-                &dir.join("b.mcap"),
-                Some(&dir.join("a.part-2.mcap"))
-            ),
+            analyze_command("pi2cma", &dir.join("b.mcap"), &[dir.join("a.part-2.mcap")]),
             format!("pi2cma analyze {}", files.join(" "))
         );
         assert_eq!(
-            analyze_command("pi2cma", &dir.join("a.mcap"), None),
+            analyze_command("pi2cma", &dir.join("a.mcap"), &[]),
             format!("pi2cma analyze {} {}", files[0], files[1])
         );
         std::fs::remove_dir_all(&dir).unwrap();
@@ -861,7 +916,7 @@ mod tests {
         }
         let d = dir.display();
         assert_eq!(
-            analyze_command("pi2cma", &first, None),
+            analyze_command("pi2cma", &first, &[]),
             format!("pi2cma analyze {d}/day.mcap {d}/day.part-*.mcap")
         );
         assert_eq!(
@@ -874,7 +929,7 @@ mod tests {
         // The first part archived: the pattern alone.
         std::fs::remove_file(&first).unwrap();
         assert_eq!(
-            analyze_command("pi2cma", &first, None),
+            analyze_command("pi2cma", &first, &[]),
             format!("pi2cma analyze {d}/day.part-*.mcap")
         );
         // Part 4 archived too: the pattern would take in 2 and 3 across the gap.
@@ -883,7 +938,7 @@ mod tests {
             .map(|n| part_path(&first, n).display().to_string())
             .collect();
         assert_eq!(
-            analyze_command("pi2cma", &first, None),
+            analyze_command("pi2cma", &first, &[]),
             format!("pi2cma analyze {}", words.join(" "))
         );
         std::fs::remove_dir_all(&dir).unwrap();

@@ -2675,12 +2675,17 @@ impl Supervisor {
             .filter(|r| record::last_part(&r.path).exists())
         {
             let path = record::describe_parts(&rec.path);
-            // A resumed run's analysis joins the recording it resumed, for the whole curve.
-            let resumed = self.start.as_ref().map(|s| PathBuf::from(&s.origin));
+            // A resumed run's analysis joins the recordings it continues (the one it resumed,
+            // the one that one resumed, …), for the whole curve.
+            let (earlier, left_out) = self
+                .start
+                .as_ref()
+                .map(|s| record::resumed_chain(Path::new(&s.origin)))
+                .unwrap_or_default();
             let (pi2cma, how_to_build) = pi2cma_program();
             let analyse = format!(
                 "{} --out {}{how_to_build}",
-                record::analyze_command(&pi2cma, &rec.path, resumed.as_deref()),
+                record::analyze_command(&pi2cma, &rec.path, &earlier),
                 analysis_out(&rec.path).display()
             );
             let place = if rec.defaulted {
@@ -2707,6 +2712,9 @@ impl Supervisor {
                     ));
                     say(&format!("  then analyse it with: {analyse}"));
                 }
+            }
+            if let Some(note) = left_out {
+                say(&format!("  NOTE: {note}"));
             }
             if rec.restarted > 0 {
                 // Read after the recoveries ended: a part before a restart is complete then.

@@ -4494,6 +4494,67 @@ fn a_killed_run_resumes_from_its_recording_to_the_uninterrupted_result() {
     assert_nothing_left(&resumed);
 }
 
+/// A run resumed from a run that was itself resumed (day1 → day2 → day3): the printed
+/// `analyze` command names every recording back to the run's start (before, it named day2 and
+/// day3 only: a curve beginning at day2's first update); one moved away since is said to be
+/// left out, not silently dropped.
+#[test]
+fn a_run_resumed_twice_prints_an_analyze_command_of_every_recording_back_to_its_start() {
+    let scratch = Scratch::new("resume-chain");
+    let cfg = write_config(&scratch, "a1.toml", &config(&[]));
+    let day = |n: u32| scratch.path(&format!("day{n}.mcap"));
+    let shown = |n: u32| day(n).display().to_string();
+    let mut first = Run::start(
+        &scratch,
+        6496,
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--updates",
+            "4",
+            "--record",
+            &shown(1),
+        ],
+    );
+    first.wait_exit(Duration::from_secs(60), 0);
+    let resume = |id: u64, from: u32, to: u32, updates: &str| {
+        let args = [
+            "--resume",
+            &shown(from),
+            "--updates",
+            updates,
+            "--quiet",
+            "--record",
+            &shown(to),
+        ];
+        let mut run = Run::start(&scratch, id, &args);
+        run.wait_exit(Duration::from_secs(60), 0);
+        run.text()
+    };
+    // The analyze command of the days `days`, in order.
+    let analyze = |days: &[u32]| {
+        let files: Vec<String> = days.iter().map(|&n| shown(n)).collect();
+        format!("pi2cma analyze {} --out", files.join(" "))
+    };
+    let out = resume(6497, 1, 2, "8");
+    assert!(out.contains(&analyze(&[1, 2])), "{out}");
+    let out = resume(6498, 2, 3, "12");
+    assert!(out.contains(&analyze(&[1, 2, 3])), "{out}");
+    assert!(!out.contains("NOTE:"), "{out}");
+    // day1 moved away: the command names what is there and says what it leaves out.
+    std::fs::rename(day(1), scratch.path("elsewhere.mcap")).unwrap();
+    let out = resume(6499, 3, 4, "16");
+    assert!(out.contains(&analyze(&[2, 3, 4])), "{out}");
+    assert!(
+        out.contains(&format!(
+            "NOTE: {} resumed {} (it is not there): the command leaves it",
+            shown(2),
+            shown(1)
+        )),
+        "{out}"
+    );
+}
+
 /// A run that ends right before a task change: its resumed recording marks the change where
 /// it took effect, and the two files analyse as one run with it once, as the uninterrupted
 /// run's recording has it (before, the pipeline recorded it in neither file).

@@ -246,7 +246,7 @@ fn record_run(
             ""
         },
         record::describe_parts(out),
-        record::analyze_command("mcap-tool", out, None),
+        record::analyze_command("mcap-tool", out, &[]),
         out.with_extension("analysis").display()
     );
     if stop.load(Ordering::SeqCst) {
