@@ -16,8 +16,9 @@ costs say so, and the run goes on without the change (a value already in force b
 the config's at the first update, leaves nothing to fall back to, and the worker stops).
 
 Stopping: SIGTERM or SIGINT (the supervisor's stop, Ctrl-C, a scale-down) ends the worker at
-once, with exit code 0, also in the middle of a rollout that takes seconds: there the signal
-raises `Stopped` (a BaseException, as KeyboardInterrupt is) inside the task's `rollout`, so its
+once, with exit code 0, also while the task is built (`make_task`) or in the middle of a rollout
+that takes seconds: there the signal raises `Stopped` (a BaseException, as KeyboardInterrupt is)
+inside the task's `__init__` or `rollout`, so its
 `finally` blocks and context managers run (close your simulator there), and the rollout is
 abandoned: its cost is never sent, and the sampler hands it to another worker (a scale-down) or
 the update stays unfinished (a stop). Between rollouts the signal only ends the loop.
@@ -46,6 +47,11 @@ except ImportError as e:
         file=sys.stderr,
     )
     sys.exit(EXIT_CONFIG_REFUSED)
+
+# Errors only, as the Rust processes (pipeline::run_main): iceoryx2's notes ("No config file was
+# loaded", "Detected dead node ... stale resources") are not the worker's output. IOX2_LOG_LEVEL
+# overrides it.
+iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
 
 MAX_SETTINGS = 8
 WAKE = iox2.EventId.new(1)
@@ -209,7 +215,7 @@ def _apply_settings(task, names, applied, refused, update, settings, previous):
 
 
 class Stopped(BaseException):
-    """Raised inside the task's `rollout` when SIGTERM or SIGINT arrives while it runs (the
+    """Raised inside the task's `rollout` (or its construction) when SIGTERM or SIGINT arrives while it runs (the
     supervisor's stop, Ctrl-C, a scale-down), as Python raises KeyboardInterrupt: the task's
     `finally` blocks and context managers run, and the rollout is abandoned, its cost never
     sent. A BaseException, so that the task's `except Exception` does not catch it."""
@@ -393,7 +399,11 @@ def _costs_of(result, n, where):
     except TypeError:
         raise TaskFailed(f"{where}: the task's rollout returned step costs {_short(per_step)}, not a sequence") from None
     if count != n:
-        raise TaskFailed(f"{where}: the task's rollout returned {count} step costs, expected {n} (task.external.steps)")
+        # Another shape than the config declares, as a wrong `steps` attribute is: every
+        # restart would meet the same (exit 78, not restarted).
+        raise ConfigRefused(
+            f"{where}: the task's rollout returned {count} step costs, expected {n} (task.external.steps)"
+        )
     values = []
     for i, v in enumerate(per_step):
         try:
@@ -414,14 +424,14 @@ def _short(value):
 
 def _serve(make_task, args):
     stop = []
-    # While the task's rollout runs, a stop signal raises Stopped in it (once: a second signal
-    # does not interrupt the task's cleanup); elsewhere it only ends the loop.
-    in_rollout, interrupted = [False], [False]
+    # While the task is built or its rollout runs, a stop signal raises Stopped in it (once: a
+    # second signal does not interrupt the task's cleanup); elsewhere it only ends the loop.
+    in_task, interrupted = [False], [False]
 
     def on_signal(signum, _frame):
         stop.append(signum)
-        if in_rollout[0]:
-            in_rollout[0], interrupted[0] = False, True
+        if in_task[0]:
+            in_task[0], interrupted[0] = False, True
             raise Stopped(signal.Signals(signum).name)
 
     for s in (signal.SIGTERM, signal.SIGINT):
@@ -429,7 +439,19 @@ def _serve(make_task, args):
     shape = Shape(args.config)
     if not 0 <= args.worker < shape.max_workers:
         raise WorkerError(f"worker slot {args.worker} is beyond pipeline.max_workers = {shape.max_workers}")
-    task = make_task(shape) if _takes_an_argument(make_task) else make_task()
+    # A task whose start hangs (a simulator that waits for its license, a robot for its driver)
+    # is stopped there too, not SIGKILLed after the supervisor's shutdown timeout.
+    try:
+        in_task[0] = True
+        try:
+            task = make_task(shape) if _takes_an_argument(make_task) else make_task()
+        finally:
+            in_task[0] = False
+    except Stopped:
+        pass
+    if stop:
+        print("stopped by a signal while the task was being built", flush=True)
+        return
     _check_shape(task, shape)
     run_id, w, inc = args.run_id, args.worker, args.incarnation
     node = _node(run_id, w, inc)
@@ -558,13 +580,13 @@ def _serve(make_task, args):
             where = f"update {update}, rollout {rollout}"
             result = None
             try:
-                in_rollout[0] = True
+                in_task[0] = True
                 try:
                     if stop:  # a signal after the loop's check: not a rollout begun
                         break
                     result = task.rollout(theta)
                 finally:
-                    in_rollout[0] = False
+                    in_task[0] = False
             except Stopped:
                 pass
             except SystemExit as e:

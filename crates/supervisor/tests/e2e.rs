@@ -3999,6 +3999,101 @@ pi2cma_worker.serve(Broken)
     }
 }
 
+/// The config of `tools/reach_worker.py`'s task as changed by `body` (Python: a class `Task`
+/// derived from `reach_worker.Reach`), written as an executable script `<name>.py` and
+/// edited by `edits`.
+fn python_task_config(scratch: &Scratch, name: &str, body: &str, edits: &[(&str, &str)]) -> String {
+    use std::os::unix::fs::PermissionsExt;
+    let tools =
+        std::path::absolute(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools")).unwrap();
+    let script = scratch.path(&format!("{name}.py"));
+    std::fs::write(
+        &script,
+        format!(
+            "#!/usr/bin/env python3\nimport os, sys, time\nsys.path.insert(0, {tools:?})\n\
+             import pi2cma_worker, reach_worker\n{body}\npi2cma_worker.serve(Task)\n"
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    external_config_from(
+        "external-reach-python.toml",
+        "../tools/reach_worker.py",
+        &script,
+        edits,
+    )
+}
+
+/// A Python task's rollout that returns another number of step costs than the config declares
+/// is refused as a task of another shape is: exit 78, not restarted (before, each worker was
+/// restarted up to the restart limit, every restart meeting the same). Its worker's output has
+/// none of iceoryx2's own log lines (`No config file was loaded, …`).
+#[test]
+fn a_python_task_with_another_number_of_step_costs_is_not_restarted() {
+    let scratch = Scratch::new("python-cost-len");
+    let body = "class Task(reach_worker.Reach):\n    def rollout(self, theta):\n        \
+                costs, terminal = super().rollout(theta)\n        return costs[:-1], terminal";
+    let text = python_task_config(&scratch, "short", body, &[]);
+    assert_run_fails_saying_not(
+        &scratch,
+        6501,
+        "short.toml",
+        &text,
+        &[
+            "refused the config, not restarted (exit status: 78",
+            "the task's rollout returned 100 step costs, expected 101 (task.external.steps)",
+        ],
+        &["restart 1 of", "No config file was loaded"],
+    );
+}
+
+/// A Python task that hangs while it is built (a simulator waiting for its license) is stopped
+/// there at once by `supervisor stop`: its worker exits 0, not SIGKILLed after
+/// `shutdown_timeout_ms` (before, the signal only ended a loop not yet begun).
+#[test]
+fn a_python_task_hanging_in_its_start_is_stopped_at_once() {
+    let scratch = Scratch::new("python-init-hangs");
+    let mark = scratch.path("building");
+    let body = format!(
+        "class Task(reach_worker.Reach):\n    def __init__(self, shape):\n        \
+         open({mark:?}, 'w').close()\n        while True:\n            time.sleep(0.01)"
+    );
+    let edits = [(
+        "workers = 2",
+        "workers = 1\nstartup_timeout_ms = 60000\nshutdown_timeout_ms = 20000",
+    )];
+    let cfg = write_config(
+        &scratch,
+        "hangs.toml",
+        &python_task_config(&scratch, "hangs", &body, &edits),
+    );
+    let mut run = Run::start(&scratch, 6502, &[cfg.to_str().unwrap(), "--no-record"]);
+    let end = Instant::now() + Duration::from_secs(30);
+    while !mark.exists() {
+        assert!(
+            Instant::now() < end,
+            "the task was never built:\n{}",
+            run.text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let t0 = Instant::now();
+    run.ctl_ok(&["stop"]);
+    run.wait(Duration::from_secs(30));
+    let out = run.text();
+    assert!(
+        t0.elapsed() < Duration::from_secs(5),
+        "{:?}:\n{out}",
+        t0.elapsed()
+    );
+    assert!(
+        out.contains("stopped by a signal while the task was being built")
+            && !out.contains("did not stop within"),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}
+
 /// Files `<what>-<worker>-<pid>` the slow test worker leaves in `dir`: (worker, pid).
 fn marks(dir: &Path, what: &str) -> Vec<(String, u32)> {
     let mut found: Vec<(String, u32)> = std::fs::read_dir(dir)
