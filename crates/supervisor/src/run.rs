@@ -254,6 +254,9 @@ struct Slot {
     pid: Option<u32>,
     restarts: VecDeque<Instant>,
     restart_at: Option<Instant>,
+    /// How its last process died (exit status and last output), once one did: what a startup
+    /// that times out while it is restarted names as the cause.
+    last_death: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -1133,16 +1136,32 @@ impl Supervisor {
             | Phase::StartSampler
             | Phase::StartWorkers => {
                 // Workers between a crash and their restart have no process to wait for.
+                // A worker whose earlier processes died is named with how the last one did:
+                // the cause, which the timeout alone hid in earlier lines.
+                let died = |w: &u32| {
+                    self.slots
+                        .get(w)
+                        .and_then(|s| s.last_death.as_deref())
+                        .map(|d| format!("; its last attempt died: {d}"))
+                        .unwrap_or_default()
+                };
                 let waiting: Vec<String> = self
                     .procs
                     .values()
                     .filter(|p| !p.ready)
-                    .map(|p| p.role.name())
+                    .map(|p| match p.role {
+                        Role::Worker(w) if !died(&w).is_empty() => {
+                            format!("{} (restarted{})", p.role.name(), died(&w))
+                        }
+                        _ => p.role.name(),
+                    })
                     .chain(
                         self.slots
                             .iter()
                             .filter(|(_, s)| s.pid.is_none())
-                            .map(|(w, _)| format!("worker-{w} (waiting to be restarted)")),
+                            .map(|(w, _)| {
+                                format!("worker-{w} (waiting to be restarted{})", died(w))
+                            }),
                     )
                     .collect();
                 // A worker of the user's own that runs but never announces itself timed out
@@ -2298,6 +2317,7 @@ impl Supervisor {
                     return; // scaled away
                 };
                 slot.pid = None;
+                slot.last_death = Some(cause.clone());
                 if p.stopping || self.phase == Phase::Stopping {
                     return;
                 }

@@ -4024,6 +4024,41 @@ fn python_task_config(scratch: &Scratch, name: &str, body: &str, edits: &[(&str,
     )
 }
 
+/// A Python task whose start raises, with a startup timeout shorter than the restarts take: the
+/// failure names how the workers' last attempt died (before, only `worker-0 (waiting to be
+/// restarted), … did not become ready within 3000 ms`, the cause in earlier lines only).
+#[test]
+fn a_startup_timeout_names_how_the_restarted_workers_last_attempt_died() {
+    let scratch = Scratch::new("python-init-raises");
+    let body = "class Task(reach_worker.Reach):\n    def __init__(self, shape):\n        \
+                raise RuntimeError('no simulator license')";
+    let edits = [(
+        "workers = 2",
+        "workers = 2\nstartup_timeout_ms = 3000\nrestart_limit = 100",
+    )];
+    let cfg = write_config(
+        &scratch,
+        "raises.toml",
+        &python_task_config(&scratch, "raises", body, &edits),
+    );
+    let mut run = Run::start(&scratch, 6500, &[cfg.to_str().unwrap(), "--quiet"]);
+    run.wait_exit(Duration::from_secs(60), 1);
+    let out = run.text();
+    let failed = out
+        .lines()
+        .find(|l| l.contains("[supervisor] failed: "))
+        .unwrap_or("");
+    assert!(
+        failed.contains("did not become ready within 3000 ms")
+            && failed.contains(
+                "its last attempt died: exit status: 1; its last output: error: \
+                                raises.py failed: RuntimeError: no simulator license"
+            ),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}
+
 /// A Python task's rollout that returns another number of step costs than the config declares
 /// is refused as a task of another shape is: exit 78, not restarted (before, each worker was
 /// restarted up to the restart limit, every restart meeting the same). Its worker's output has
