@@ -131,9 +131,15 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // What is in force from the start: a resumed run's settings, and the scheduled changes of
     // its first update.
     if let Some(start) = &start {
+        let settings: Vec<String> = start
+            .settings
+            .iter()
+            .map(|(name, value)| format!("{name} = {}", tasks::value_text(*value)))
+            .collect();
         println!(
-            "resuming at update {first_update} from {} (task settings {:?})",
-            start.origin, start.settings
+            "resuming at update {first_update} from {} (task settings {})",
+            start.origin,
+            settings.join(", ")
         );
         for (name, value) in &start.settings {
             recorded.push(RecordedChange {

@@ -2233,7 +2233,7 @@ impl Supervisor {
                     n => format!(
                         "refused by the workers' task: {n} change{} (the last: {} = {} at \
                          update {})\n",
-                        if n == 1 { "" } else { "s" },
+                        plural(u64::from(n)),
                         named
                             .get(p.last_refused_setting as usize)
                             .map_or("?", |(name, _)| name.as_str()),
@@ -2613,14 +2613,16 @@ impl Supervisor {
                 format!(" (resumed at update {first} from {})", s.origin)
             });
             say(&format!(
-                "summary: run {} ({}): {} updates of {of}{resumed} in {:.2} s ({:.0} updates/s), {} workers targeted at the end, {} restarts",
+                "summary: run {} ({}): {} updates of {of}{resumed} in {:.2} s ({:.0} updates/s), {} worker{} targeted at the end, {} restart{}",
                 wire::run_id_hex(self.run_id),
                 r.name,
                 r.updates,
                 r.elapsed_s,
                 ran as f64 / r.elapsed_s.max(1e-9),
                 self.target_workers,
-                self.total_restarts
+                plural(self.target_workers as u64),
+                self.total_restarts,
+                plural(u64::from(self.total_restarts))
             ));
             // A run stopped before its first update has no costs to show.
             if r.updates > 0 {
@@ -2991,6 +2993,15 @@ fn pi2cma_program() -> (String, &'static str) {
             "pi2cma".into(),
             "   (pi2cma: `cargo build --release -p pi2cma-cli` in the pi2cma repository)",
         ),
+    }
+}
+
+/// The plural ending of a noun counted `n`: `1 worker`, `2 workers`.
+fn plural(n: u64) -> &'static str {
+    if n == 1 {
+        ""
+    } else {
+        "s"
     }
 }
 

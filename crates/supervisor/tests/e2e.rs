@@ -4670,6 +4670,11 @@ fn a_run_resumed_twice_prints_an_analyze_command_of_every_recording_back_to_its_
     assert!(out.contains(&analyze(&[1, 2])), "{out}");
     let out = resume(6498, 2, 3, "12");
     assert!(out.contains(&analyze(&[1, 2, 3])), "{out}");
+    // The settings resumed with, as the other messages write values (not Rust's debug form).
+    assert!(
+        out.contains("(task settings viapoint = ") && !out.contains("(task settings [("),
+        "{out}"
+    );
     assert!(!out.contains("NOTE:"), "{out}");
     // day1 moved away: the command names what is there and says what it leaves out.
     std::fs::rename(day(1), scratch.path("elsewhere.mcap")).unwrap();
