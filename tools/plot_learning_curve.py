@@ -5,7 +5,7 @@ Reads the file with the PyPI packages `mcap` and `mcap-protobuf-support` only (n
 the protobuf schemas are embedded in the recording. Draws the evaluation cost, the exploration
 cost mean ± std band and λ on a log axis, with task changes marked.
 
-    python3 tools/plot_learning_curve.py RUN.mcap [-o curve.svg] [--check]
+    python3 tools/plot_learning_curve.py RUN.mcap [-o curve.svg] [--check] [--log]
     python3 tools/plot_learning_curve.py --join RUN.mcap RUN.part-2.mcap … [-o curve.svg] [--check]
 
 --check decodes every message of every topic and checks the recording's invariants (one
@@ -17,6 +17,11 @@ Every chunk's CRC is checked: a damaged file (a bad sector, a bad copy) fails, n
 rather than giving other numbers (`pi2cma recover FILE` keeps every undamaged chunk).
 A file that is not there, or not MCAP, is named on stderr with what is wrong (exit status 2),
 before any file is read.
+
+The cost axis is logarithmic when every cost drawn (exploration mean, evaluation) is positive and
+they span more than two decades (a cost falling from 80 to 0.05 is a flat line on a linear axis),
+as in `pi2cma analyze`'s learning_curve.svg; --log makes it logarithmic always (a band edge at or
+below zero is then cut off). The axis label says "cost (log)".
 
 --join takes the files as one run, in order: the parts of a split recording (`recording.split_mb`)
 or a run and the runs resumed from it (`--resume`). It checks that each file goes on exactly where
@@ -161,7 +166,7 @@ def check(path, by_topic):
     return failures
 
 
-def plot(path, by_topic, out):
+def plot(path, by_topic, out, log=False):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -185,7 +190,12 @@ def plot(path, by_topic, out):
             a.axvline(c.update, ls="--", color="grey")
     name = run[0].name if run else path
     ax.set_title(f"{name}: learning curve")
-    ax.set_ylabel("cost")
+    costs = mean + [s.eval_cost for s in summaries]
+    if log or (costs and min(costs) > 0 and max(costs) > 100 * min(costs)):
+        ax.set_yscale("log")
+        ax.set_ylabel("cost (log)")
+    else:
+        ax.set_ylabel("cost")
     axl.set_ylabel("λ")
     axl.set_xlabel("update")
     ax.legend()
@@ -223,6 +233,8 @@ def main(argv=None):
     ap.add_argument("files", nargs="+", help="MCAP recordings of pi2cma runs")
     ap.add_argument("-o", "--out", help="figure file (one input or --join) or suffix-free prefix (several)")
     ap.add_argument("--check", action="store_true", help="decode every topic and check invariants")
+    ap.add_argument("--log", action="store_true",
+                    help="log cost axis (default: log when all costs are positive and span > 2 decades)")
     ap.add_argument("--join", action="store_true", help="the files are one run, in order (parts, resumptions)")
     args = ap.parse_args(argv)
     # Exit status 2, as argparse's for a bad argument: the files named are not recordings.
@@ -257,7 +269,7 @@ def main(argv=None):
             stem, dot, ext = out.rpartition(".")
             out = f"{stem}-{i}.{ext}" if dot and "/" not in ext else f"{out}-{i}.svg"
         if out:
-            plot(path, by_topic, out)
+            plot(path, by_topic, out, args.log)
             print(f"wrote {out}")
     if args.join:
         joined, seams = join(args.files, read_files)
@@ -270,7 +282,7 @@ def main(argv=None):
             if updates:
                 print(f"joined {len(args.files)} files: updates {updates[0].update}..{updates[-1].update}")
             if args.out:
-                plot(" + ".join(args.files), joined, args.out)
+                plot(" + ".join(args.files), joined, args.out, args.log)
                 print(f"wrote {args.out}")
     for f in failures:
         print(f"FAIL {f}", file=sys.stderr)

@@ -12,6 +12,8 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use crate::ticks::{self, Along, Ticks};
+
 use crate::digest::{TimeBucket, WorkerTimes};
 pub use crate::digest::{TimelineBar, TIMELINE_UPDATES};
 use crate::recompute::read_and_verify;
@@ -959,16 +961,6 @@ fn padded(lo: f64, hi: f64) -> (f64, f64) {
     (lo - 0.05 * span, hi + 0.05 * span)
 }
 
-/// An axis label without plotters' float noise: "5", not "5.0" for update 5; "1000", not
-/// "1000.0" on the λ axis; exponent form where plain digits would run long.
-fn tick_label(v: &f64) -> String {
-    let v = *v;
-    if v != 0.0 && !(1e-3..1e6).contains(&v.abs()) {
-        return format!("{v:e}");
-    }
-    format!("{}", (v * 1e6).round() / 1e6)
-}
-
 fn log_range(vals: impl Iterator<Item = f64>) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
     for v in vals.filter(|v| *v > 0.0 && v.is_finite()) {
@@ -1139,21 +1131,62 @@ fn draw_curves(
             hi = hi.max(*y);
         }
     }
-    let (lo, hi) = padded(lo.min(0.0), hi);
+    // Costs that fall over more than two decades (80 to 0.05) were a flat line after the
+    // first updates on a linear axis: a log axis then, over the lines' values; a band's
+    // lower edge at or below zero runs along its bottom.
+    let log = ticks::wants_log(
+        curves
+            .iter()
+            .flat_map(|c| &c.pieces)
+            .flat_map(|p| p.line.iter().map(|pt| pt.1)),
+    );
+    let (lo, hi) = if log {
+        log_range(
+            curves
+                .iter()
+                .flat_map(|c| &c.pieces)
+                .flat_map(|p| p.line.iter().map(|pt| pt.1)),
+        )
+    } else {
+        padded(lo.min(0.0), hi)
+    };
+    let (margin, x_area, y_area, caption) = (10, 30, 70, 20);
+    let (w, h) = ticks::plot_size(top.dim_in_pixel(), margin, y_area, 0, x_area, caption);
+    let xt = Ticks::linear(xmin, xmax, w, Along::Horizontal);
+    let (yt, y_desc) = if log {
+        (
+            Ticks::log(lo, hi, h, Along::Vertical),
+            format!("{cost_label} (log)"),
+        )
+    } else {
+        (
+            Ticks::linear(lo, hi, h, Along::Vertical),
+            cost_label.to_string(),
+        )
+    };
+    // On a log axis the chart draws log10 of each cost (a band edge at or below zero at the
+    // axis' bottom): one coordinate type for both scales.
+    let fy = |y: f64| if log { y.max(lo).log10() } else { y };
+    let yt = Ticks {
+        values: yt.values.iter().map(|v| fy(*v)).collect(),
+        labels: yt.labels,
+    };
+    let (lo, hi) = (fy(lo), fy(hi));
     let mut chart = ChartBuilder::on(&top)
-        .caption(title, ("sans-serif", 20))
-        .margin(10)
-        .x_label_area_size(30)
-        .y_label_area_size(70)
-        .build_cartesian_2d(xmin..xmax, lo..hi)
+        .caption(title, ("sans-serif", caption))
+        .margin(margin)
+        .x_label_area_size(x_area)
+        .y_label_area_size(y_area)
+        .build_cartesian_2d(xt.on(xmin, xmax), yt.on(lo, hi))
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
         .x_desc("update")
-        .x_label_formatter(&tick_label)
-        .y_desc(cost_label)
+        .y_desc(y_desc)
         .draw()
         .map_err(|x| e(&x))?;
+    let map =
+        |pts: &[(f64, f64)]| -> Vec<(f64, f64)> { pts.iter().map(|&(x, y)| (x, fy(y))).collect() };
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         // Updates a recording lacks (a restarted recorder's gap) break the line, rather than
@@ -1166,26 +1199,27 @@ fn draw_curves(
                 if single {
                     chart
                         .draw_series(std::iter::once(PathElement::new(
-                            b.clone(),
+                            map(b),
                             color.mix(0.5).stroke_width(3),
                         )))
                         .map_err(|x| e(&x))?;
                 } else {
                     chart
                         .draw_series(std::iter::once(Polygon::new(
-                            b.clone(),
+                            map(b),
                             color.mix(0.2).filled(),
                         )))
                         .map_err(|x| e(&x))?;
                 }
             }
             let line = if single {
-                chart.draw_series(p.line.iter().map(|pt| Circle::new(*pt, 3, color.filled())))
+                chart.draw_series(
+                    map(&p.line)
+                        .into_iter()
+                        .map(|pt| Circle::new(pt, 3, color.filled())),
+                )
             } else {
-                chart.draw_series(LineSeries::new(
-                    p.line.iter().copied(),
-                    color.stroke_width(2),
-                ))
+                chart.draw_series(LineSeries::new(map(&p.line), color.stroke_width(2)))
             }
             .map_err(|x| e(&x))?;
             if n == 0 {
@@ -1214,18 +1248,18 @@ fn draw_curves(
             .flat_map(|c| &c.pieces)
             .flat_map(|p| p.lambda.iter().map(|l| l.1)),
     );
+    let (_, h) = ticks::plot_size(bottom.dim_in_pixel(), margin, y_area, 0, x_area, 0);
+    let lt = Ticks::log(llo, lhi, h, Along::Vertical);
     let mut chart = ChartBuilder::on(&bottom)
-        .margin(10)
-        .x_label_area_size(30)
-        .y_label_area_size(70)
-        .build_cartesian_2d(xmin..xmax, (llo..lhi).log_scale())
+        .margin(margin)
+        .x_label_area_size(x_area)
+        .y_label_area_size(y_area)
+        .build_cartesian_2d(xt.on(xmin, xmax), lt.on_log(llo, lhi))
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
         .x_desc("update")
-        .x_label_formatter(&tick_label)
         .y_desc("λ (log)")
-        .y_label_formatter(&tick_label)
         .draw()
         .map_err(|x| e(&x))?;
     for (i, c) in curves.iter().enumerate() {
@@ -1358,6 +1392,9 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
     // the right (the x range runs 18 % past the last bar).
     let height = (120 + 40 * workers.len() as u32).max(330);
     let root = SVGBackend::new(path, (1000, height)).into_drawing_area();
+    let xright = (xmax * 1.18).max(1e-3);
+    let (w, _) = ticks::plot_size(root.dim_in_pixel(), 10, 90, 0, 30, 18);
+    let xt = Ticks::linear(0.0, xright, w, Along::Horizontal);
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
@@ -1370,10 +1407,7 @@ fn plot_worker_timeline(rec: &Recording, bars: &[TimelineBar], path: &Path) -> R
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(90)
-        .build_cartesian_2d(
-            0f64..(xmax * 1.18).max(1e-3),
-            -0.5f64..(workers.len() as f64 - 0.5),
-        )
+        .build_cartesian_2d(xt.on(0f64, xright), -0.5f64..(workers.len() as f64 - 0.5))
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
@@ -1532,16 +1566,12 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     // the data's ranges, Σ = λ·I was drawn 3× wider than tall).
     let plot_w = f64::from(width - 2 * margin - y_labels);
     let plot_h = f64::from(height - 2 * margin - x_labels - caption - margin);
-    let per_pixel = ((x1 - x0) / plot_w).max((y1 - y0) / plot_h);
-    let widen = |a: f64, b: f64, pixels: f64| {
-        let mid = 0.5 * (a + b);
-        (
-            mid - 0.5 * per_pixel * pixels,
-            mid + 0.5 * per_pixel * pixels,
-        )
-    };
-    let (x0, x1) = widen(x0, x1, plot_w);
-    let (y0, y1) = widen(y0, y1, plot_h);
+    let ((x0, x1), (y0, y1)) = ticks::equal_scale((x0, x1), (y0, y1), plot_w, plot_h);
+    let per_pixel = (x1 - x0) / plot_w;
+    let (xt, yt) = (
+        Ticks::linear(x0, x1, plot_w, Along::Horizontal),
+        Ticks::linear(y0, y1, plot_h, Along::Vertical),
+    );
     let root = SVGBackend::new(path, (width, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let mut chart =
@@ -1562,7 +1592,7 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
             .margin(margin)
             .x_label_area_size(x_labels)
             .y_label_area_size(y_labels)
-            .build_cartesian_2d(x0..x1, y0..y1)
+            .build_cartesian_2d(xt.on(x0, x1), yt.on(y0, y1))
             .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
@@ -1651,17 +1681,22 @@ fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
             rec.name()
         ),
     };
+    let ytop = (ymax * 1.1).max(1e-3);
+    let (w, h) = ticks::plot_size(root.dim_in_pixel(), 10, 70, 0, 30, 20);
+    let (xt, yt) = (
+        Ticks::linear(0.0, xmax, w, Along::Horizontal),
+        Ticks::linear(0.0, ytop, h, Along::Vertical),
+    );
     let mut chart = ChartBuilder::on(&root)
         .caption(caption, ("sans-serif", 20))
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(70)
-        .build_cartesian_2d(0f64..xmax, 0f64..(ymax * 1.1).max(1e-3))
+        .build_cartesian_2d(xt.on(0f64, xmax), yt.on(0f64, ytop))
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
         .x_desc("update")
-        .x_label_formatter(&tick_label)
         .y_desc(format!("rollout time [{unit}]"))
         .draw()
         .map_err(|x| e(&x))?;
@@ -2306,15 +2341,6 @@ pub fn experiment(
 mod tests {
     use super::*;
 
-    #[test]
-    fn axis_labels_are_free_of_float_noise() {
-        let labels: Vec<String> = [5.0, 1000.0, 0.30000000000000004, 2.5, 1e-5, 0.0]
-            .iter()
-            .map(tick_label)
-            .collect();
-        assert_eq!(labels, ["5", "1000", "0.3", "2.5", "1e-5", "0"]);
-    }
-
     fn rec_with(costs: &[f64], change: Option<u64>) -> Recording {
         let mut r = Recording::default();
         if let Some(u) = change {
@@ -2334,6 +2360,58 @@ mod tests {
             });
         }
         r
+    }
+
+    /// The tick labels of an SVG plotters wrote (the text of its <text> elements).
+    fn svg_texts(svg: &str) -> Vec<String> {
+        svg.split("<text")
+            .skip(1)
+            .filter_map(|t| {
+                Some(
+                    t.split_once('>')?
+                        .1
+                        .split_once("</text>")?
+                        .0
+                        .trim()
+                        .to_string(),
+                )
+            })
+            .collect()
+    }
+
+    /// A run whose cost falls from 80 to 0.05 was a flat line after update 2 on the linear cost
+    /// axis, and the update axis was labelled `0.0, 5.0` (found by a user test of the README):
+    /// the cost axis is logarithmic, says so, and integer ticks have no decimals.
+    #[test]
+    fn learning_curve_of_costs_over_three_decades_has_a_log_axis_and_plain_ticks() {
+        let costs: Vec<f64> = (0..30).map(|u| 80.0 * 0.78f64.powi(u)).collect();
+        let mut r = Recording::default();
+        for (u, c) in costs.iter().enumerate() {
+            r.digest.add_update(&proto::Update {
+                update: u as u64,
+                eval_cost: *c,
+                exploration_cost_mean: 1.05 * c,
+                exploration_cost_std: 0.5 * c,
+                lambda: 10f64.powi(u as i32 % 5),
+                ..Default::default()
+            });
+        }
+        let dir = std::env::temp_dir().join(format!("lc-log-{}", std::process::id()));
+        let files = plot(&r, &dir).unwrap();
+        let svg = std::fs::read_to_string(&files[0]).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let texts = svg_texts(&svg);
+        assert!(texts.iter().any(|t| t == "cost (log)"), "{texts:?}");
+        for t in &texts {
+            assert!(!t.ends_with(".0") && t != "-0", "tick label {t}: {texts:?}");
+        }
+        assert!(texts.iter().any(|t| t == "10000"), "{texts:?}");
+        // Costs within two decades keep a linear axis.
+        let r = rec_with(&[5.0, 4.0, 3.0], None);
+        let files = plot(&r, &dir).unwrap();
+        let svg = std::fs::read_to_string(&files[0]).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(!svg_texts(&svg).iter().any(|t| t == "cost (log)"));
     }
 
     #[test]

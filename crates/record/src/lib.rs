@@ -27,6 +27,7 @@ mod reserve;
 pub mod resume;
 mod seek_buffer;
 mod split;
+pub mod ticks;
 mod writer;
 
 /// Generated protobuf types (prost) of `proto/`.
