@@ -4,7 +4,9 @@
 
 use std::path::Path;
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
+use record::ticks::{self, Along, Ticks};
 
 use crate::experiment::{weighting_label, ConfigResult};
 
@@ -45,6 +47,80 @@ fn palette(u: usize, n: usize) -> RGBColor {
     )
 }
 
+/// Height of the legend strip above the grid, in pixels.
+const LEGEND_PX: u32 = 44;
+
+/// Colours of the learning curve: eval cost, its band, λ.
+const COST: RGBColor = RGBColor(20, 60, 180);
+const BAND: RGBColor = RGBColor(120, 170, 230);
+const LAMBDA: RGBColor = RGBColor(20, 150, 40);
+
+/// What a legend entry shows next to its text.
+enum Swatch {
+    Line(RGBColor, u32),
+    Vertical(RGBAColor),
+    Band(RGBAColor),
+    MeanPath,
+}
+
+/// The legend strip: what each colour and line of the panels below means, above the left
+/// (distribution) and right (learning curve) column. The title alone explained the colours,
+/// and light/dark ellipses and the grey line at the task change not at all (found by a user
+/// test of the README).
+fn draw_legend(area: &DrawingArea<SVGBackend<'_>, Shift>) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
+    let (w, _) = area.dim_in_pixel();
+    let half = (w / 2) as i32;
+    let entries: [(i32, i32, Swatch, &str); 7] = [
+        (
+            0,
+            0,
+            Swatch::Line(palette(0, 2), 1),
+            "1σ ellipse, first update (dark)",
+        ),
+        (
+            0,
+            1,
+            Swatch::Line(palette(1, 2), 1),
+            "… last update (light)",
+        ),
+        (1, 0, Swatch::MeanPath, "mean θ per update"),
+        (2, 0, Swatch::Line(COST, 2), "eval cost"),
+        (
+            2,
+            1,
+            Swatch::Band(BAND.mix(0.35)),
+            "± std of the exploration costs",
+        ),
+        (3, 0, Swatch::Line(LAMBDA, 2), "λ (right axis, log)"),
+        (3, 1, Swatch::Vertical(BLACK.mix(0.4)), "task change"),
+    ];
+    for (col, row, swatch, text) in entries {
+        // Two columns of entries per half of the figure, two rows each.
+        let x = 60 + (col / 2) * half + (col % 2) * 230;
+        let y = 12 + row * 20;
+        match swatch {
+            Swatch::Line(c, width) => area.draw(&PathElement::new(
+                vec![(x, y), (x + 24, y)],
+                c.stroke_width(width),
+            )),
+            Swatch::Vertical(c) => {
+                area.draw(&PathElement::new(vec![(x + 12, y - 7), (x + 12, y + 7)], c))
+            }
+            Swatch::Band(c) => {
+                area.draw(&Rectangle::new([(x, y - 5), (x + 24, y + 5)], c.filled()))
+            }
+            Swatch::MeanPath => area
+                .draw(&PathElement::new(vec![(x, y + 3), (x + 24, y - 3)], BLACK))
+                .and_then(|()| area.draw(&Circle::new((x + 12, y), 2, BLACK.filled()))),
+        }
+        .map_err(|x| e(&x))?;
+        area.draw(&Text::new(text, (x + 30, y - 6), ("sans-serif", 12)))
+            .map_err(|x| e(&x))?;
+    }
+    Ok(())
+}
+
 /// Draws the Fig. 2-style grid: one row per config.
 pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
     let err = |e: &dyn std::fmt::Display| FigureError {
@@ -52,9 +128,12 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
         reason: e.to_string(),
     };
     let rows = results.len().max(1);
-    let root = SVGBackend::new(path, (1100, 260 * rows as u32)).into_drawing_area();
+    let root = SVGBackend::new(path, (1100, LEGEND_PX + 260 * rows as u32)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
-    let cells = root.split_evenly((rows, 2));
+    let (legend, grid) = root.split_vertically(LEGEND_PX);
+    draw_legend(&legend).map_err(|e| err(&e))?;
+    let cells = grid.split_evenly((rows, 2));
+    let cell = cells[0].dim_in_pixel();
 
     // Shared parameter-space limits across configs, as in the paper.
     let mut lim = [
@@ -100,6 +179,9 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
         if let Some(s) = r.sessions.first().filter(|s| {
             s.distributions.first().is_some_and(|d| d.0.len() == 2) && lim[0].is_finite()
         }) {
+            let (w, h) = ticks::plot_size(cell, 6, 52, 0, 28, 14);
+            let xt = Ticks::linear(lim[0], lim[1], w, Along::Horizontal);
+            let yt = Ticks::linear(lim[2], lim[3], h, Along::Vertical);
             let mut chart = ChartBuilder::on(&cells[2 * i])
                 .caption(
                     format!("{title}: θ and 1σ ellipse of Σ (session 0; axes not to scale)"),
@@ -108,7 +190,7 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
                 .margin(6)
                 .x_label_area_size(28)
                 .y_label_area_size(52)
-                .build_cartesian_2d(lim[0]..lim[1], lim[2]..lim[3])
+                .build_cartesian_2d(xt.on(lim[0], lim[1]), yt.on(lim[2], lim[3]))
                 .map_err(|e| err(&e))?;
             chart
                 .configure_mesh()
@@ -163,18 +245,25 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
                 (a.min(v), b.max(v))
             });
         let (lmin, lmax) = (lmin.max(1e-6) / 2.0, lmax.max(1e-6) * 2.0);
+        let (w, h) = ticks::plot_size(cell, 6, 52, 64, 28, 14);
+        let xt = Ticks::linear(0.0, n, w, Along::Horizontal);
+        let yt = Ticks::linear(0.0, ymax, h, Along::Vertical);
+        let lt = Ticks::log(lmin, lmax, h, Along::Vertical);
         let mut chart = ChartBuilder::on(&cells[2 * i + 1])
             .caption(
-                format!("{title}: eval cost ± expl. std (blue), λ (green, log)"),
+                format!(
+                    "{title}: learning curve (mean of {} sessions)",
+                    r.sessions.len()
+                ),
                 ("sans-serif", 14),
             )
             .margin(6)
             .x_label_area_size(28)
             .y_label_area_size(52)
             .right_y_label_area_size(64)
-            .build_cartesian_2d(0.0..n, 0.0..ymax)
+            .build_cartesian_2d(xt.on(0.0, n), yt.on(0.0, ymax))
             .map_err(|e| err(&e))?
-            .set_secondary_coord(0.0..n, (lmin..lmax).log_scale());
+            .set_secondary_coord(xt.on(0.0, n), lt.on_log(lmin, lmax));
         chart
             .configure_mesh()
             .x_desc("update")
@@ -202,21 +291,18 @@ pub fn fig2(path: &Path, results: &[ConfigResult]) -> Result<(), FigureError> {
             .collect();
         let band: Vec<(f64, f64)> = upper.into_iter().chain(lower).collect();
         chart
-            .draw_series(std::iter::once(Polygon::new(
-                band,
-                RGBColor(120, 170, 230).mix(0.35).filled(),
-            )))
+            .draw_series(std::iter::once(Polygon::new(band, BAND.mix(0.35).filled())))
             .map_err(|e| err(&e))?;
         chart
             .draw_series(LineSeries::new(
                 e.iter().enumerate().map(|(u, v)| (u as f64, *v)),
-                RGBColor(20, 60, 180).stroke_width(2),
+                COST.stroke_width(2),
             ))
             .map_err(|e| err(&e))?;
         chart
             .draw_secondary_series(LineSeries::new(
                 l.iter().enumerate().map(|(u, v)| (u as f64, *v)),
-                RGBColor(20, 150, 40).stroke_width(2),
+                LAMBDA.stroke_width(2),
             ))
             .map_err(|e| err(&e))?;
         if let Some(c) = r.change_at {
@@ -260,17 +346,58 @@ mod tests {
             .collect()
     }
 
+    /// The SVG text of fig2 of the built-in default config (seed 1), written to a temporary
+    /// file named after `name`.
+    fn default_fig2(name: &str) -> String {
+        let cfg = session::RunConfig::default_config();
+        let result = crate::experiment::run_config(&cfg, 1).unwrap();
+        let path = std::env::temp_dir().join(format!("{name}-{}.svg", std::process::id()));
+        fig2(&path, &[result]).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        svg
+    }
+
+    /// fig2 explained its colours only in the titles, light/dark ellipses and the grey line at
+    /// the task change not at all, and labelled updates `0.0, 5.0`, λ `10000.0` (found by a user
+    /// test of the README): a legend names every colour and line, and ticks are plain.
+    #[test]
+    fn fig2_has_a_legend_and_plain_tick_labels() {
+        let svg = default_fig2("fig2-legend");
+        let texts: Vec<&str> = svg
+            .split("<text")
+            .skip(1)
+            .filter_map(|t| Some(t.split_once('>')?.1.split_once("</text>")?.0.trim()))
+            .collect();
+        for entry in [
+            "1σ ellipse, first update (dark)",
+            "… last update (light)",
+            "mean θ per update",
+            "eval cost",
+            "± std of the exploration costs",
+            "λ (right axis, log)",
+            "task change",
+        ] {
+            assert!(
+                texts.contains(&entry),
+                "no legend entry {entry:?}: {texts:?}"
+            );
+        }
+        for t in &texts {
+            assert!(
+                !t.ends_with(".0") && *t != "-0",
+                "tick label {t:?}: {texts:?}"
+            );
+        }
+        assert!(texts.contains(&"20"), "{texts:?}");
+    }
+
     /// The later ellipses of A1 (session 0, seed 1) reached the very edge of the axes and
     /// looked cut off below about −690 (found by a user test of the README): the axes were
     /// exactly the ellipses' bounding box. Every ellipse now keeps clear of the frame.
     #[test]
     fn every_ellipse_lies_inside_the_axes_clear_of_their_frame() {
-        let cfg = session::RunConfig::default_config();
-        let result = crate::experiment::run_config(&cfg, 1).unwrap();
-        let path = std::env::temp_dir().join(format!("fig2-{}.svg", std::process::id()));
-        fig2(&path, &[result]).unwrap();
-        let svg = std::fs::read_to_string(&path).unwrap();
-        std::fs::remove_file(&path).unwrap();
+        let svg = default_fig2("fig2");
         // The left chart's axes: the first long black vertical and horizontal lines.
         let axes = polylines(&svg, |stroke, p| {
             stroke == "#000000"
@@ -282,7 +409,11 @@ mod tests {
         let (left, right) = (x_axis[0].0.min(x_axis[1].0), x_axis[0].0.max(x_axis[1].0));
         let (top, bottom) = (y_axis[0].1.min(y_axis[1].1), y_axis[0].1.max(y_axis[1].1));
         let ellipses = polylines(&svg, |stroke, p| {
-            stroke != "#000000" && stroke != "#FFFFFF" && p.iter().all(|&(x, _)| x <= right)
+            // The legend strip's swatches above the grid are no ellipses.
+            stroke != "#000000"
+                && stroke != "#FFFFFF"
+                && p.iter()
+                    .all(|&(x, y)| x <= right && y > f64::from(LEGEND_PX))
         });
         assert!(ellipses.len() > 40, "{} ellipses", ellipses.len());
         let clear = 3.0;
