@@ -16,6 +16,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
+use record::ticks::{self, Along, Ticks};
 use session::{CovarianceName, Observer, RunConfig, UpdateRecord, WeightingName};
 use tasks::Task;
 use tball::{Tball, Trace};
@@ -338,6 +339,10 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
     let root = SVGBackend::new(path, (800, 600)).into_drawing_area();
     root.fill(&WHITE)?;
     let (top, bottom) = root.split_vertically(300);
+    let xmax = n as f64 + 1.0;
+    let (w, h) = ticks::plot_size(top.dim_in_pixel(), 10, 50, 0, 30, 16);
+    let xt = Ticks::linear(0.0, xmax, w, Along::Horizontal);
+    let yt = Ticks::linear(0.0, y_max, h, Along::Vertical);
     let mut c = ChartBuilder::on(&top)
         .caption(
             format!(
@@ -349,12 +354,8 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(50)
-        .build_cartesian_2d(0.0..(n as f64 + 1.0), 0.0..y_max)?;
-    c.configure_mesh()
-        .x_desc("update")
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .y_desc("cost")
-        .draw()?;
+        .build_cartesian_2d(xt.on(0.0, xmax), yt.on(0.0, y_max))?;
+    c.configure_mesh().x_desc("update").y_desc("cost").draw()?;
     let band_poly: Vec<(f64, f64)> = band
         .iter()
         .map(|b| (b.0, b.2.max(0.0)))
@@ -384,6 +385,9 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
     let (lo, hi) = lambda.iter().fold((f64::MAX, f64::MIN), |(lo, hi), l| {
         (lo.min(l.1), hi.max(l.1))
     });
+    let (_, h) = ticks::plot_size(bottom.dim_in_pixel(), 10, 50, 0, 30, 16);
+    let (lo, hi) = (lo * 0.5, hi * 2.0);
+    let lt = Ticks::log(lo, hi, h, Along::Vertical);
     let mut c = ChartBuilder::on(&bottom)
         .caption(
             "exploration magnitude λ (largest eigenvalue of Σ), geometric mean over sessions",
@@ -392,48 +396,86 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
         .margin(10)
         .x_label_area_size(30)
         .y_label_area_size(50)
-        .build_cartesian_2d(0.0..(n as f64 + 1.0), (lo * 0.5..hi * 2.0).log_scale())?;
+        .build_cartesian_2d(xt.on(0.0, xmax), lt.on_log(lo, hi))?;
     c.configure_mesh()
         .x_desc("update")
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .y_desc("λ")
-        .y_label_formatter(&|y| format!("{y}"))
+        .y_desc("λ (log)")
         .draw()?;
     c.draw_series(LineSeries::new(lambda, RED.stroke_width(2)))?;
     root.present()?;
     Ok(())
 }
 
-/// Ball trajectories (side view: y–z) of the evaluation rollouts after updates 1, 20, 21, 40.
+/// Ball trajectories (side view: y–z, to scale) of the evaluation rollouts after updates 1,
+/// 20, 21, 40, one panel above the other, under a legend of target, tee and ball.
 fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
     let updates = [1usize, 20, 21, 40];
-    let root = SVGBackend::new(path, (1000, 300)).into_drawing_area();
-    root.fill(&WHITE)?;
     let cfg = task.config();
-    for (area, &u) in root.split_evenly((1, 4)).iter().zip(&updates) {
+    // Every panel's flight, tee and ball, to fit one z range to them all.
+    let mut panels = Vec::new();
+    for &u in &updates {
         let Some(row) = rows.get(u - 1) else { continue };
         let mut t = task.clone();
         t.set("ball_height", row.ball_height)?;
         let trace: Trace = t.trace(&row.samples[0]);
-        let path = trace.ball_path(0.01, cfg.gravity, t.resting_ball());
+        let flight = trace.ball_path(0.01, cfg.gravity, t.resting_ball());
+        let label = match trace.outcome.hit {
+            Some(h) => format!("lands at y = {:.2} m", h.landing[1]),
+            None => "miss".into(),
+        };
+        panels.push((u, t.resting_ball(), flight, label));
+    }
+    // The z axis ran to 1.2 m for flights under 0.55 m: fitted to the data with a margin.
+    let z_top = panels
+        .iter()
+        .flat_map(|(_, ball, flight, _)| flight.iter().map(|p| p[2]).chain([ball[2]]))
+        .fold(0.0f64, f64::max);
+    let (y_range, z_range) = ((-2.5, 0.5), (0.0, z_top + 0.08));
+    let (width, panel_h, legend_h) = (900u32, 230u32, 30u32);
+    let root = SVGBackend::new(path, (width, legend_h + panel_h * panels.len() as u32))
+        .into_drawing_area();
+    root.fill(&WHITE)?;
+    let (legend, grid) = root.split_vertically(legend_h);
+    legend_strip(
+        &legend,
+        &[
+            (Swatch::Band(GREEN.mix(0.6)), "target area"),
+            (Swatch::Stick(BLACK), "tee"),
+            (
+                Swatch::Flight(BLUE),
+                "ball: on the tee (dot) and its flight",
+            ),
+        ],
+    )?;
+    let areas = grid.split_evenly((panels.len().max(1), 1));
+    for (area, (u, ball, flight, label)) in areas.iter().zip(&panels) {
+        // A side view: a metre as long across as up.
+        let (w, h) = ticks::plot_size(area.dim_in_pixel(), 8, 45, 0, 35, 14);
+        let ((y0, y1), (z0, z1)) = ticks::equal_scale(y_range, z_range, w, h);
+        // Widened about the middle: the ground stays at the bottom.
+        let (z0, z1) = (0.0, z1 - z0);
+        let yt = Ticks::linear(y0, y1, w, Along::Horizontal);
+        let zt = Ticks::linear(z0, z1, h, Along::Vertical);
         let mut c = ChartBuilder::on(area)
-            .caption(format!("session 0, after update {u}"), ("sans-serif", 14))
+            .caption(
+                format!("session 0, after update {u}: side view (y–z), to scale; {label}"),
+                ("sans-serif", 14),
+            )
             .margin(8)
             .x_label_area_size(35)
-            .y_label_area_size(40)
-            .build_cartesian_2d(-2.5..0.5, 0.0..1.2)?;
+            .y_label_area_size(45)
+            .build_cartesian_2d(yt.on(y0, y1), zt.on(z0, z1))?;
         c.configure_mesh().x_desc("y (m)").y_desc("z (m)").draw()?;
         c.draw_series(std::iter::once(Rectangle::new(
             [(cfg.target_y_min, 0.0), (cfg.target_y_max, 0.03)],
             GREEN.mix(0.6).filled(),
         )))?;
-        let ball = t.resting_ball();
         c.draw_series(std::iter::once(PathElement::new(
             vec![(ball[1], 0.0), (ball[1], ball[2] - cfg.ball_radius)],
             BLACK.stroke_width(2),
         )))?;
         c.draw_series(LineSeries::new(
-            path.iter().map(|p| (p[1], p[2])),
+            flight.iter().map(|p| (p[1], p[2])),
             BLUE.stroke_width(2),
         ))?;
         // The ball on the tee before the swing.
@@ -442,54 +484,126 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
             3,
             BLUE.filled(),
         )))?;
-        let label = match trace.outcome.hit {
-            Some(h) => format!("lands y = {:.2}", h.landing[1]),
-            None => "miss".into(),
-        };
-        c.draw_series(std::iter::once(Text::new(
-            label,
-            (-2.4, 1.1),
-            ("sans-serif", 12),
-        )))?;
     }
     root.present()?;
     Ok(())
 }
 
-/// Bat end-point paths (front view: y–z) of the K rollouts of updates 1, 20, 27, 40.
+/// What a legend entry shows next to its text.
+enum Swatch {
+    Band(RGBAColor),
+    Stick(RGBColor),
+    Flight(RGBColor),
+    Line(RGBAColor, u32),
+    Dot(RGBColor),
+}
+
+/// A one-row legend across `area`.
+fn legend_strip(
+    area: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>,
+    entries: &[(Swatch, &str)],
+) -> Res<()> {
+    let (mut x, y) = (60i32, (area.dim_in_pixel().1 / 2) as i32);
+    for (swatch, text) in entries {
+        match swatch {
+            Swatch::Band(c) => {
+                area.draw(&Rectangle::new([(x, y - 3), (x + 24, y + 3)], c.filled()))?
+            }
+            Swatch::Stick(c) => area.draw(&PathElement::new(
+                vec![(x + 12, y - 8), (x + 12, y + 8)],
+                c.stroke_width(2),
+            ))?,
+            Swatch::Flight(c) => {
+                area.draw(&PathElement::new(
+                    vec![(x, y + 6), (x + 24, y - 2)],
+                    c.stroke_width(2),
+                ))?;
+                area.draw(&Circle::new((x + 24, y - 2), 3, c.filled()))?;
+            }
+            Swatch::Line(c, w) => area.draw(&PathElement::new(
+                vec![(x, y), (x + 24, y)],
+                c.stroke_width(*w),
+            ))?,
+            Swatch::Dot(c) => area.draw(&Circle::new((x + 12, y), 4, c.filled()))?,
+        }
+        area.draw(&Text::new(*text, (x + 30, y - 6), ("sans-serif", 12)))?;
+        x += 30 + ticks::label_width(text) as i32 + 20;
+    }
+    Ok(())
+}
+
+/// Bat tip paths projected onto the y–z plane (front view, to scale) of the K rollouts of
+/// updates 1, 20, 27, 40, under a legend.
 fn plot_bat(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
     let updates = [1usize, 20, 27, 40];
-    let root = SVGBackend::new(path, (1000, 300)).into_drawing_area();
-    root.fill(&WHITE)?;
-    for (area, &u) in root.split_evenly((1, 4)).iter().zip(&updates) {
+    let mut panels = Vec::new();
+    for &u in &updates {
         let Some(row) = rows.get(u - 1) else { continue };
         let mut t = task.clone();
         t.set("ball_height", row.ball_height)?;
+        let tips: Vec<Vec<(f64, f64)>> = row
+            .samples
+            .iter()
+            .map(|theta| {
+                t.trace(theta)
+                    .bat_tip
+                    .iter()
+                    .map(|p| (p[1], p[2]))
+                    .collect()
+            })
+            .collect();
+        let ball = t.resting_ball();
+        panels.push((u, tips, (ball[1], ball[2])));
+    }
+    // One range for all panels, fitted to the paths and the ball with a margin.
+    let (mut y0, mut y1, mut z0, mut z1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (_, tips, ball) in &panels {
+        for &(y, z) in tips.iter().flatten().chain([ball]) {
+            (y0, y1, z0, z1) = (y0.min(y), y1.max(y), z0.min(z), z1.max(z));
+        }
+    }
+    let pad = 0.05 * (y1 - y0).max(z1 - z0);
+    let (y_range, z_range) = ((y0 - pad, y1 + pad), (z0 - pad, z1 + pad));
+    let legend_h = 30u32;
+    let root = SVGBackend::new(path, (1000, 300 + legend_h)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let (legend, grid) = root.split_vertically(legend_h);
+    legend_strip(
+        &legend,
+        &[
+            (
+                Swatch::Line(BLACK.into(), 2),
+                "bat tip, evaluation rollout (the mean)",
+            ),
+            (
+                Swatch::Line(RED.mix(0.6), 1),
+                "bat tip, exploration rollouts",
+            ),
+            (Swatch::Dot(BLUE), "ball on the tee"),
+        ],
+    )?;
+    for (area, (u, tips, ball)) in grid.split_evenly((1, 4)).iter().zip(&panels) {
+        let (w, h) = ticks::plot_size(area.dim_in_pixel(), 8, 40, 0, 35, 13);
+        let ((y0, y1), (z0, z1)) = ticks::equal_scale(y_range, z_range, w, h);
+        let yt = Ticks::linear(y0, y1, w, Along::Horizontal);
+        let zt = Ticks::linear(z0, z1, h, Along::Vertical);
         let mut c = ChartBuilder::on(area)
-            .caption(format!("session 0, update {u}"), ("sans-serif", 13))
+            .caption(format!("bat tip onto y–z, update {u}"), ("sans-serif", 13))
             .margin(8)
             .x_label_area_size(35)
             .y_label_area_size(40)
-            .build_cartesian_2d(-1.2..0.6, 0.2..1.2)?;
+            .build_cartesian_2d(yt.on(y0, y1), zt.on(z0, z1))?;
         c.configure_mesh().x_desc("y (m)").y_desc("z (m)").draw()?;
-        for (k, theta) in row.samples.iter().enumerate() {
-            let trace = t.trace(theta);
+        // The exploration rollouts under the evaluation rollout (row 0).
+        for (k, tip) in tips.iter().enumerate().rev() {
             let style = if k == 0 {
                 BLACK.stroke_width(2)
             } else {
                 RED.mix(0.6).stroke_width(1)
             };
-            c.draw_series(LineSeries::new(
-                trace.bat_tip.iter().map(|p| (p[1], p[2])),
-                style,
-            ))?;
+            c.draw_series(LineSeries::new(tip.iter().copied(), style))?;
         }
-        let ball = t.resting_ball();
-        c.draw_series(std::iter::once(Circle::new(
-            (ball[1], ball[2]),
-            4,
-            BLUE.filled(),
-        )))?;
+        c.draw_series(std::iter::once(Circle::new(*ball, 4, BLUE.filled())))?;
     }
     root.present()?;
     Ok(())
