@@ -435,7 +435,15 @@ fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
         text.contains("recompute: 20 updates, 0 mismatches"),
         "{text}"
     );
-    assert!(text.contains("resumed_from=first/run.mcap"), "{text}");
+    // Absolute, as typed from here: read from another directory, `first/run.mcap` would name
+    // another file.
+    let meta = record::read_run_metadata(&d.join("second/run.mcap")).expect("metadata");
+    let from = Path::new(&meta["resumed_from"]);
+    assert!(
+        from.is_absolute()
+            && from.canonicalize().ok() == d.join("first/run.mcap").canonicalize().ok(),
+        "{from:?}"
+    );
 
     // Analysed together, in any order, the two files are one run: its per-rollout table is the
     // uninterrupted run's, byte for byte.
@@ -824,7 +832,7 @@ fn analyze_of_an_unfinished_recording_names_pi2cma_recover() {
 /// next run (found by a user test of the README). A directory given by `--out` keeps what
 /// else it holds.
 #[test]
-fn the_next_run_replaces_all_of_runs_latest_and_leaves_a_given_out_as_it_is() {
+fn the_next_run_replaces_the_previous_analysis_in_runs_latest_and_leaves_a_given_out_as_it_is() {
     let d = scratch("replaces-latest");
     let first = pi2cma(&["run", "--updates", "3", "--quiet"], &d);
     assert!(
@@ -858,6 +866,28 @@ fn the_next_run_replaces_all_of_runs_latest_and_leaves_a_given_out_as_it_is() {
         "the previous run's analysis is still in runs/latest"
     );
     assert!(d.join("runs/latest/run.mcap").is_file() && d.join("runs/latest/fig2.svg").is_file());
+    // A file of the user's own in runs/latest stays; one in a replaced subdirectory is refused.
+    std::fs::create_dir_all(d.join("runs/latest/my-own")).expect("mkdir");
+    std::fs::write(d.join("runs/latest/my-own/thesis.tex"), "mine").expect("write");
+    std::fs::create_dir_all(d.join("runs/latest/analysis")).expect("mkdir");
+    std::fs::write(d.join("runs/latest/analysis/notes.txt"), "mine").expect("write");
+    let refused = pi2cma(&["run", "--updates", "3", "--quiet"], &d);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success()
+            && stderr.contains("analysis/notes.txt: this run replaces")
+            && stderr.contains("give --out"),
+        "{stderr}"
+    );
+    std::fs::remove_file(d.join("runs/latest/analysis/notes.txt")).expect("rm");
+    let third = pi2cma(&["run", "--updates", "3", "--quiet"], &d);
+    assert!(
+        third.status.success(),
+        "{}",
+        String::from_utf8_lossy(&third.stderr)
+    );
+    assert!(d.join("runs/latest/my-own/thesis.tex").is_file());
+    assert!(!d.join("runs/latest/analysis").exists());
 
     std::fs::create_dir_all(d.join("mine/analysis")).expect("mkdir");
     std::fs::write(d.join("mine/analysis/notes.txt"), "mine").expect("write");
@@ -882,4 +912,74 @@ fn the_next_run_replaces_all_of_runs_latest_and_leaves_a_given_out_as_it_is() {
     );
     assert!(!d.join("runs/experiment/analysis").exists());
     assert!(d.join("runs/experiment/summary.md").is_file());
+}
+
+/// A run resumed from a resumed run (day1 → day2 → day3; found by a review): day2 named day1
+/// as typed, `runs/latest/run.mcap`, so day3 started elsewhere followed it to that directory's
+/// runs/latest, another run, and printed an analyze command mixing the two; and day3 recording
+/// to its default runs/latest/run.mcap, where day1 was, overwrote the run's first updates.
+#[test]
+fn a_twice_resumed_run_names_its_first_recording_and_never_records_over_it() {
+    let w = scratch("chain-w");
+    let y = scratch("chain-y");
+    let ok = |out: &Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    ok(&pi2cma(&["run", "--updates", "3", "--quiet"], &w));
+    let day2 = ["run", "--resume", "runs/latest/run.mcap", "--updates", "6"];
+    ok(&pi2cma(
+        &[&day2[..], &["--quiet", "--out", "day2"]].concat(),
+        &w,
+    ));
+    // Another run in the other directory's runs/latest.
+    let a2 = repo().join("config/A2.toml");
+    ok(&pi2cma(
+        &[
+            "run",
+            a2.to_str().expect("utf-8"),
+            "--updates",
+            "3",
+            "--quiet",
+        ],
+        &y,
+    ));
+    let day2_file = w.join("day2/run.mcap");
+    let day3 = [
+        "run",
+        "--resume",
+        day2_file.to_str().expect("utf-8"),
+        "--updates",
+        "9",
+    ];
+    let text = ok(&pi2cma(
+        &[&day3[..], &["--quiet", "--out", "d"]].concat(),
+        &y,
+    ));
+    let command = text
+        .lines()
+        .find(|l| l.contains(" analyze "))
+        .unwrap_or_else(|| panic!("no analyze command:\n{text}"));
+    let day1 = w.join("runs/latest/run.mcap");
+    assert!(
+        command.contains(day1.to_str().expect("utf-8"))
+            && !command.contains(" runs/latest/run.mcap"),
+        "{command}"
+    );
+    // Day 3 in day 1's directory, to the default place, where day 1's recording is.
+    let refused = pi2cma(&[&day3[..], &["--quiet"]].concat(), &w);
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success()
+            && stderr.contains("an earlier recording of the run being resumed"),
+        "{stderr}"
+    );
+    assert_eq!(
+        record::read_run_metadata(&day1).expect("day 1")["first_update"],
+        "0"
+    );
 }

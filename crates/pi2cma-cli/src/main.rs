@@ -50,8 +50,8 @@ enum Command {
         #[arg(long)]
         updates: Option<u64>,
         /// Directory for run.mcap, updates.csv, mean_curves.csv and fig2.svg; one that holds a
-        /// recording is refused. Default: runs/latest, which each run without --out replaces
-        /// with all it holds.
+        /// recording is refused. Default: runs/latest, whose results (and analysis/) each run
+        /// without --out replaces.
         #[arg(long)]
         out: Option<PathBuf>,
         /// Print nothing per update (a rollout run again for non-finite costs is still printed).
@@ -256,9 +256,9 @@ fn stop_on_signal() -> Result<()> {
         if INTERRUPTED.swap(true, Ordering::SeqCst) {
             let _ = writeln!(
                 err,
-                "second signal: stopping at once, within an update (exit code 130); no results \
-                 are written, and a recording being written keeps the updates before it \
-                 (`pi2cma recover FILE` completes it)"
+                "second signal: stopping at once, within an update (exit code 130); results not \
+                 yet written stay unwritten or partly written, and a recording being written \
+                 keeps the updates flushed before it (`pi2cma recover FILE` completes it)"
             );
             std::process::exit(130);
         }
@@ -295,13 +295,21 @@ fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
     }
 }
 
-/// Removes `out`, the default directory, with all the previous run left in it, so that the
-/// run about to write there replaces it as a whole: its `analysis/` (where the printed
-/// `analyze` command writes) held the previous run's CSV files and figures beside this run's
-/// results. Never called for a directory given by `--out`. Refused while a file in it is being
-/// recorded (another run writing there); left as it is when the recording a run resumes lies in
-/// it (it is still read, and its analysis joins it), and when it is not a directory (a link is
-/// not followed).
+/// The subdirectories of a default output directory that the previous run's commands wrote:
+/// the printed `analyze` command's `analysis/`, an experiment's recordings in `mcap/`. A run
+/// writes its own files over the previous ones, but these it does not: a new run's results sat
+/// beside the previous run's analysis (CSV files and figures of another seed).
+const REPLACED_SUBDIRS: [&str; 2] = ["analysis", "mcap"];
+
+/// What those subdirectories hold when only pi2cma wrote them.
+const OUTPUT_EXTENSIONS: [&str; 5] = ["csv", "svg", "md", "mcap", "png"];
+
+/// Removes the previous run's [`REPLACED_SUBDIRS`] from `out`, the default directory, so that
+/// the run about to write there replaces its results as a whole. Never called for a directory
+/// given by `--out`. Nothing else in `out` is removed; a subdirectory that holds a file no
+/// pi2cma command writes (a link, another extension) is refused, naming the file, and so is
+/// one with a file being recorded (another run writing there). Left as it is when the
+/// recording a run resumes lies in `out` (it is still read, and its analysis joins it).
 fn replace_default_dir(out: &Path, resumed: Option<&Path>) -> Result<()> {
     if !std::fs::symlink_metadata(out).is_ok_and(|m| m.is_dir()) {
         return Ok(());
@@ -320,12 +328,74 @@ fn replace_default_dir(out: &Path, resumed: Option<&Path>) -> Result<()> {
     if resumed.is_some_and(inside) {
         return Ok(());
     }
-    std::fs::remove_dir_all(out).with_context(|| {
-        format!(
-            "replacing {} (the previous run's results) for this run's",
-            out.display()
-        )
-    })
+    for sub in REPLACED_SUBDIRS {
+        let dir = out.join(sub);
+        if !std::fs::symlink_metadata(&dir).is_ok_and(|m| m.is_dir()) {
+            continue;
+        }
+        if let Some(foreign) = foreign_file(&dir) {
+            bail!(
+                "{}: this run replaces {} (the previous run's), but no pi2cma command writes \
+                 this file: move it, or give --out",
+                foreign.display(),
+                dir.display()
+            );
+        }
+        std::fs::remove_dir_all(&dir).with_context(|| {
+            format!(
+                "replacing {} (the previous run's) for this run's",
+                dir.display()
+            )
+        })?;
+    }
+    Ok(())
+}
+
+/// Refuses to record to `mcap` when it is an earlier recording of the run resumed from
+/// `origin` (day1 of day1 → day2 → this run, when day1 is runs/latest/run.mcap and this run
+/// records there by default): it would be overwritten, and with it the run's first updates.
+fn refuse_overwriting_the_chain(origin: &str, mcap: &Path) -> Result<()> {
+    let Ok(target) = mcap.canonicalize() else {
+        return Ok(());
+    };
+    let (chain, _) = record::resumed_chain(Path::new(origin));
+    if let Some(earlier) = chain
+        .iter()
+        .find(|p| p.canonicalize().is_ok_and(|p| p == target))
+    {
+        bail!(
+            "{}: holds {}, an earlier recording of the run being resumed; this run would \
+             record over it, and with it the run's first updates: give --out DIR",
+            mcap.display(),
+            earlier.display()
+        );
+    }
+    Ok(())
+}
+
+/// A file or link below `dir` that is not one of pi2cma's outputs ([`OUTPUT_EXTENSIONS`]).
+fn foreign_file(dir: &Path) -> Option<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Some(dir.to_path_buf());
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        match entry.file_type() {
+            Ok(kind) if kind.is_dir() => {
+                if let Some(f) = foreign_file(&path) {
+                    return Some(f);
+                }
+            }
+            Ok(kind)
+                if kind.is_file()
+                    && path
+                        .extension()
+                        .and_then(|e| e.to_str())
+                        .is_some_and(|e| OUTPUT_EXTENSIONS.contains(&e)) => {}
+            _ => return Some(path),
+        }
+    }
+    None
 }
 
 /// A file below `dir` that a recorder holds ([`record::being_written`]), if any.
@@ -441,6 +511,7 @@ fn run(cli: Cli) -> Result<()> {
                 point.check(&cfg)?;
                 if !no_record {
                     point.check_output(&mcap, "--out")?;
+                    refuse_overwriting_the_chain(&point.start.origin, &mcap)?;
                 }
             }
             if !replaceable && !no_record {

@@ -69,7 +69,9 @@ const DEAD_SCAN: Duration = Duration::from_secs(1);
 /// How long the update must have waited for nothing but held-back rollouts (queue empty, no
 /// chunk of it out) before they are handed out again: their costs then died with their worker.
 /// The updater publishes the next distribution within micro- to milliseconds of its last cost,
-/// so this is only ever waited out when a cost was really lost.
+/// so this is waited out only when a cost was really lost, or when the updater itself waits (for
+/// a recorder behind by its lag bound): then they run again, which the result does not see
+/// (the updater keeps a rollout's first cost).
 const HELD_BACK_RELEASE: Duration = Duration::from_millis(100);
 
 type Inbox = (Publisher<Service, [f64], WorkHeader>, Notifier<Service>);

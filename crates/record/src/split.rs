@@ -146,6 +146,8 @@ pub fn resumed_chain(resumed_from: &Path) -> (Vec<PathBuf>, Option<String>) {
     let mut chain: Vec<PathBuf> = Vec::new();
     let mut seen = std::collections::BTreeSet::new();
     let mut next = Some(resumed_from.to_path_buf());
+    // The run (name, seed) and first update of the recording last added.
+    let mut later: Option<ChainLink> = None;
     while let Some(path) = next.take() {
         let named_by = chain.last().map_or_else(
             || "this run resumed".to_string(),
@@ -165,17 +167,47 @@ pub fn resumed_chain(resumed_from: &Path) -> (Vec<PathBuf>, Option<String>) {
         if !seen.insert(key) || chain.len() >= RESUMED_CHAIN_LIMIT {
             break;
         }
-        match crate::read_run_metadata(&there) {
-            Ok(meta) => next = meta.get("resumed_from").map(PathBuf::from),
+        let meta = match crate::read_run_metadata(&there) {
+            Ok(meta) => meta,
             Err(e) => {
                 chain.reverse();
                 return (chain, Some(not_followed(&named_by, &path, &e.to_string())));
             }
+        };
+        // Recordings made before `resumed_from` was stored absolute name it as typed, which
+        // read from another directory can be another run's file (every run's default is
+        // runs/latest/run.mcap), or one a later run has overwritten: it must be the same run,
+        // and begin before the recording that resumed it.
+        let link = ChainLink {
+            run: (meta.get("name").cloned(), meta.get("seed").cloned()),
+            first: meta.get("first_update").and_then(|f| f.parse().ok()),
+        };
+        if let Some(l) = &later {
+            if link.run != l.run || link.first.zip(l.first).is_some_and(|(f, l)| f >= l) {
+                chain.reverse();
+                return (
+                    chain,
+                    Some(not_followed(
+                        &named_by,
+                        &path,
+                        "the file there now is another recording",
+                    )),
+                );
+            }
         }
+        next = meta.get("resumed_from").map(PathBuf::from);
+        later = Some(link);
         chain.push(path);
     }
     chain.reverse();
     (chain, None)
+}
+
+/// What [`resumed_chain`] checks of a recording it follows: its run (name, seed, as its
+/// metadata has them) and its first update.
+struct ChainLink {
+    run: (Option<String>, Option<String>),
+    first: Option<u64>,
 }
 
 /// The note for an earlier recording of a resumed run's chain that is left out of the

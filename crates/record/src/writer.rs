@@ -332,7 +332,11 @@ impl<W: Write + Seek> RunWriter<W> {
         meta.insert("config_toml".to_string(), start.config_toml.to_string());
         meta.insert("started_ns".to_string(), now.to_string());
         if let Some(from) = start.resumed_from {
-            meta.insert("resumed_from".to_string(), from.to_string());
+            // Absolute: a path as typed, read later from another directory, names another
+            // file (every run's default is runs/latest/run.mcap).
+            let from = std::path::absolute(from)
+                .map_or_else(|_| from.to_string(), |p| p.display().to_string());
+            meta.insert("resumed_from".to_string(), from);
         }
         if let Some((part, previous)) = start.part {
             meta.insert("part".to_string(), part.to_string());
