@@ -75,6 +75,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             wire::reruns(&ctx.node, ctx.run_id, &ctx.limits)?
                 .publisher_builder()
                 .initial_max_slice_len(k_total)
+                .allocation_strategy(AllocationStrategy::Static)
                 .create(),
             "reruns publisher",
         )?),
