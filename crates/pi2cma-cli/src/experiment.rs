@@ -108,12 +108,10 @@ pub fn summarize(
         optimum_converged: true,
     };
     if change_at.is_some() {
-        // `build_task` refuses an external task, whose rollouts run elsewhere. The search then
-        // runs the task without its rollout delay: the delay stands in for a slow robot, and
-        // the search's hundreds to thousands of rollouts kept `pi2cma run` silent for minutes
-        // after its last update.
-        drop(session::build_task(config)?);
-        let mut task = config.build_task()?;
+        // Without its rollout delay: the delay stands in for a slow robot, and the search's
+        // hundreds to thousands of rollouts kept `pi2cma run` silent for minutes after its
+        // last update.
+        let mut task = session::build_task_without_delay(config)?;
         let initial = task.settings();
         config
             .schedule()

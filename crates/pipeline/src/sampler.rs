@@ -369,12 +369,14 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         let Some(cur) = current.as_ref() else {
             return Ok(Flow::Continue);
         };
-        let busy = !pending.is_empty()
-            || workers.values().any(|w| {
-                w.assignment
-                    .as_ref()
-                    .is_some_and(|a| a.update == cur.update)
-            });
+        let busy = || {
+            !pending.is_empty()
+                || workers.values().any(|w| {
+                    w.assignment
+                        .as_ref()
+                        .is_some_and(|a| a.update == cur.update)
+                })
+        };
         let released = held_back.release(busy, Instant::now());
         if trace && !released.is_empty() {
             eprintln!("{} released {released:?}", us());
@@ -506,11 +508,12 @@ impl HeldBack {
         self.idle_since = None;
     }
 
-    /// Called every round, `busy` if the queue holds rollouts or a chunk of the update is out:
-    /// the rollouts to hand out again now (none until the update has waited for nothing else
-    /// for [`HELD_BACK_RELEASE`]).
-    fn release(&mut self, busy: bool, now: Instant) -> Vec<u32> {
-        if busy || self.rollouts.is_empty() {
+    /// Called every round, `busy` telling whether the queue holds rollouts or a chunk of the
+    /// update is out (asked only while something is held back: the round is the sampler's hot
+    /// path): the rollouts to hand out again now (none until the update has waited for nothing
+    /// else for [`HELD_BACK_RELEASE`]).
+    fn release(&mut self, busy: impl FnOnce() -> bool, now: Instant) -> Vec<u32> {
+        if self.rollouts.is_empty() || busy() {
             self.idle_since = None;
             return Vec::new();
         }
@@ -569,30 +572,30 @@ mod tests {
         let t0 = Instant::now();
         let ms = |n| t0 + Duration::from_millis(n);
         let mut h = HeldBack::default();
-        assert!(h.release(false, t0).is_empty());
+        assert!(h.release(|| false, t0).is_empty());
         h.hold(3);
         h.hold(4);
         h.hold(3);
         // Other rollouts out or queued: the update may still finish without 3 and 4.
-        assert!(h.release(true, ms(0)).is_empty());
-        assert!(h.release(false, ms(10)).is_empty());
-        assert!(h.release(false, ms(60)).is_empty());
+        assert!(h.release(|| true, ms(0)).is_empty());
+        assert!(h.release(|| false, ms(10)).is_empty());
+        assert!(h.release(|| false, ms(60)).is_empty());
         // Busy again: the wait starts over.
-        assert!(h.release(true, ms(100)).is_empty());
-        assert!(h.release(false, ms(120)).is_empty());
-        assert!(h.release(false, ms(219)).is_empty());
-        assert_eq!(h.release(false, ms(220)), vec![3, 4]);
-        assert!(h.release(false, ms(400)).is_empty());
+        assert!(h.release(|| true, ms(100)).is_empty());
+        assert!(h.release(|| false, ms(120)).is_empty());
+        assert!(h.release(|| false, ms(219)).is_empty());
+        assert_eq!(h.release(|| false, ms(220)), vec![3, 4]);
+        assert!(h.release(|| false, ms(400)).is_empty());
         // A rerun hands a rollout out anyway; a new update forgets them all.
         h.hold(1);
         h.hold(2);
         h.forget(1);
-        assert!(h.release(false, ms(500)).is_empty());
-        assert_eq!(h.release(false, ms(600)), vec![2]);
+        assert!(h.release(|| false, ms(500)).is_empty());
+        assert_eq!(h.release(|| false, ms(600)), vec![2]);
         h.hold(5);
         h.clear();
-        assert!(h.release(false, ms(700)).is_empty());
-        assert!(h.release(false, ms(900)).is_empty());
+        assert!(h.release(|| false, ms(700)).is_empty());
+        assert!(h.release(|| false, ms(900)).is_empty());
     }
 
     #[test]

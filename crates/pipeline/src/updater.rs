@@ -132,15 +132,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // What is in force from the start: a resumed run's settings, and the scheduled changes of
     // its first update.
     if let Some(start) = &start {
-        let settings: Vec<String> = start
-            .settings
-            .iter()
-            .map(|(name, value)| format!("{name} = {}", tasks::value_text(*value)))
-            .collect();
         println!(
             "resuming at update {first_update} from {} (task settings {})",
             start.origin,
-            settings.join(", ")
+            tasks::settings_text(start.settings.iter().map(|(n, v)| (n, *v)))
         );
         for (name, value) in &start.settings {
             recorded.push(RecordedChange {
@@ -601,12 +596,13 @@ fn ran_with_text(h: &wire::CostHeader, published: &[f64], task: &dyn tasks::Task
     if names.is_empty() {
         return String::new();
     }
-    let list: Vec<String> = names
-        .iter()
-        .zip(h.ran_with(published))
-        .map(|((name, _), v)| format!("{name} = {}", tasks::value_text(*v)))
-        .collect();
-    format!(", which ran with {}", list.join(", "))
+    let list = tasks::settings_text(
+        names
+            .iter()
+            .zip(h.ran_with(published))
+            .map(|((name, _), v)| (name, *v)),
+    );
+    format!(", which ran with {list}")
 }
 
 impl RanWith {

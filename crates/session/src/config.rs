@@ -449,12 +449,7 @@ use tasks::value_text as num;
 
 /// A task's settings as a TOML inline table, `{viapoint = 0.3}`.
 fn settings_text(task: &dyn tasks::Task) -> String {
-    let list: Vec<String> = task
-        .settings()
-        .iter()
-        .map(|(name, v)| format!("{name} = {}", num(*v)))
-        .collect();
-    format!("{{{}}}", list.join(", "))
+    format!("{{{}}}", tasks::settings_text(task.settings()))
 }
 
 /// Bytes in decimal units, as in "about 7.2 GB".
@@ -1547,25 +1542,19 @@ impl RunConfig {
         }
         tasks::check_initial_rollout(task.as_mut()).map_err(|e| {
             // Name the settings that made the difference, if any besides the change did.
-            let others: Vec<String> = task
-                .settings()
-                .into_iter()
-                .filter(|&(n, v)| {
-                    n != name
-                        && from_config
-                            .iter()
-                            .any(|&(c, cv)| c == n && cv.to_bits() != v.to_bits())
-                })
-                .map(|(n, v)| format!("{n} = {}", tasks::value_text(v)))
-                .collect();
+            let others = tasks::settings_text(task.settings().into_iter().filter(|&(n, v)| {
+                n != name
+                    && from_config
+                        .iter()
+                        .any(|&(c, cv)| c == n && cv.to_bits() != v.to_bits())
+            }));
             match e {
                 tasks::TaskError::Invalid { task, reason } if !others.is_empty() => {
                     tasks::TaskError::Invalid {
                         task,
                         reason: format!(
                             "{reason} (together with the settings in force that differ from \
-                             the config: {})",
-                            others.join(", ")
+                             the config: {others})"
                         ),
                     }
                 }

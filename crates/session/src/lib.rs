@@ -132,6 +132,18 @@ fn check_shape_against(
 /// external task (`[task.external]`) is refused: its rollouts run in the user's own workers,
 /// started by `supervisor run`.
 pub fn build_task(config: &RunConfig) -> Result<Box<dyn Task>, TaskError> {
+    let task = build_task_without_delay(config)?;
+    let delay = config.rollout_delay();
+    Ok(if delay.is_zero() {
+        task
+    } else {
+        Box::new(Delayed { inner: task, delay })
+    })
+}
+
+/// [`build_task`] without the rollout delay: for what needs the task's costs, not its timing
+/// (the re-convergence reference's thousands of rollouts).
+pub fn build_task_without_delay(config: &RunConfig) -> Result<Box<dyn Task>, TaskError> {
     if let Some((program, _)) = config.external_worker() {
         return Err(TaskError::Invalid {
             task: "external",
@@ -144,13 +156,7 @@ pub fn build_task(config: &RunConfig) -> Result<Box<dyn Task>, TaskError> {
             ),
         });
     }
-    let task = config.build_task()?;
-    let delay = config.rollout_delay();
-    Ok(if delay.is_zero() {
-        task
-    } else {
-        Box::new(Delayed { inner: task, delay })
-    })
+    config.build_task()
 }
 
 /// The optimizer of a config for session seed `seed`: Σ_init = λ_init·I around the task's

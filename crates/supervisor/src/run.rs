@@ -2224,10 +2224,7 @@ impl Supervisor {
             Some(p) => {
                 // Named once: it builds the task for its setting names.
                 let named = self.reported_settings(p);
-                let settings: Vec<String> = named
-                    .iter()
-                    .map(|(n, v)| format!("{n} = {}", tasks::value_text(*v)))
-                    .collect();
+                let settings = tasks::settings_text(named.iter().map(|(n, v)| (n, *v)));
                 let refused = match p.refused {
                     0 => String::new(),
                     n => format!(
@@ -2257,7 +2254,7 @@ impl Supervisor {
                         .map_or(0.0, |t| t.elapsed().as_secs_f64()),
                     reading(p.eval_cost),
                     reading(p.lambda),
-                    settings.join(", ")
+                    settings
                 );
             }
             None => s += "updates: 0\n",

@@ -24,6 +24,15 @@ pub fn value_text(v: f64) -> String {
     }
 }
 
+/// Settings as messages list them: `viapoint = 0.3, goal = 1` ([`value_text`] values).
+pub fn settings_text<N: std::fmt::Display>(settings: impl IntoIterator<Item = (N, f64)>) -> String {
+    let list: Vec<String> = settings
+        .into_iter()
+        .map(|(name, v)| format!("{name} = {}", value_text(v)))
+        .collect();
+    list.join(", ")
+}
+
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum TaskError {
     #[error("task `{task}` has no setting `{name}` (it has: {known})")]
