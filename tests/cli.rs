@@ -983,3 +983,69 @@ fn a_twice_resumed_run_names_its_first_recording_and_never_records_over_it() {
         "0"
     );
 }
+
+/// A recording that fails mid-run (here a file size limit, as a full disk does) stops the run
+/// after the update in flight, and the error names the file, what it holds and how to complete
+/// it. Before, the run went on unrecorded to its end (hours of robot time) and only then said
+/// `error: recording r/run.mcap: r/run.mcap: MCAP: I/O error: File too large`, with no results
+/// written: every update after the failure was lost.
+#[test]
+fn a_run_whose_recording_fails_stops_and_says_what_the_file_holds() {
+    let d = scratch("recording-fails");
+    // SIGXFSZ ignored: a write past the limit fails with EFBIG instead of killing the process.
+    let out = Command::new("sh")
+        .args([
+            "-c",
+            "trap '' XFSZ; ulimit -f 1000; exec \"$0\" run --out r --updates 3000",
+            env!("CARGO_BIN_EXE_pi2cma"),
+        ])
+        .current_dir(&d)
+        .output()
+        .expect("sh starts");
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(1), "{stdout}\n{stderr}");
+    let last = stdout
+        .lines()
+        .filter_map(|l| {
+            l.strip_prefix("update ")?
+                .split('/')
+                .next()?
+                .trim()
+                .parse::<u64>()
+                .ok()
+        })
+        .max()
+        .expect("progress lines");
+    // "… r/run.mcap holds 14 updates (0..=13) but is not finished: `pi2cma recover …"
+    let held: u64 = stderr
+        .split(" holds ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no `holds N updates` in: {stderr}"));
+    assert!(
+        stderr.contains("the run stopped: its recording failed")
+            && stderr.contains("r/run.mcap: MCAP: I/O error: File too large")
+            && stderr.contains("pi2cma recover r/run.mcap --out"),
+        "{stderr}"
+    );
+    assert!(
+        held > 0 && last <= held + 2,
+        "ran {last} updates, recorded {held}: {stderr}"
+    );
+    // What it says the file holds is what a recovery gets back.
+    let rec = pi2cma(&["recover", "r/run.mcap", "--out", "rec.mcap"], &d);
+    assert!(
+        rec.status.success(),
+        "{}",
+        String::from_utf8_lossy(&rec.stderr)
+    );
+    let info = pi2cma(&["analyze", "rec.mcap", "--no-csv", "--no-plots"], &d);
+    let info = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.contains(&format!("updates: {held} (0..={})", held - 1)),
+        "{info}"
+    );
+}

@@ -231,8 +231,8 @@ fn run_resumed(
     let origin = start.origin.clone();
     let origin_update = start.update;
     let mut exec = session::InProcess::resume(cfg, cfg.run.seed, start)?;
-    run_observed(cfg, recorder, quiet, |observer| {
-        exec.run(observer, &interrupted)
+    run_observed(cfg, recorder, quiet, |observer, stop| {
+        exec.run(observer, stop)
     })?;
     say_if_interrupted(exec.optimizer().update_index() - origin_update, !no_record);
     let d = exec.optimizer().distribution();
@@ -424,28 +424,32 @@ fn recorder(mcap: &Path, text: String) -> Result<record::McapRecorder> {
 }
 
 /// Runs `run` with the progress printer (with `quiet`, only its warnings) and `recorder` as
-/// observers, then finishes the recording.
+/// observers, then finishes the recording. `run` is to stop after its current update when the
+/// stop function it gets says so: on a signal, or once the recording has failed (a full disk),
+/// so that a run does not go on unrecorded to its end, which is when the failure is reported.
 fn run_observed<T>(
     cfg: &RunConfig,
     mut recorder: Option<record::McapRecorder>,
     quiet: bool,
-    run: impl FnOnce(&mut dyn Observer) -> Result<T, session::SessionError>,
+    run: impl FnOnce(&mut dyn Observer, &dyn Fn() -> bool) -> Result<T, session::SessionError>,
 ) -> Result<T> {
     let mut progress = Progress {
         total: cfg.run.updates,
         quiet,
     };
+    let failed = recorder.as_ref().map(|r| r.failure_flag());
+    let stop = || interrupted() || failed.as_ref().is_some_and(|f| f.load(Ordering::SeqCst));
     let value = {
         let mut observers: Vec<&mut dyn Observer> = vec![&mut progress];
         if let Some(r) = recorder.as_mut() {
             observers.push(r);
         }
-        run(&mut session::Observers(observers))?
+        run(&mut session::Observers(observers), &stop)?
     };
     if let Some(r) = recorder {
-        let path = r.path().to_path_buf();
+        // The error names the file, what it holds and how to complete it.
         r.finish()
-            .with_context(|| format!("recording {}", path.display()))?;
+            .context("the run stopped: its recording failed")?;
     }
     Ok(value)
 }
@@ -537,8 +541,8 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.run.updates.unwrap_or(0)
             );
             let recorder = (!no_record).then(|| recorder(&mcap, text)).transpose()?;
-            let session = run_observed(&cfg, recorder, quiet, |observer| {
-                experiment::run_one(&cfg, cfg.run.seed, observer, &interrupted)
+            let session = run_observed(&cfg, recorder, quiet, |observer, stop| {
+                experiment::run_one(&cfg, cfg.run.seed, observer, stop)
             })?;
             say_if_interrupted(session.summaries.len() as u64, !no_record);
             let result = experiment::summarize(&cfg, vec![session])?;
@@ -628,9 +632,11 @@ fn run(cli: Cli) -> Result<()> {
                         let file = recording(cfg, seed);
                         let mut rec = record::McapRecorder::create(&file)
                             .with_context(|| format!("creating {}", file.display()))?;
-                        let r = experiment::run_one(cfg, seed, &mut rec, &interrupted);
+                        let failed = rec.failure_flag();
+                        let stop = || interrupted() || failed.load(Ordering::SeqCst);
+                        let r = experiment::run_one(cfg, seed, &mut rec, &stop);
                         rec.finish()
-                            .with_context(|| format!("recording {}", file.display()))?;
+                            .context("the experiment stopped: a recording failed")?;
                         r
                     } else {
                         experiment::run_one(cfg, seed, &mut session::NoObserver, &interrupted)

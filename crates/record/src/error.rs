@@ -36,12 +36,36 @@ pub enum RecordError {
         update: u64,
         what: String,
     },
+    /// A recording whose writer failed mid-run (a full disk): `cause` names the file and the
+    /// error; the file holds `updates` updates from `first` on.
+    #[error("{cause}; the recording stopped there: {}", stopped_note(file, *first, *updates))]
+    Stopped {
+        file: PathBuf,
+        cause: String,
+        first: u64,
+        updates: u64,
+    },
     #[error("{file}: figure {figure}: {what}")]
     Plot {
         file: PathBuf,
         figure: String,
         what: String,
     },
+}
+
+/// What a recording whose writer failed holds, and how to complete it.
+fn stopped_note(file: &std::path::Path, first: u64, updates: u64) -> String {
+    let file = file.display();
+    let held = match updates {
+        0 => return format!("{file} holds no update"),
+        1 => format!("1 update ({first})"),
+        n => format!("{n} updates ({first}..={})", first + n - 1),
+    };
+    format!(
+        "{file} holds {held} but is not finished: `pi2cma recover {file} --out OTHER_DISK/FILE` \
+         (or `mcap-tool recover …`) completes it, or, once there is room, `pi2cma recover \
+         {file}` in place"
+    )
 }
 
 impl RecordError {

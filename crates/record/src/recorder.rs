@@ -7,7 +7,9 @@
 //! in the file.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use pi2cma::{CostBatch, Distribution, Hyperparameters, Optimizer, ParameterBatch, UpdateSummary};
@@ -80,6 +82,10 @@ pub struct McapRecorder {
     last_ns: u64,
     updates: u64,
     update_index: u64,
+    /// The update the run's recording begins at (a resumed run's first), once started.
+    first_update: Option<u64>,
+    /// Set by the writer at its first error, as it happens ([`McapRecorder::failure_flag`]).
+    failed: Arc<AtomicBool>,
 }
 
 /// What the writer reports: every update job is answered by exactly one `Flushed` or
@@ -162,6 +168,7 @@ fn writer_thread(
     jobs: Receiver<Job>,
     acks: Sender<Ack>,
     progress: bool,
+    failed_flag: Arc<AtomicBool>,
 ) -> Result<(), RecordError> {
     let mut failed = false;
     for job in jobs {
@@ -179,6 +186,7 @@ fn writer_thread(
             Ok(()) => {}
             Err(e) => {
                 failed = true;
+                failed_flag.store(true, Ordering::SeqCst);
                 let _ = acks.send(Ack::Failed(e));
                 if is_update {
                     let _ = acks.send(Ack::Skipped);
@@ -204,9 +212,11 @@ impl McapRecorder {
         let w = RunFiles::create(path)?;
         let (jobs_tx, jobs_rx) = channel();
         let (acks_tx, acks_rx) = channel();
+        let failed = Arc::new(AtomicBool::new(false));
+        let flag = failed.clone();
         let thread = std::thread::Builder::new()
             .name("mcap-writer".into())
-            .spawn(move || writer_thread(w, jobs_rx, acks_tx, progress))
+            .spawn(move || writer_thread(w, jobs_rx, acks_tx, progress, flag))
             .map_err(|e| RecordError::io(path, e))?;
         Ok(Self {
             jobs: Some(jobs_tx),
@@ -222,6 +232,8 @@ impl McapRecorder {
             last_ns: now_ns(),
             updates: 0,
             update_index: 0,
+            first_update: None,
+            failed,
         })
     }
 
@@ -259,6 +271,13 @@ impl McapRecorder {
     /// The first error reported by the writer so far, if recording has failed.
     pub fn error(&self) -> Option<&RecordError> {
         self.error.as_ref()
+    }
+
+    /// True from the moment the writer fails (a full disk, an I/O error), before any hook
+    /// notices it: an executor that stops on it does not run on unrecorded (on a robot, for
+    /// real) until its end, which is when [`McapRecorder::finish`] reports the error.
+    pub fn failure_flag(&self) -> Arc<AtomicBool> {
+        self.failed.clone()
     }
 
     /// Records a health event (e.g. the executor failed) on `/log`.
@@ -339,7 +358,12 @@ impl McapRecorder {
     pub fn finish(mut self) -> Result<u64, RecordError> {
         self.close()?;
         match self.error.take() {
-            Some(e) => Err(e),
+            Some(e) => Err(RecordError::Stopped {
+                file: self.path.clone(),
+                cause: e.to_string(),
+                first: self.first_update.unwrap_or(0),
+                updates: self.updates,
+            }),
             None => Ok(self.updates),
         }
     }
@@ -371,6 +395,7 @@ impl Observer for McapRecorder {
         // the recording self-contained for recomputing basis-activation averaging.
         let basis = config.build_task().ok().and_then(|t| t.basis_activations());
         self.update_index = optimizer.update_index();
+        self.first_update = Some(optimizer.update_index());
         self.send(Job::Start(Box::new(StartJob {
             name: config.run.name.clone(),
             seed: optimizer.seed(),

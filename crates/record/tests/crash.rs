@@ -351,3 +351,41 @@ fn recover_refuses_a_file_without_readable_records_and_leaves_it() {
         assert!(!tmp(&format!("{name}.recover-tmp")).exists());
     }
 }
+
+/// `mcap-tool record` whose file cannot grow (a file size limit, as a full disk) stops the run
+/// and says what the file holds; recovered, it holds that. Before, the run went on unrecorded to
+/// its end and said only `error: FILE: MCAP: I/O error: File too large (os error 27)`.
+#[test]
+fn a_recording_that_fails_stops_the_run_and_says_what_it_holds() {
+    let out = tmp("fails.mcap");
+    let _ = std::fs::remove_file(&out);
+    // SIGXFSZ ignored: a write past the limit fails with EFBIG instead of killing the process.
+    let run = Command::new("sh")
+        .args([
+            "-c",
+            "trap '' XFSZ; ulimit -f 1000; exec \"$0\" record --updates 3000 --out \"$1\"",
+            env!("CARGO_BIN_EXE_mcap-tool"),
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("the run stopped: its recording failed")
+            && stderr.contains("File too large"),
+        "{stderr}"
+    );
+    let held: u64 = stderr
+        .split(" holds ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no `holds N updates` in: {stderr}"));
+    let recovered = tmp("fails-recovered.mcap");
+    recover(&out, &recovered).unwrap();
+    let (_, report) = record::recompute::read_and_verify(&recovered).unwrap();
+    assert_eq!(
+        (report.updates, report.mismatches.len()),
+        (held as usize, 0)
+    );
+}

@@ -230,11 +230,17 @@ fn record_run(
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the SIGINT/SIGTERM handler")?;
     }
-    let result = exec.run(&mut recorder, &|| stop.load(Ordering::SeqCst));
+    // A failed recording stops the run too: it would go on unrecorded to its end.
+    let failed = recorder.failure_flag();
+    let result = exec.run(&mut recorder, &|| {
+        stop.load(Ordering::SeqCst) || failed.load(Ordering::SeqCst)
+    });
     if let Err(e) = &result {
         recorder.log_event(record::Event::Crash, &format!("run failed: {e}"));
     }
-    let n = recorder.finish()?;
+    let n = recorder
+        .finish()
+        .context("the run stopped: its recording failed")?;
     result?;
     // A split recording's command names every part: given the first alone, `analyze` reads
     // only the updates of that part.
