@@ -537,10 +537,37 @@ pub struct RecoverArgs {
 
 /// Runs `recover` as given on a command line.
 pub fn run(args: &RecoverArgs) -> Result<RecoverReport, RecordError> {
+    if let Some(out) = &args.out {
+        refuse_replacing_another_file(&args.file, out)?;
+    }
     let mut report = recover(&args.file, args.out.as_deref().unwrap_or(&args.file))?;
     let last = crate::last_part(&args.file);
     report.last_part = (last != args.file).then_some(last);
     Ok(report)
+}
+
+/// Refuses an `--out` that is a file other than `input`: it may be another recording (a part
+/// of the same run, a typo), which recovering would replace for good.
+fn refuse_replacing_another_file(input: &Path, out: &Path) -> Result<(), RecordError> {
+    let Ok(meta) = std::fs::metadata(out) else {
+        return Ok(());
+    };
+    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    if meta.is_dir() || meta.len() == 0 || same(input, out) {
+        return Ok(());
+    }
+    Err(RecordError::invalid(
+        out,
+        format!(
+            "a file of {} bytes is there already (--out); recover does not overwrite it: remove \
+             it or give another --out (without --out, {} is recovered in place)",
+            meta.len(),
+            input.display()
+        ),
+    ))
 }
 
 impl RecoverReport {
@@ -627,6 +654,39 @@ mod tests {
         let other = RecordError::io("runs/a.mcap", std::io::Error::from_raw_os_error(13));
         let text = other.to_string();
         assert_eq!(disk_full_hint(other, input, input).to_string(), text);
+    }
+
+    /// `recover A --out B` replaced B, whatever it held (another recording), without a word.
+    #[test]
+    fn an_out_that_is_another_file_is_refused_and_left_as_it_is() {
+        let dir = std::env::temp_dir().join(format!("recover-out-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (input, other) = (dir.join("a.mcap"), dir.join("b.mcap"));
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(3);
+        let mut rec = crate::McapRecorder::create(&input).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        std::fs::write(&other, b"another recording").unwrap();
+        let args = |out: &Path| RecoverArgs {
+            file: input.clone(),
+            out: Some(out.to_path_buf()),
+        };
+        let e = run(&args(&other)).unwrap_err().to_string();
+        assert!(
+            e.starts_with(&format!(
+                "{}: a file of 17 bytes is there already (--out)",
+                other.display()
+            )),
+            "{e}"
+        );
+        assert_eq!(std::fs::read(&other).unwrap(), b"another recording");
+        // In place, named as --out (also by another spelling), is no other file.
+        let again = dir.join(".").join("a.mcap");
+        for out in [&input, &again] {
+            run(&args(out)).unwrap();
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
