@@ -1049,3 +1049,33 @@ fn a_run_whose_recording_fails_stops_and_says_what_the_file_holds() {
         "{info}"
     );
 }
+
+/// A run name is a label, not a path: an experiment recorded `name = "day 1/A1"` to
+/// `OUT/mcap/day 1/A1-seed1.mcap` and failed with `error: creating …: No such file or
+/// directory` (`../x` would have written outside OUT). Its files are named as the supervisor's.
+#[test]
+fn an_experiment_records_a_run_name_with_a_slash_into_its_mcap_directory() {
+    let d = scratch("experiment-name-slash");
+    let text = session::DEFAULT_CONFIG
+        .replace("name = \"A1\"", "name = \"day 1/A1\"")
+        .replace("updates = 40", "updates = 2");
+    std::fs::write(d.join("c.toml"), text).expect("config");
+    let out = pi2cma(
+        &[
+            "experiment",
+            "--sessions",
+            "1",
+            "--out",
+            "res",
+            "--record",
+            "c.toml",
+        ],
+        &d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(d.join("res/mcap/day_1_A1-seed1.mcap").is_file());
+}

@@ -588,8 +588,8 @@ fn run(cli: Cli) -> Result<()> {
                 planned.push((path, cfg));
             }
             let recording = |cfg: &RunConfig, seed: u64| {
-                out.join("mcap")
-                    .join(format!("{}-seed{seed}.mcap", cfg.run.name))
+                let name = record::file_name_part(&cfg.run.name);
+                out.join("mcap").join(format!("{name}-seed{seed}.mcap"))
             };
             if record {
                 let mut files = std::collections::BTreeMap::new();

@@ -53,7 +53,7 @@ pub use reader::{
 };
 pub use recorder::McapRecorder;
 pub use split::{
-    analyze_command, describe_parts, first_part, last_part, part_number, part_path,
+    analyze_command, describe_parts, file_name_part, first_part, last_part, part_number, part_path,
     part_path_or_first, program_name, recording_parts, refuse_overwrite, resumed_chain, RunFiles,
 };
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};

@@ -257,6 +257,21 @@ pub fn program_name(path: &Path) -> String {
         .to_string()
 }
 
+/// A run name (`run.name`, free text) as a part of a file name: characters other than ASCII
+/// letters, digits, `-`, `_` and `.` become `_`, so that a name is never a path (`a/b`).
+pub fn file_name_part(run_name: &str) -> String {
+    run_name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
 /// How the binaries name a finished recording: `FILE`, or `FILE (split into n parts: FILE, …)`.
 pub fn describe_parts(path: &Path) -> String {
     let parts = parts_there(path);

@@ -77,16 +77,7 @@ pub struct RunOptions {
 /// Where a run's recording goes without `--record`: `runs/<run name>-<run id>.mcap` in the
 /// current directory — outside the run directory, which is removed when the run ends.
 pub fn default_recording(run_name: &str, run_id: u64) -> PathBuf {
-    let name: String = run_name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
+    let name = record::file_name_part(run_name);
     PathBuf::from("runs").join(format!("{name}-{}.mcap", wire::run_id_hex(run_id)))
 }
 
