@@ -114,17 +114,17 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         None => RunFiles::create(&out)?,
     };
     writer.split_at_mb(ctx.config.recording_split_mb());
-    // The settings a resumed run starts from: the supervisor's start file, read at once, not
-    // the origin recording, which is streamed whole (a day's run: gigabytes) before the
-    // recorder may announce itself.
-    let start_settings = match (&cli.start, &cli.resumed_from) {
-        (Some(file), _) => Some(session::Start::read(file)?.settings),
+    // Where a resumed run starts: the supervisor's start file, read at once, not the origin
+    // recording, which is streamed whole (a day's run: gigabytes) before the recorder may
+    // announce itself.
+    let start = match (&cli.start, &cli.resumed_from) {
+        (Some(file), _) => Some(session::Start::read(file)?),
         (None, Some(origin)) => crate::resume::resume_point(std::path::Path::new(origin))
             .ok()
-            .map(|p| p.start.settings),
+            .map(|p| p.start),
         (None, None) => None,
     };
-    let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone(), start_settings)?;
+    let mut state = WriterState::new(&ctx, text, writer, cli.resumed_from.clone(), start)?;
     state.restart = cli.restart;
     if cli.restart.is_some() {
         // Joining a run under way: a distribution already taken in may have had costs
@@ -431,7 +431,7 @@ impl WriterState {
         text: String,
         writer: RunFiles,
         resumed_from: Option<String>,
-        start_settings: Option<Vec<(String, f64)>>,
+        start: Option<session::Start>,
     ) -> anyhow::Result<Self> {
         let cfg = ctx.config.clone();
         let task = cfg.build_task()?;
@@ -449,7 +449,7 @@ impl WriterState {
         // ended with, so that a change taking effect there (a scheduled one the stopped run did
         // not reach) is recorded, as the in-process runner records it. Without them only that
         // marker is lost.
-        if let Some(settings) = &start_settings {
+        if let Some(settings) = start.as_ref().map(|s| &s.settings) {
             let by_name: Vec<f64> = names
                 .iter()
                 .map(|n| {
@@ -474,7 +474,10 @@ impl WriterState {
             pid: std::process::id(),
             started: false,
             final_update: None,
-            current_update: 0,
+            // What comes before the first distribution (the processes' announcements, the
+            // supervisor's START) happens at the update the run starts at: a resumed run's
+            // logged it at update 0, which its recording does not hold.
+            current_update: start.map_or(0, |s| s.update),
             written: 0,
             mismatches: 0,
             resumed_from,

@@ -4690,6 +4690,45 @@ fn a_run_resumed_twice_prints_an_analyze_command_of_every_recording_back_to_its_
     );
 }
 
+/// What a resumed run's recorder logs before its first update (the processes' announcements,
+/// the supervisor's START) is logged at the update the run resumes at, as everything after it
+/// is: it was logged at update 0, which the recording does not hold.
+#[test]
+fn a_resumed_runs_start_events_are_logged_at_the_update_it_resumes_at() {
+    let scratch = Scratch::new("resume-log-update");
+    let cfg = write_config(&scratch, "a1.toml", &config(&[]));
+    let (day1, day2) = (scratch.path("day1.mcap"), scratch.path("day2.mcap"));
+    let (day1, day2) = (day1.to_str().unwrap(), day2.to_str().unwrap());
+    let args = [
+        cfg.to_str().unwrap(),
+        "--quiet",
+        "--updates",
+        "4",
+        "--record",
+        day1,
+    ];
+    Run::start(&scratch, 5103, &args).wait_exit(Duration::from_secs(60), 0);
+    let args = [
+        "--resume",
+        day1,
+        "--updates",
+        "8",
+        "--quiet",
+        "--record",
+        day2,
+    ];
+    Run::start(&scratch, 5104, &args).wait_exit(Duration::from_secs(60), 0);
+    let rec = record::read_recording(Path::new(day2)).unwrap();
+    assert!(logged(&rec, "start", "worker-0"), "{:?}", rec.logs);
+    let before: Vec<String> = rec
+        .logs
+        .iter()
+        .filter(|l| l.update < 4)
+        .map(|l| format!("{} {} at update {}", l.event, l.name, l.update))
+        .collect();
+    assert!(before.is_empty(), "{before:?}");
+}
+
 /// A run that ends right before a task change: its resumed recording marks the change where
 /// it took effect, and the two files analyse as one run with it once, as the uninterrupted
 /// run's recording has it (before, the pipeline recorded it in neither file).
