@@ -26,7 +26,10 @@ below zero is then cut off). The axis label says "cost (log)".
 --join takes the files as one run, in order: the parts of a split recording (`recording.split_mb`)
 or a run and the runs resumed from it (`--resume`). It checks that each file goes on exactly where
 the one before ends (the next update, sampled from the distribution the last update left) and
-draws one learning curve.
+draws one learning curve. The part a pipeline recorder restarted after a crash began (metadata
+`recorder_restart`, the same `run_id`, the file before as its `previous_part`) goes on from a
+later update: the updates the dead recorder had not written are named ("missing 304 (not
+recorded: the recorder was restarted)") and left as a gap in the curve, as `analyze` does.
 """
 
 import argparse
@@ -74,9 +77,31 @@ class Damaged(Exception):
     a flipped byte in a step cost was read as another number, and `--check` passed."""
 
 
+# The name of the recording's metadata record (run id, part, recorder restart).
+METADATA = "pi2cma.run"
+
+
+def run_metadata(f, indexed):
+    """The recording's `pi2cma.run` metadata as a dict (empty if there is none). A killed
+    writer's file is read as a stream: the record is written before the first message, so the
+    end it lacks is not reached."""
+    f.seek(0)
+    if indexed:
+        records = make_reader(f).iter_metadata()
+    else:
+        records = NonSeekingReader(f).iter_metadata()
+    try:
+        for m in records:
+            if m.name == METADATA:
+                return dict(m.metadata)
+    except McapError:
+        pass
+    return {}
+
+
 def read(path):
-    """Returns {topic: [decoded message, ...]} and whether the file was indexed; raises Damaged
-    for a chunk that fails its CRC."""
+    """Returns {topic: [decoded message, ...]}, whether the file was indexed and its
+    `pi2cma.run` metadata; raises Damaged for a chunk that fails its CRC."""
     by_topic = collections.defaultdict(list)
     with open(path, "rb") as f:
         try:
@@ -85,7 +110,10 @@ def read(path):
         except McapError:
             summary = None
         indexed = summary is not None
+        meta = run_metadata(f, indexed)
+        f.seek(0)
         if indexed:
+            reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
             it = reader.iter_decoded_messages(log_time_order=False)
         else:
             f.seek(0)
@@ -102,7 +130,7 @@ def read(path):
             if indexed:
                 raise
             print(f"{path}: stream ends early ({e}); using the readable prefix", file=sys.stderr)
-    return by_topic, indexed
+    return by_topic, indexed, meta
 
 
 def check(path, by_topic):
@@ -175,22 +203,31 @@ def plot(path, by_topic, out, log=False):
     summaries = [m for _, m in by_topic.get("/summary", [])]
     run = [m for _, m in by_topic.get("/run", [])]
     changes = [m for _, m in by_topic.get("/task_change", [])]
-    x = [s.update for s in summaries]
-    mean = [s.exploration_cost_mean for s in summaries]
-    std = [s.exploration_cost_std for s in summaries]
+    # Updates a restarted recorder's predecessor did not write leave a gap in the lines, as in
+    # `analyze`'s figure, rather than a line drawn across them.
+    x, mean, std, evals, lams = [], [], [], [], []
+    for i, s in enumerate(summaries):
+        if i and s.update > summaries[i - 1].update + 1:
+            for v in (x, mean, std, evals, lams):
+                v.append(math.nan)
+        x.append(s.update)
+        mean.append(s.exploration_cost_mean)
+        std.append(s.exploration_cost_std)
+        evals.append(s.eval_cost)
+        # `lambda` is a Python keyword: the field is read with getattr.
+        lams.append(getattr(s, "lambda"))
     fig, (ax, axl) = plt.subplots(2, 1, sharex=True, figsize=(8, 6), height_ratios=[3, 2])
     ax.fill_between(x, [m - s for m, s in zip(mean, std)], [m + s for m, s in zip(mean, std)],
                     alpha=0.25, label="exploration ± std")
     ax.plot(x, mean, label="exploration mean")
-    ax.plot(x, [s.eval_cost for s in summaries], label="evaluation (rollout 0)")
-    # `lambda` is a Python keyword: the field is read with getattr.
-    axl.semilogy(x, [getattr(s, "lambda") for s in summaries], color="k")
+    ax.plot(x, evals, label="evaluation (rollout 0)")
+    axl.semilogy(x, lams, color="k")
     for c in changes:
         for a in (ax, axl):
             a.axvline(c.update, ls="--", color="grey")
     name = run[0].name if run else path
     ax.set_title(f"{name}: learning curve")
-    costs = mean + [s.eval_cost for s in summaries]
+    costs = [c for c in mean + evals if not math.isnan(c)]
     if log or (costs and min(costs) > 0 and max(costs) > 100 * min(costs)):
         ax.set_yscale("log")
         ax.set_ylabel("cost (log)")
@@ -204,18 +241,51 @@ def plot(path, by_topic, out, log=False):
     plt.close(fig)
 
 
-def join(paths, read_files):
-    """Concatenates the files' messages as one run; returns it and the failures of the seams."""
+def after_restart(prev_path, prev_meta, prev_run, end, meta, run):
+    """Whether a file is the part a restarted pipeline recorder began after the recorder of
+    `prev_path` died, as `analyze` judges it (record's `is_continued_after_restart_by`):
+    metadata `recorder_restart`, the same `run_id`, `prev_path`'s file name as its
+    `previous_part`, the same seed, shape and hyperparameters, and a first update at or after
+    `end`. The updates between them are missing: the dead recorder had not written them."""
+    previous = meta.get("previous_part", "").replace("\\", "/").rsplit("/", 1)[-1]
+    return (
+        "recorder_restart" in meta
+        and meta.get("run_id") is not None
+        and meta.get("run_id") == prev_meta.get("run_id")
+        and previous == prev_path.replace("\\", "/").rsplit("/", 1)[-1]
+        and prev_run is not None
+        and run is not None
+        and run.update >= end
+        and (run.seed, run.dim, run.steps) == (prev_run.seed, prev_run.dim, prev_run.steps)
+        # Each file's messages are of classes built from its own embedded schema, which never
+        # compare equal: their bytes do.
+        and run.hyperparameters.SerializeToString(deterministic=True)
+        == prev_run.hyperparameters.SerializeToString(deterministic=True)
+    )
+
+
+def missing_text(first, last):
+    return f"{first}" if first == last else f"{first}–{last}"
+
+
+def join(paths, read_files, metas):
+    """Concatenates the files' messages as one run; returns it, the failures of the seams and
+    the updates missing at seams where a recorder was restarted."""
     joined = collections.defaultdict(list)
-    failures = []
-    last, last_path = None, None
-    for path, by_topic in zip(paths, read_files):
+    failures, missing = [], []
+    last, last_path, last_meta, last_run = None, None, {}, None
+    for path, by_topic, meta in zip(paths, read_files, metas):
         updates = [m for _, m in by_topic.get("/update", [])]
+        run = next((m for _, m in by_topic.get("/run", [])), None)
         if last is not None and updates:
             first = updates[0]
             goes_on = first.update == last.update + 1 and list(first.before.mean) == list(
                 last.after.mean
             ) and list(first.before.covariance) == list(last.after.covariance)
+            if not goes_on and after_restart(last_path, last_meta, last_run, last.update + 1, meta, run):
+                goes_on = True
+                if first.update > last.update + 1:
+                    missing.append(missing_text(last.update + 1, first.update - 1))
             if not goes_on:
                 failures.append(
                     f"{path}: does not go on where {last_path} ends (its first update is "
@@ -224,8 +294,8 @@ def join(paths, read_files):
         for topic, msgs in by_topic.items():
             joined[topic] += msgs
         if updates:
-            last, last_path = updates[-1], path
-    return joined, failures
+            last, last_path, last_meta, last_run = updates[-1], path, meta, run
+    return joined, failures, missing
 
 
 def main(argv=None):
@@ -245,16 +315,18 @@ def main(argv=None):
         return 2
     failures = []
     failed_files = 0
-    read_files = []
+    read_files, metas = [], []
     for i, path in enumerate(args.files):
         try:
-            by_topic, indexed = read(path)
+            by_topic, indexed, meta = read(path)
         except Damaged as e:
             failures.append(str(e))
             failed_files += 1
             read_files.append({})
+            metas.append({})
             continue
         read_files.append(by_topic)
+        metas.append(meta)
         counts = ", ".join(f"{t} {len(m)}" for t, m in sorted(by_topic.items()))
         print(f"{path}: {'indexed' if indexed else 'NOT indexed (stream read)'}; decoded {counts}")
         if args.check:
@@ -272,7 +344,7 @@ def main(argv=None):
             plot(path, by_topic, out, args.log)
             print(f"wrote {out}")
     if args.join:
-        joined, seams = join(args.files, read_files)
+        joined, seams, missing = join(args.files, read_files, metas)
         failures += seams
         updates = [m for _, m in joined.get("/update", [])]
         if seams:
@@ -280,7 +352,12 @@ def main(argv=None):
             print(f"not joined: {len(seams)} of the {len(args.files) - 1} seams do not fit")
         else:
             if updates:
-                print(f"joined {len(args.files)} files: updates {updates[0].update}..{updates[-1].update}")
+                gaps = (
+                    f"; missing {', '.join(missing)} (not recorded: the recorder was restarted)"
+                    if missing
+                    else ""
+                )
+                print(f"joined {len(args.files)} files: updates {updates[0].update}..{updates[-1].update}{gaps}")
             if args.out:
                 plot(" + ".join(args.files), joined, args.out, args.log)
                 print(f"wrote {args.out}")

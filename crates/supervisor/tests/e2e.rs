@@ -2726,6 +2726,18 @@ fn a_killed_recorder_is_restarted_into_a_new_part_and_only_its_unwritten_updates
     assert_recording_matches_in_process(&text, joined);
     let info = record::analyze::info(joined);
     assert!(info.contains("missing"), "{info}");
+    // The Python reader's `--join` takes the parts as one run as well, with the gaps named
+    // (it refused them: "does not go on where … ends"). Needs tools/requirements.txt.
+    let tool = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/plot_learning_curve.py");
+    let mut args = vec![tool.as_os_str(), "--join".as_ref(), "--check".as_ref()];
+    args.extend([&path, &part2, &part3].map(|p| p.as_os_str()));
+    let text = python_ok(&args, &[]);
+    assert!(
+        text.contains("joined 3 files: updates 0..199; missing ")
+            && text.contains("(not recorded: the recorder was restarted)")
+            && text.contains("3 passed, 0 failed, join passed"),
+        "{text}"
+    );
     assert_nothing_left(&run);
 }
 
@@ -3859,20 +3871,25 @@ try:
 except w.ConfigRefused as e:  # exits 78: the supervisor does not restart it
     print(e)
 "#;
+    let args = ["-c".as_ref(), script.as_ref(), cfg.as_os_str()];
+    let text = python_ok(&args, &[("PYTHONPATH", tools.as_os_str())]);
+    assert!(
+        text.contains("other basis activations than task.external.basis_activations in"),
+        "{text}"
+    );
+}
+
+/// `python3 ARGS` with `env`, which must succeed; returns its stdout and stderr.
+fn python_ok(args: &[&std::ffi::OsStr], env: &[(&str, &std::ffi::OsStr)]) -> String {
     let out = std::process::Command::new("python3")
-        .arg("-c")
-        .arg(script)
-        .arg(&cfg)
-        .env("PYTHONPATH", &tools)
+        .args(args)
+        .envs(env.iter().copied())
         .output()
         .unwrap();
     let text =
         String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{text}");
-    assert!(
-        text.contains("other basis activations than task.external.basis_activations in"),
-        "{text}"
-    );
+    text
 }
 
 /// Needs `python3 -m pip install -r tools/requirements.txt` (the README's test command does it).
