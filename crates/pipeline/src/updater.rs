@@ -94,6 +94,11 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // has passed, so the supervisor's view (status, its no-update warning) is never more than
     // that behind when updates stop coming.
     let mut unreported = false;
+    // When the last update was completed, since the start: what a report carries, so that the
+    // supervisor's rate is updates over the time they took. A report sent later (the periodic
+    // one above, or a tenth right after it) carried its own send time, and the rate between
+    // two reports a millisecond apart read 10090 updates/s in a run of 6.
+    let mut done_at = Duration::ZERO;
     let mut first_eval = f64::NAN;
     let mut first_done: Option<Instant> = None;
     // PI2CMA_TRACE=1: report updates slower than 20 ms (stalls) at the end.
@@ -273,12 +278,11 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     } else {
                         runtime.push(change);
                     }
-                    let elapsed = started.map(|t| t.elapsed()).unwrap_or_default();
                     report(
                         &optimizer,
                         &task.settings(),
                         last_eval,
-                        elapsed,
+                        done_at,
                         Progress::TASK_CHANGE,
                     )?;
                 }
@@ -291,7 +295,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         if unreported && last_progress.elapsed() >= PROGRESS_INTERVAL {
             last_progress = Instant::now();
             unreported = false;
-            report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
+            report(&optimizer, &task.settings(), last_eval, done_at, 0)?;
         }
         // Publishes what waits (if the recorder's back-pressure allows), takes in costs, and
         // after a complete batch updates and publishes again.
@@ -406,6 +410,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 first_done = Some(Instant::now());
             }
             last_eval = summary.eval_cost;
+            done_at = t0.elapsed();
             let next = optimizer.update_index();
             let done = cfg.run.updates.is_some_and(|n| next >= n);
             if done {
@@ -414,7 +419,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     &optimizer,
                     &task.settings(),
                     last_eval,
-                    t0.elapsed(),
+                    done_at,
                     Progress::FINAL,
                 )?;
                 to_publish = Some(DistributionHeader::FINAL);
@@ -444,7 +449,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             unreported = !(news || tenth || last_progress.elapsed() >= PROGRESS_INTERVAL);
             if !unreported {
                 last_progress = Instant::now();
-                report(&optimizer, &task.settings(), last_eval, t0.elapsed(), 0)?;
+                report(&optimizer, &task.settings(), last_eval, done_at, 0)?;
             }
         }
     })?;
@@ -481,7 +486,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             &optimizer,
             &task.settings(),
             last_eval,
-            elapsed,
+            done_at,
             Progress::FINAL,
         )?;
     }

@@ -355,6 +355,43 @@ impl Recording {
     }
 }
 
+/// The update rate over the updater's last reports: updates over the time they took, the
+/// reports of about the last [`UpdateRate::WINDOW_NS`] (at least two). Each report carries
+/// when its last update was completed (`Progress::elapsed_ns`). Taken between the last two
+/// reports only, sent at most every 200 ms, the rate of a run making 6 updates a second read
+/// 5 and 10 by turns, and 1574 to 10090 where a report came a millisecond after the one
+/// before (the one at each tenth of a bounded run).
+#[derive(Debug, Default)]
+struct UpdateRate {
+    /// (updates completed, when the last of them was, in ns since the start), oldest first.
+    seen: std::collections::VecDeque<(u64, u64)>,
+}
+
+impl UpdateRate {
+    const WINDOW_NS: u64 = 2_000_000_000;
+
+    fn is_empty(&self) -> bool {
+        self.seen.is_empty()
+    }
+
+    /// A report of `updates` completed, the last at `elapsed_ns`; one with no new update
+    /// says nothing of the rate.
+    fn add(&mut self, updates: u64, elapsed_ns: u64) {
+        if self.seen.back().is_some_and(|&(u, _)| updates <= u) {
+            return;
+        }
+        self.seen.push_back((updates, elapsed_ns));
+        while self.seen.len() > 2 && self.seen[1].1 + Self::WINDOW_NS <= elapsed_ns {
+            self.seen.pop_front();
+        }
+    }
+
+    fn rate(&self) -> Option<f64> {
+        let (&(u0, t0), &(u1, t1)) = (self.seen.front()?, self.seen.back()?);
+        (t1 > t0).then(|| (u1 - u0) as f64 / ((t1 - t0) as f64 * 1e-9))
+    }
+}
+
 struct Supervisor {
     cfg: RunConfig,
     /// A resumed run's state, handed to the updater.
@@ -376,7 +413,10 @@ struct Supervisor {
     killed: bool,
     started: Instant,
     progress: Option<Progress>,
+    /// The update rate of the progress lines, `status` and the stall warning
+    /// ([`UpdateRate`]), and the reports it is taken from.
     rate: f64,
+    rates: UpdateRate,
     last_shown: Option<Instant>,
     /// When the newest update arrived (when the run started, before the first: a first
     /// update that never comes is a stall too), and whether the silence since was reported.
@@ -672,6 +712,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         started: Instant::now(),
         progress: None,
         rate: 0.0,
+        rates: UpdateRate::default(),
         last_shown: None,
         last_update_at: None,
         stall_reported: false,
@@ -1782,15 +1823,14 @@ impl Supervisor {
                 self.last_update_at = Some(Instant::now());
                 self.stall_reported = false;
             }
-            if let Some(prev) = &self.progress {
-                let dt = (p.elapsed_ns.saturating_sub(prev.elapsed_ns)) as f64 * 1e-9;
-                if dt > 0.0 && p.updates > prev.updates {
-                    self.rate = (p.updates - prev.updates) as f64 / dt;
-                }
-            } else if p.elapsed_ns > 0 {
+            if self.rates.is_empty() {
                 // A resumed run counts its updates from where it resumed.
-                let first = self.start.as_ref().map_or(0, |s| s.update);
-                self.rate = p.updates.saturating_sub(first) as f64 / (p.elapsed_ns as f64 * 1e-9);
+                self.rates
+                    .add(self.start.as_ref().map_or(0, |s| s.update), 0);
+            }
+            self.rates.add(p.updates, p.elapsed_ns);
+            if let Some(rate) = self.rates.rate() {
+                self.rate = rate;
             }
             self.progress = Some(p);
             // At most one line a second, plus one at every tenth of a bounded run.
@@ -3192,6 +3232,33 @@ fn interval_text(secs: f64) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_update_rate_is_updates_over_the_time_they_took_in_the_last_seconds() {
+        let ms = 1_000_000u64;
+        let mut r = UpdateRate::default();
+        assert_eq!(r.rate(), None);
+        // A resumed run's origin, then updates every 160 ms, reported every other one.
+        r.add(384, 0);
+        assert_eq!(r.rate(), None);
+        for n in 1..=20u64 {
+            if n % 2 == 0 {
+                r.add(384 + n, n * 160 * ms);
+            }
+        }
+        assert!((r.rate().unwrap() - 6.25).abs() < 1e-9, "{:?}", r.rate());
+        // The window keeps about the last 2 s: 4 workers more make updates every 80 ms.
+        for n in 1..=40u64 {
+            r.add(404 + n, 3200 * ms + n * 80 * ms);
+        }
+        assert!((r.rate().unwrap() - 12.5).abs() < 1e-9, "{:?}", r.rate());
+        // A report with no new update (a task change, a stop) changes nothing.
+        r.add(444, 9000 * ms);
+        assert!((r.rate().unwrap() - 12.5).abs() < 1e-9, "{:?}", r.rate());
+        // After a long stall, the window spans it: one update in 3 s.
+        r.add(445, 3200 * ms + 40 * 80 * ms + 3000 * ms);
+        assert!(r.rate().unwrap() < 1.0, "{:?}", r.rate());
+    }
+
     #[test]
     fn spawned_pids_are_forgotten_a_while_after_they_were_reaped() {
         use super::{Spawned, LATE_ANNOUNCEMENT};

@@ -1917,6 +1917,60 @@ fn status_shows_cost_and_lambda_as_the_progress_lines_do() {
     run.wait_exit(Duration::from_secs(20), 0);
 }
 
+/// The progress lines' update rate is updates over the time they took, so no line shows more
+/// than the run's fastest update allows. It was taken between the updater's last two reports,
+/// each stamped with when it was sent: a report at a tenth of the run, sent when its update
+/// ended, came 70–100 ms after the periodic one sent within the update before, and a run of
+/// 150 ms updates printed 10 to 14 updates/s (with 40 ms rollouts, 1574 to 10090).
+#[test]
+fn the_progress_lines_show_no_faster_rate_than_the_updates_had() {
+    let scratch = Scratch::new("progress-rate");
+    let slow = (
+        "viapoint_weight = 1000.0",
+        "viapoint_weight = 1000.0\nrollout_delay_ms = 30.0",
+    );
+    let cfg = write_config(
+        &scratch,
+        "rate.toml",
+        &config(&[("updates = 40", "updates = 24"), slow]),
+    );
+    let mcap = scratch.path("rate.mcap");
+    let args = [
+        cfg.to_str().unwrap(),
+        "--workers",
+        "3",
+        "--record",
+        mcap.to_str().unwrap(),
+    ];
+    let mut run = Run::start(&scratch, 5105, &args);
+    run.wait_exit(Duration::from_secs(60), 0);
+    // The shortest time from one update to the next: between their first rollouts' starts, as
+    // the workers stamped them.
+    let rec = record::read_recording(&mcap).unwrap();
+    let mut first_start = std::collections::BTreeMap::<u64, u64>::new();
+    for r in &rec.rollouts {
+        let s = first_start.entry(r.update).or_insert(r.start_ns);
+        *s = (*s).min(r.start_ns);
+    }
+    let starts: Vec<u64> = first_start.into_values().collect();
+    let fastest = starts.windows(2).map(|w| w[1] - w[0]).min().unwrap();
+    // A margin for the updater's and the workers' clocks reading the same updates a few ms
+    // apart.
+    let bound = 1.25 / (fastest as f64 * 1e-9);
+    let out = run.text();
+    let rates: Vec<f64> = out
+        .lines()
+        .filter_map(|l| l.split("  ").find_map(|f| f.strip_suffix(" updates/s")))
+        .map(|r| r.parse().unwrap())
+        .collect();
+    assert!(rates.len() >= 10, "{out}");
+    assert!(
+        rates.iter().all(|&r| r <= bound),
+        "rates {rates:?}, but the fastest update took {} ms:\n{out}",
+        fastest as f64 * 1e-6
+    );
+}
+
 /// The summary abbreviates a long final mean (it printed all 400 values for P = 400); a short
 /// one it prints whole, as it was.
 #[test]

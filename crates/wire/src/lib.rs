@@ -335,7 +335,8 @@ pub struct Progress {
     pub run_id: u64,
     /// Updates completed.
     pub updates: u64,
-    /// Since the first distribution was published.
+    /// When the last of `updates` was completed, since the first distribution was published
+    /// (not when the report was sent, which may be later: rates are taken between reports).
     pub elapsed_ns: u64,
     /// Total cost of the evaluation rollout of the last update.
     pub eval_cost: f64,
