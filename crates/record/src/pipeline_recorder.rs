@@ -198,6 +198,10 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 state.handle(Msg::Cost(h, s.payload(), received_ns))?;
             }
         }
+        // The supervisor sends START after every process has announced itself, but the
+        // announcements are drained below: START, and what came after it, waits for them, or
+        // the last worker's `start` was logged after the run's.
+        let mut after_start: Vec<Control> = Vec::new();
         while let Some(s) = iox(control_sub.receive(), "receive control")? {
             let c = *s.payload();
             if c.run_id != ctx.run_id {
@@ -212,6 +216,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             }
             if c.kind == Control::RECORDER_SYNC {
                 sync_asked = sync_asked.max(c.seq);
+            } else if c.kind == Control::START || !after_start.is_empty() {
+                after_start.push(c);
             } else {
                 state.handle(Msg::Control(c))?;
             }
@@ -220,6 +226,9 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             if s.payload().run_id == ctx.run_id {
                 state.handle(Msg::Lifecycle(*s.payload()))?;
             }
+        }
+        for c in after_start {
+            state.handle(Msg::Control(c))?;
         }
         while let Some(s) = iox(notes_sub.receive(), "receive notes")? {
             if s.payload().run_id == ctx.run_id {

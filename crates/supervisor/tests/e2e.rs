@@ -1971,6 +1971,39 @@ fn the_progress_lines_show_no_faster_rate_than_the_updates_had() {
     );
 }
 
+/// The recording's /log has the run's start after every process's announcement, as they
+/// happened: the supervisor sends START once all have announced themselves. The recorder took
+/// in the supervisor's messages before the announcements of the same round, and logged the
+/// last worker's `start` after the run's.
+#[test]
+fn the_runs_start_is_logged_after_every_process_announced_itself() {
+    let scratch = Scratch::new("start-order");
+    let cfg = write_config(&scratch, "order.toml", &config(&[DELAYED]));
+    let mcap = scratch.path("order.mcap");
+    let args = [cfg.to_str().unwrap(), "--quiet", "--updates", "4"];
+    Run::start(
+        &scratch,
+        5107,
+        &[&args[..], &["--record", mcap.to_str().unwrap()]].concat(),
+    )
+    .wait_exit(Duration::from_secs(60), 0);
+    let rec = record::read_recording(&mcap).unwrap();
+    let order: Vec<String> = rec
+        .logs
+        .iter()
+        .filter(|l| l.event == "start" || l.message == "start")
+        .map(|l| format!("{} {}", l.event, l.name))
+        .collect();
+    let start = order.iter().position(|e| e == "info supervisor");
+    for name in ["updater", "sampler", "worker-0", "worker-1", "worker-2"] {
+        let announced = order.iter().position(|e| *e == format!("start {name}"));
+        assert!(
+            announced.is_some() && announced < start,
+            "{name}: {order:?}"
+        );
+    }
+}
+
 /// The summary abbreviates a long final mean (it printed all 400 values for P = 400); a short
 /// one it prints whole, as it was.
 #[test]
