@@ -684,13 +684,19 @@ impl WriterState {
                         ),
                         _ => (Event::Crash, "crashed"),
                     };
+                    // Stopped with the run, the other workers are stopping too: its
+                    // rollouts go nowhere (the update stays unfinished).
+                    let rollouts = if c.reason == wire::lost::STOPPED {
+                        ""
+                    } else {
+                        "; the rollouts it held go to the other workers"
+                    };
                     self.log(
                         event,
                         &format!("worker-{}", c.worker),
                         c.pid,
                         &format!(
-                            "worker-{} (incarnation {}) {what} ({}); the rollouts it held go to \
-                             the other workers",
+                            "worker-{} (incarnation {}) {what} ({}){rollouts}",
                             c.worker,
                             c.incarnation,
                             c.name()

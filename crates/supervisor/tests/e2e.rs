@@ -2538,6 +2538,18 @@ fn sigint_mid_run_leaves_a_finished_recording_with_every_completed_update() {
         "{:#?}",
         rec.logs
     );
+    // The workers stopped with the run, and their rollouts went nowhere: the log said they
+    // went "to the other workers", which were stopping too.
+    let stopped: Vec<&str> = rec
+        .logs
+        .iter()
+        .filter(|l| l.message.contains("stopped with the run"))
+        .map(|l| l.message.as_str())
+        .collect();
+    assert!(
+        !stopped.is_empty() && stopped.iter().all(|m| !m.contains("other workers")),
+        "{stopped:#?}"
+    );
     assert_nothing_left(&run);
 }
 
