@@ -1229,17 +1229,7 @@ fn draw_curves(
             }
         }
     }
-    for &u in changes {
-        let x = u as f64;
-        chart
-            .draw_series(DashedLineSeries::new(
-                vec![(x, lo), (x, hi)],
-                5,
-                5,
-                BLACK.mix(0.6).stroke_width(1),
-            ))
-            .map_err(|x| e(&x))?;
-    }
+    mark_changes(&mut chart, changes, (lo, hi))?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
 
     let (llo, lhi) = log_range(
@@ -1262,6 +1252,8 @@ fn draw_curves(
         .y_desc("λ (log)")
         .draw()
         .map_err(|x| e(&x))?;
+    // λ rising again after a change is the point of the method: the change is marked here too.
+    mark_changes(&mut chart, changes, (llo, lhi))?;
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         for p in c.pieces.iter().filter(|p| !p.lambda.is_empty()) {
@@ -1278,6 +1270,30 @@ fn draw_curves(
         }
     }
     area.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
+/// A dashed vertical line from `y.0` to `y.1` at each task change's update.
+fn mark_changes<DB, CT>(
+    chart: &mut ChartContext<'_, DB, CT>,
+    changes: &[u64],
+    y: (f64, f64),
+) -> Result<(), String>
+where
+    DB: DrawingBackend,
+    CT: CoordTranslate<From = (f64, f64)>,
+{
+    for &u in changes {
+        let x = u as f64;
+        chart
+            .draw_series(DashedLineSeries::new(
+                vec![(x, y.0), (x, y.1)],
+                5,
+                5,
+                BLACK.mix(0.6).stroke_width(1),
+            ))
+            .map_err(|x| format!("{x:?}"))?;
+    }
     Ok(())
 }
 
@@ -2553,6 +2569,55 @@ mod tests {
         // The eval cost and λ as dots, the exploration band as a bar with its dot.
         assert_eq!(svg.matches("<circle").count(), 3, "{svg}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// λ rising again after a task change is what the figure is for: the change is marked on
+    /// the λ panel as well as on the cost panel.
+    #[test]
+    fn a_task_change_is_marked_on_both_panels_of_the_learning_curve() {
+        let mut r = rec_with(&[5.0, 4.0, 3.0, 2.0, 6.0, 5.0], Some(4));
+        r.run.push(proto::RunInfo::default());
+        let dir = std::env::temp_dir().join(format!("pi2cma-marks-{}", std::process::id()));
+        plot(&r, &dir).unwrap();
+        let svg = std::fs::read_to_string(dir.join("learning_curve.svg")).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        // Dashes are short vertical polylines at one x; the panels split at 62 % of the height.
+        let height: f64 = svg
+            .split_once("height=\"")
+            .and_then(|(_, t)| t.split('"').next()?.parse().ok())
+            .expect("an svg height");
+        let mut dash_ys = Vec::new();
+        for p in svg.split("<polyline").skip(1) {
+            let Some((_, pts)) = p.split_once("points=\"") else {
+                continue;
+            };
+            let pts: Vec<(f64, f64)> = pts
+                .split('"')
+                .next()
+                .unwrap_or("")
+                .split_whitespace()
+                .filter_map(|xy| {
+                    let (x, y) = xy.split_once(',')?;
+                    Some((x.parse().ok()?, y.parse().ok()?))
+                })
+                .collect();
+            if pts.len() == 2
+                && pts[0].0 == pts[1].0
+                && pts[0].1 != pts[1].1
+                && p.contains("opacity=\"0.6")
+            {
+                dash_ys.push(pts[0].1);
+            }
+        }
+        let split = height * 0.62;
+        assert!(
+            dash_ys.iter().any(|y| *y < split),
+            "no dash on the cost panel: {dash_ys:?}"
+        );
+        assert!(
+            dash_ys.iter().any(|y| *y > split),
+            "no dash on the λ panel: {dash_ys:?}"
+        );
     }
 
     /// The first update after a task change is marked by a red ellipse; with λ small there it
