@@ -50,6 +50,13 @@ fn recompute(
     let before = distribution_from_proto(u.before.as_ref().ok_or_else(|| e("no `before`".into()))?)
         .map_err(|w| e(format!("before: {w}")))?;
     let (k, p, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
+    // The core asserts this (a caller's bug there); in a file it is damage, so it is an error.
+    if before.dim() != p {
+        return Err(e(format!(
+            "P = {p} but `before` has dimension {}",
+            before.dim()
+        )));
+    }
     if u.samples.len() != k * p || u.cost_per_step.len() != k * n || u.cost_terminal.len() != k {
         return Err(e(format!(
             "K = {k}, P = {p}, N = {n} but {} samples, {} step costs, {} terminal costs",
@@ -137,5 +144,53 @@ pub fn read_and_verify(path: &Path) -> Result<(Recording, VerifyReport), RecordE
     match failed {
         Some(e) => Err(e),
         None => Ok((rec, report)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DMatrix, DVector};
+    use pi2cma::{CostMapping, CovarianceStructure, Exploration, Hyperparameters, Weighting};
+
+    use super::*;
+    use crate::convert::{distribution_to_proto, hyperparameters_to_proto};
+
+    /// An update of K = 3, P = 2, N = 1 whose `before` has dimension `before_dim`.
+    fn update(before_dim: usize) -> proto::Update {
+        let hp = Hyperparameters {
+            rollouts: 3,
+            mapping: CostMapping::Exponential { eliteness: 10.0 },
+            exploration: Exploration::Constant,
+            weighting: Weighting::Episodic,
+            evaluation_in_update: false,
+            covariance: CovarianceStructure::Full,
+        };
+        let before = Distribution {
+            mean: DVector::zeros(before_dim),
+            covariance: DMatrix::identity(before_dim, before_dim),
+        };
+        proto::Update {
+            update: 4,
+            hyperparameters: Some(hyperparameters_to_proto(&hp)),
+            before: Some(distribution_to_proto(&before)),
+            rollouts: 3,
+            dim: 2,
+            steps: 1,
+            samples: vec![0.0, 0.0, 1.0, -1.0, 0.5, 0.25],
+            cost_per_step: vec![1.0, 2.0, 3.0],
+            cost_terminal: vec![0.0; 3],
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_recorded_before_of_another_dimension_than_the_update_is_an_error() {
+        let path = Path::new("damaged.mcap");
+        assert!(recompute(path, None, &update(2)).is_ok());
+        let e = recompute(path, None, &update(3)).unwrap_err().to_string();
+        assert!(
+            e.contains("damaged.mcap") && e.contains("update 4") && e.contains("dimension 3"),
+            "{e}"
+        );
     }
 }
