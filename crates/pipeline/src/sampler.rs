@@ -25,6 +25,27 @@ use wire::{Control, DistributionHeader, Ready, Service, WorkHeader, MAX_SETTINGS
 
 use crate::{announce_ready, iox, wait_loop, Context, Flow, Ports as _, ProcessArgs};
 
+/// The distribution of a `distribution` sample; one too short for the run's P is an error, as
+/// in the recorder (it came from another process).
+fn received_distribution(
+    h: &DistributionHeader,
+    p: &[f64],
+    dim: usize,
+) -> anyhow::Result<Distribution> {
+    let Some((mean, cov)) = wire::distribution_parts(p, dim) else {
+        anyhow::bail!(
+            "distribution of update {}: {} values, expected {}",
+            h.update,
+            p.len(),
+            dim + dim * dim
+        );
+    };
+    Ok(Distribution {
+        mean: DVector::from_column_slice(mean),
+        covariance: DMatrix::from_column_slice(dim, dim, cov),
+    })
+}
+
 /// The rollouts whose count in `counts` (a `reruns` sample) is above the one in `seen`, which
 /// is raised to match: each has had an execution rejected since the last sample read. Counts
 /// only grow within an update, so reading only the newest of several samples finds the same
@@ -214,12 +235,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 newest = None;
                 continue;
             }
-            let p = sample.payload();
-            let d = Distribution {
-                mean: DVector::from_column_slice(&p[..dim]),
-                covariance: DMatrix::from_column_slice(dim, dim, &p[dim..dim + dim * dim]),
-            };
-            newest = Some((h, d));
+            newest = Some((h, received_distribution(&h, sample.payload(), dim)?));
         }
         if let Some((h, d)) = newest {
             current = Some(Current {
@@ -566,6 +582,24 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_distribution_of_another_length_than_the_runs_is_an_error() {
+        let h = DistributionHeader {
+            update: 7,
+            ..DistributionHeader::default()
+        };
+        let d = received_distribution(&h, &[1.0, 2.0, 3.0, 0.0, 0.0, 4.0], 2).unwrap();
+        assert_eq!(d.mean.as_slice(), [1.0, 2.0]);
+        assert_eq!(d.covariance.as_slice(), [3.0, 0.0, 0.0, 4.0]);
+        let e = received_distribution(&h, &[1.0, 2.0, 3.0], 2)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("update 7") && e.contains("3 values") && e.contains("expected 6"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn held_back_rollouts_are_released_only_after_the_update_waited_for_nothing_else() {

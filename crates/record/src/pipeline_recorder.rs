@@ -67,7 +67,8 @@ pub struct RecorderArgs {
 
 /// A message taken from one of the subscribers; payloads are borrowed from the sample.
 enum Msg<'a> {
-    Distribution(DistributionHeader, &'a [f64]),
+    /// The header, the mean and Σ (column-major).
+    Distribution(DistributionHeader, &'a [f64], &'a [f64]),
     /// With the time it was taken in, read only for a worker that does not stamp its
     /// rollouts (see [`rollout_timing`]); 0 otherwise.
     Cost(CostHeader, &'a [f64], u64),
@@ -174,18 +175,18 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 continue;
             }
             let payload = s.payload();
-            if payload.len() < p + p * p {
+            let Some((mean, cov)) = wire::distribution_parts(payload, p) else {
                 anyhow::bail!(
                     "distribution of update {}: {} values, expected {}",
                     h.update,
                     payload.len(),
                     p + p * p
                 );
-            }
+            };
             next_update = Some(next_update.unwrap_or(0).max(h.update + 1));
             acked.get_or_insert(h.update);
             took_in = true;
-            state.handle(Msg::Distribution(h, &payload[..p + p * p]))?;
+            state.handle(Msg::Distribution(h, mean, cov))?;
         }
         while let Some(s) = iox(costs_sub.receive(), "receive costs")? {
             let h = *s.user_header();
@@ -565,9 +566,8 @@ impl WriterState {
     fn handle(&mut self, m: Msg<'_>) -> anyhow::Result<()> {
         let pid = self.pid;
         match m {
-            Msg::Distribution(h, payload) => {
+            Msg::Distribution(h, mean, cov) => {
                 let p = self.dim;
-                let (mean, cov) = (&payload[..p], &payload[p..p + p * p]);
                 let settings = &h.settings[..(h.settings_len as usize).min(h.settings.len())];
                 if !self.started {
                     self.started = true;

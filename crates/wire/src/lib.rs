@@ -1082,6 +1082,13 @@ pub fn distribution_len(l: &Limits) -> usize {
     l.dim + l.dim * l.dim
 }
 
+/// A `distribution` payload split into the mean (P values) and Σ (P×P, column-major); `None`
+/// if it holds fewer values than that.
+pub fn distribution_parts(payload: &[f64], dim: usize) -> Option<(&[f64], &[f64])> {
+    let (mean, rest) = payload.split_at_checked(dim)?;
+    Some((mean, rest.get(..dim * dim)?))
+}
+
 /// `work/<w>`: 1 publisher (sampler), 2 subscribers (worker w; a crashed predecessor until
 /// cleaned), a buffer of K. Publishers use `initial_max_slice_len(P)`.
 pub fn work(
@@ -1340,6 +1347,15 @@ mod tests {
             assert!(((lag + 1) * l.rollouts) as u64 <= l.recorder_cost_room());
             assert!(2 * l.rollouts as u64 <= l.recorder_cost_room());
         }
+    }
+
+    #[test]
+    fn a_distribution_payload_splits_into_mean_and_covariance() {
+        let payload = [1.0, 2.0, 3.0, 0.0, 0.0, 4.0, 9.0];
+        let (mean, cov) = distribution_parts(&payload, 2).unwrap();
+        assert_eq!((mean, cov), (&[1.0, 2.0][..], &[3.0, 0.0, 0.0, 4.0][..]));
+        assert_eq!(distribution_parts(&payload[..5], 2), None);
+        assert_eq!(distribution_parts(&payload[..1], 2), None);
     }
 
     #[test]
