@@ -190,13 +190,11 @@ fn slot<T: Task>(
                     h.steps
                 );
             }
-            let len = (h.settings_len as usize).min(applied.names.len());
-            let refusals = applied.apply(
-                &mut task,
-                h.update,
-                &h.settings[..len],
-                &h.previous_settings[..len],
-            )?;
+            let settings = wire::unpack_settings(&h.settings, h.settings_len);
+            let previous = wire::unpack_settings(&h.previous_settings, h.settings_len);
+            let len = settings.len().min(applied.names.len());
+            let refusals =
+                applied.apply(&mut task, h.update, &settings[..len], &previous[..len])?;
             for (i, value, e) in refusals {
                 let name = applied.names[i];
                 eprintln!(

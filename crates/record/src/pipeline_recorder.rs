@@ -568,15 +568,14 @@ impl WriterState {
         match m {
             Msg::Distribution(h, mean, cov) => {
                 let p = self.dim;
-                let settings = &h.settings[..(h.settings_len as usize).min(h.settings.len())];
+                let settings = wire::unpack_settings(&h.settings, h.settings_len);
+                let previous = wire::unpack_settings(&h.previous_settings, h.settings_len);
                 if !self.started {
                     self.started = true;
                     if self.restart.is_some() {
                         // What the update before ran with: a change taking effect at the first
                         // update of this part is recorded as one.
-                        let n = (h.settings_len as usize).min(h.previous_settings.len());
-                        self.assembler
-                            .continue_from(h.previous_settings[..n].to_vec());
+                        self.assembler.continue_from(previous.to_vec());
                     }
                     let initial = pi2cma::Distribution {
                         mean: nalgebra::DVector::from_column_slice(mean),
@@ -592,8 +591,7 @@ impl WriterState {
                     let task_settings = named(settings);
                     // So that `--resume` from a part that holds no update knows what a worker
                     // refusing a change at its first update falls back to.
-                    let n = (h.settings_len as usize).min(h.previous_settings.len());
-                    let previous_task_settings = named(&h.previous_settings[..n]);
+                    let previous_task_settings = named(previous);
                     self.writer.write_start(&RunStart {
                         name: &self.config.run.name,
                         seed: h.seed,

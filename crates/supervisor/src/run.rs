@@ -2056,18 +2056,14 @@ impl Supervisor {
         settings
     }
 
-    /// A progress report's settings, by name (the wire carries their values in the task's order).
+    /// A progress report's settings, by name.
     fn reported_settings(&self, p: &Progress) -> Vec<(String, f64)> {
         let names = self
             .cfg
             .build_task()
             .map(|t| t.settings())
             .unwrap_or_default();
-        names
-            .into_iter()
-            .zip(&p.settings[..p.settings_len as usize])
-            .map(|((n, _), v)| (n.to_string(), *v))
-            .collect()
+        named_settings(&names, p)
     }
 
     /// Sends a task change to the updater; returns its number, which the updater's
@@ -2798,6 +2794,16 @@ impl Supervisor {
 
 /// The summary's lines on a recording whose recorder was restarted `restarted` times: the
 /// updates missing before each part a restart began (`gaps`: the part and what it says).
+/// The settings of progress report `p` named by the task's `settings` (the wire carries their
+/// values in the task's order).
+fn named_settings(settings: &[(&str, f64)], p: &Progress) -> Vec<(String, f64)> {
+    settings
+        .iter()
+        .zip(wire::unpack_settings(&p.settings, p.settings_len))
+        .map(|((n, _), v)| (n.to_string(), *v))
+        .collect()
+}
+
 fn restart_lines(restarted: u32, gaps: &[(PathBuf, String)]) -> Vec<String> {
     let heading = format!(
         "  the recorder died and was restarted {restarted} time(s); each restart began a new \
@@ -3257,6 +3263,24 @@ mod tests {
         // After a long stall, the window spans it: one update in 3 s.
         r.add(445, 3200 * ms + 40 * 80 * ms + 3000 * ms);
         assert!(r.rate().unwrap() < 1.0, "{:?}", r.rate());
+    }
+
+    #[test]
+    fn a_progress_report_with_more_settings_than_it_can_hold_shows_those_it_holds() {
+        use super::{named_settings, Progress};
+        let names = [("viapoint", 0.0), ("t", 0.0)];
+        let mut p = Progress {
+            settings_len: 1,
+            ..Progress::default()
+        };
+        p.settings[..2].copy_from_slice(&[0.25, 9.0]);
+        assert_eq!(named_settings(&names, &p), [("viapoint".into(), 0.25)]);
+        // A count beyond the header's array (a process of another revision, or not ours).
+        p.settings_len = 9;
+        assert_eq!(
+            named_settings(&names, &p),
+            [("viapoint".into(), 0.25), ("t".into(), 9.0)]
+        );
     }
 
     #[test]

@@ -262,7 +262,7 @@ impl CostHeader {
     pub fn ran_with<'a>(&'a self, published: &'a [f64]) -> &'a [f64] {
         match self.settings_len {
             0 => published,
-            n => &self.settings[..(n as usize).min(MAX_SETTINGS)],
+            n => unpack_settings(&self.settings, n),
         }
     }
 }
@@ -640,6 +640,12 @@ pub fn pack_settings(values: &[f64]) -> ([f64; MAX_SETTINGS], u32) {
     let n = values.len().min(MAX_SETTINGS);
     out[..n].copy_from_slice(&values[..n]);
     (out, n as u32)
+}
+
+/// The first `len` values of a header's settings array (its `settings_len`), no more than it
+/// holds: the inverse of [`pack_settings`].
+pub fn unpack_settings(values: &[f64; MAX_SETTINGS], len: u32) -> &[f64] {
+    &values[..usize::try_from(len).map_or(MAX_SETTINGS, |n| n.min(MAX_SETTINGS))]
 }
 
 /// The publish-subscribe services of a run ([`Limits::settings`]).
@@ -1356,6 +1362,14 @@ mod tests {
         assert_eq!((mean, cov), (&[1.0, 2.0][..], &[3.0, 0.0, 0.0, 4.0][..]));
         assert_eq!(distribution_parts(&payload[..5], 2), None);
         assert_eq!(distribution_parts(&payload[..1], 2), None);
+    }
+
+    #[test]
+    fn settings_unpack_as_packed_and_never_beyond_the_array() {
+        let (values, len) = pack_settings(&[0.5, -1.0]);
+        assert_eq!(unpack_settings(&values, len), [0.5, -1.0]);
+        assert_eq!(unpack_settings(&values, 0), [0.0; 0]);
+        assert_eq!(unpack_settings(&values, u32::MAX).len(), MAX_SETTINGS);
     }
 
     #[test]
