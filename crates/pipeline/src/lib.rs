@@ -326,7 +326,7 @@ pub fn announce_ready(
         }),
         "send lifecycle",
     )?;
-    let notifier = ctx.notifier("supervisor")?;
+    let notifier = ctx.notifier(wire::process::SUPERVISOR)?;
     iox(notifier.notify_with_custom_event_id(wire::WAKE), "notify")?;
     Ok(Announced {
         _publisher: publisher,

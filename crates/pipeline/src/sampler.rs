@@ -133,7 +133,7 @@ struct Current {
 }
 
 pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
-    let ctx = Context::new(args, "sampler")?;
+    let ctx = Context::new(args, wire::process::SAMPLER)?;
     let (dim, k_total, steps) = (ctx.limits.dim, ctx.limits.rollouts, ctx.limits.steps);
     let dist =
         wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("distribution")?;
@@ -144,13 +144,13 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         _ => Some(wire::reruns(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("reruns")?),
     };
     let overdue = wire::overdue(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("overdue")?;
-    let supervisor_bell = ctx.notifier("supervisor")?;
+    let supervisor_bell = ctx.notifier(wire::process::SUPERVISOR)?;
     let rollout_timeout = ctx
         .config
         .pipeline()
         .rollout_timeout_ms
         .map(Duration::from_millis);
-    let doorbell = ctx.listener("sampler")?;
+    let doorbell = ctx.listener(wire::process::SAMPLER)?;
     let _announced = announce_ready(&ctx, wire::role::SAMPLER, 0, 0)?;
 
     let mut workers: BTreeMap<u32, WorkerPort> = BTreeMap::new();
@@ -575,7 +575,7 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
             .create(),
         "work publisher",
     )?;
-    let bell = ctx.notifier(&format!("worker/{worker}"))?;
+    let bell = ctx.notifier(&wire::worker_doorbell(worker))?;
     Ok((inbox, bell))
 }
 

@@ -32,7 +32,7 @@ pub struct UpdaterArgs {
 }
 
 pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
-    let ctx = Context::new(&args.process, "updater")?;
+    let ctx = Context::new(&args.process, wire::process::UPDATER)?;
     let cfg = &ctx.config;
     let seed = cfg.run.seed;
     let start = args
@@ -63,9 +63,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let costs = wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("costs")?;
     let control = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
     let progress_pub = wire::progress(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("progress")?;
-    let doorbell = ctx.listener("updater")?;
-    let sampler_bell = ctx.notifier("sampler")?;
-    let supervisor_bell = ctx.notifier("supervisor")?;
+    let doorbell = ctx.listener(wire::process::UPDATER)?;
+    let sampler_bell = ctx.notifier(wire::process::SAMPLER)?;
+    let supervisor_bell = ctx.notifier(wire::process::SUPERVISOR)?;
     let mut recorder = RecorderLink::new(&ctx)?;
     // Tells the sampler which rollouts to hand out again (`reruns`); only a run that allows
     // reruns opens it, so one that does not takes no more shared memory than before.
@@ -773,7 +773,7 @@ impl RecorderLink {
         Ok(Self {
             service,
             acks,
-            bell: ctx.notifier("recorder")?,
+            bell: ctx.notifier(wire::process::RECORDER)?,
             run_id: ctx.run_id,
             lag: ctx.limits.recorder_max_lag(),
             attached: false,
@@ -874,7 +874,11 @@ impl RecorderLink {
                 self.detach("it has exited");
                 return Ok(true);
             }
-            if ctx.dead_nodes().iter().any(|n| n == "recorder") {
+            if ctx
+                .dead_nodes()
+                .iter()
+                .any(|n| n == wire::process::RECORDER)
+            {
                 self.detach("its node is dead");
                 return Ok(true);
             }

@@ -118,7 +118,7 @@ fn slot<T: Task>(
     let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
 
     let inbox = wire::work(&ctx.node, ctx.run_id, w, &ctx.limits)?.subscriber("work")?;
-    let doorbell = ctx.listener(&format!("worker/{w}"))?;
+    let doorbell = ctx.listener(&wire::worker_doorbell(w))?;
     let costs = iox(
         wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?
             .publisher_builder()
@@ -128,8 +128,8 @@ fn slot<T: Task>(
         "costs publisher",
     )?;
     let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("ready")?;
-    let updater_bell = ctx.notifier("updater")?;
-    let sampler_bell = ctx.notifier("sampler")?;
+    let updater_bell = ctx.notifier(wire::process::UPDATER)?;
+    let sampler_bell = ctx.notifier(wire::process::SAMPLER)?;
     let publish_ready = |chunk: u64, flags: u32| -> anyhow::Result<()> {
         iox(
             ready.send_copy(Ready {

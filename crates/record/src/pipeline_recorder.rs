@@ -90,7 +90,7 @@ fn role_name(l: &Lifecycle) -> String {
 /// Records the run's updates, rollouts, task changes and health events to MCAP until the
 /// `FINAL` distribution or SIGINT/SIGTERM.
 pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
-    let ctx = Context::new(&cli.process, "recorder")?;
+    let ctx = Context::new(&cli.process, wire::process::RECORDER)?;
     let text = std::fs::read_to_string(&cli.process.config)
         .with_context(|| format!("{}: cannot read", cli.process.config.display()))?;
     let out = cli
@@ -105,9 +105,9 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let lifecycle_sub =
         wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("lifecycle")?;
     let notes_sub = wire::notes(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("notes")?;
-    let doorbell = ctx.listener("recorder")?;
-    let updater_bell = ctx.notifier("updater")?;
-    let supervisor_bell = ctx.notifier("supervisor")?;
+    let doorbell = ctx.listener(wire::process::RECORDER)?;
+    let updater_bell = ctx.notifier(wire::process::UPDATER)?;
+    let supervisor_bell = ctx.notifier(wire::process::SUPERVISOR)?;
     let acks = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("recorded")?;
 
     let mut writer = match cli.part {

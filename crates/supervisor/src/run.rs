@@ -756,7 +756,7 @@ impl Supervisor {
         }
         let bell_stop = Arc::new(AtomicBool::new(false));
         let bell = spawn_bell(self.run_id, *limits, self.tx.clone(), bell_stop.clone())?;
-        let node = wire::node(self.run_id, "supervisor")?;
+        let node = wire::node(self.run_id, wire::process::SUPERVISOR)?;
         self.ports = Some(Ports {
             lifecycle: iox(
                 wire::lifecycle(&node, self.run_id, limits)?
@@ -795,19 +795,19 @@ impl Supervisor {
                 "notes publisher",
             )?,
             sampler_bell: iox(
-                wire::doorbell(&node, self.run_id, "sampler", limits)?
+                wire::doorbell(&node, self.run_id, wire::process::SAMPLER, limits)?
                     .notifier_builder()
                     .create(),
                 "sampler notifier",
             )?,
             updater_bell: iox(
-                wire::doorbell(&node, self.run_id, "updater", limits)?
+                wire::doorbell(&node, self.run_id, wire::process::UPDATER, limits)?
                     .notifier_builder()
                     .create(),
                 "updater notifier",
             )?,
             recorder_bell: iox(
-                wire::doorbell(&node, self.run_id, "recorder", limits)?
+                wire::doorbell(&node, self.run_id, wire::process::RECORDER, limits)?
                     .notifier_builder()
                     .create(),
                 "recorder notifier",
@@ -3089,7 +3089,7 @@ fn spawn_bell(
             let setup = || -> anyhow::Result<_> {
                 let node = wire::node(run_id, "supervisor-bell")?;
                 let listener = iox(
-                    wire::doorbell(&node, run_id, "supervisor", &limits)?
+                    wire::doorbell(&node, run_id, wire::process::SUPERVISOR, &limits)?
                         .listener_builder()
                         .create(),
                     "supervisor doorbell",

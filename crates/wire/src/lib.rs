@@ -809,6 +809,24 @@ pub fn wall_clock_ns() -> u64 {
         .unwrap_or(0)
 }
 
+/// The names of the run's processes other than workers: each is the name of the process's
+/// iceoryx2 node and the owner of its doorbell, `wake/<name>` ([`doorbell`]). Every process
+/// must use these: the updater finds a dead recorder by its node name, and a process rings
+/// another by its doorbell's name. Workers are [`worker_node_name`] and
+/// [`worker_doorbell`].
+pub mod process {
+    pub const UPDATER: &str = "updater";
+    pub const SAMPLER: &str = "sampler";
+    pub const RECORDER: &str = "recorder";
+    pub const SUPERVISOR: &str = "supervisor";
+}
+
+/// The owner of worker `w`'s doorbell ([`doorbell`]): `worker/<w>`, the service
+/// `wake/worker/<w>`.
+pub fn worker_doorbell(worker: u32) -> String {
+    format!("worker/{worker}")
+}
+
 /// The node name of worker `w`, incarnation `incarnation`: `worker-<w>.<incarnation>`. The
 /// sampler finds crashed workers by these names among the run's dead nodes.
 pub fn worker_node_name(worker: u32, incarnation: u32) -> String {
@@ -1380,6 +1398,27 @@ mod tests {
         );
         assert_eq!(parse_worker_node_name("sampler"), None);
         assert_eq!(parse_worker_node_name("worker-3"), None);
+    }
+
+    #[test]
+    fn doorbells_have_the_names_foreign_workers_use() {
+        // README's wire section and tools/pi2cma_worker.py name them so.
+        let name = |owner: &str| service_name(0x2a, &format!("wake/{owner}")).unwrap();
+        assert_eq!(
+            name(&worker_doorbell(3)).as_str(),
+            "pi2cma/000000000000002a/wake/worker/3"
+        );
+        for (owner, tail) in [
+            (process::UPDATER, "updater"),
+            (process::SAMPLER, "sampler"),
+            (process::SUPERVISOR, "supervisor"),
+            (process::RECORDER, "recorder"),
+        ] {
+            assert_eq!(
+                name(owner).as_str(),
+                format!("pi2cma/000000000000002a/wake/{tail}")
+            );
+        }
     }
 
     #[test]
