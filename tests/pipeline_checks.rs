@@ -1,5 +1,5 @@
 //! Process helpers and recording checks of the tests that run the pipeline's binaries
-//! (`crates/supervisor/tests/e2e.rs`, `crates/record/tests/pipeline.rs`), included by each
+//! (`crates/supervisor/tests/e2e.rs`, `crates/supervisor/tests/recorder.rs`), included by each
 //! (`#[path = ".../tests/pipeline_checks.rs"] mod pipeline_checks;`).
 
 #![allow(dead_code)] // each test file uses what it needs

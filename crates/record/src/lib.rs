@@ -1,7 +1,8 @@
 //! MCAP recordings of pi2cma runs: the protobuf message schemas, a writer, the
-//! [`McapRecorder`] observer for the in-process runner, readers, recomputation of every update
-//! from its recorded inputs, `recover` for files whose writer was killed, and post-hoc analysis
-//! (info, CSV, SVG figures, experiment tables).
+//! [`McapRecorder`] observer for the in-process runner, the pipeline's recorder process
+//! ([`pipeline_recorder`]), readers (of recordings in several parts, and of resumed runs),
+//! recomputation of every update from its recorded inputs, `recover` for files whose writer was
+//! killed, and post-hoc analysis (info, CSV, SVG figures, experiment tables).
 //!
 //! A recording holds every input of every update (distribution before, hyperparameters, the K
 //! samples, the K cost trajectories) and its outputs, so any update can be recomputed with the
@@ -9,8 +10,9 @@
 //! a writer killed with SIGKILL loses at most the update in flight.
 //!
 //! It is not an executor and does not know how rollouts are run: the in-process runner calls it
-//! through [`session::Observer`], the multiprocess pipeline's recorder process through
-//! [`RunWriter`]. Topic names and schemas are documented in the repository README, section
+//! through [`session::Observer`]; the pipeline's recorder process subscribes to the run's
+//! iceoryx2 services and writes through [`RunWriter`]. Only [`pipeline_recorder`] knows of
+//! processes and shared memory; the rest reads and writes files. Topic names and schemas are documented in the repository README, section
 //! "Recording (MCAP) and analysis".
 
 pub mod analyze;

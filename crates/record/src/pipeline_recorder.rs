@@ -2,7 +2,8 @@
 //! role): subscribes to the run's iceoryx2 services (see the `wire` crate) and writes the run's
 //! MCAP with the same schemas as the in-process recorder.
 //!
-//! It is the spare subscriber of `distribution`, `costs`, `control` and `lifecycle`, and waits
+//! It is the spare subscriber of `distribution`, `costs`, `control` and `lifecycle` (and the
+//! one of `notes`, the supervisor's word on the run), and waits
 //! on its own doorbell, `wake/recorder`, which the updater rings after a distribution when the
 //! recorder may be asleep. Because those services keep no history, it must be subscribed before
 //! the updater publishes the distribution of update 0: start it first and wait for its

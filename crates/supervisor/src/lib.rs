@@ -1,15 +1,20 @@
 //! The supervisor of a pipeline run: starts the MCAP recorder (crate `record`), the updater, the
 //! sampler and N rollout workers in order with readiness handshakes, restarts failed workers
-//! (with backoff and a limit per time window), scales workers at runtime, forwards task changes,
-//! shuts everything down in reverse order on a signal or `stop` (the recorder last, never
-//! restarted), and leaves nothing of the run behind.
+//! and a recorder that died (with backoff and a limit per time window; a restarted recorder
+//! continues the recording in a new part), kills workers the sampler reports hung, scales
+//! workers at runtime, forwards task changes, shuts everything down in reverse order on a
+//! signal or `stop` (the recorder last), and leaves nothing of the run behind.
 //!
-//! Control commands (`status`, `scale`, `set`, `stop`) reach a running supervisor through a Unix
-//! socket in its run directory `<runs>/<run id>/control.sock`, where `<runs>` is
+//! Control commands (`status`, `scale`, `set`, `record`, `stop`) reach a running supervisor
+//! through a Unix socket in its run directory `<runs>/<run id>/control.sock`, where `<runs>` is
 //! `$PI2CMA_RUN_DIR` or `/tmp/pi2cma-<uid>`.
 //!
+//! It is not a process of the data paths: the updater, sampler and worker are the `pipeline`
+//! crate's, the recorder is `record`'s; this crate's binaries only host them.
+//!
 //! **Architecture Invariant:** the supervisor never touches rollouts or costs; it only sees
-//! lifecycle and progress messages, and sends control messages (see the `wire` crate).
+//! lifecycle, progress, overdue and recorder acknowledgement messages, and sends control
+//! messages and run notes (see the `wire` crate).
 
 mod control;
 mod run;

@@ -18,14 +18,15 @@
 //! |---|---|---|---|
 //! | `distribution` | `[f64]`: mean (P), then Σ (P×P, column-major) | [`DistributionHeader`] | updater → sampler, recorder |
 //! | `work/<w>` | `[f64]`: θ (P) | [`WorkHeader`] | sampler → worker `w` (its inbox) |
-//! | `costs` | `[f64]`: immediate costs (N) | [`CostHeader`] | workers → updater |
+//! | `costs` | `[f64]`: immediate costs (N) | [`CostHeader`] | workers → updater, recorder |
 //! | `ready` | [`Ready`] | – | workers → sampler |
 //! | `progress` | [`Progress`] | – | updater → supervisor |
 //! | `recorded` | [`RecorderAck`] | – | recorder → updater, supervisor |
-//! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor |
-//! | `control` | [`Control`] | – | supervisor → sampler, updater |
+//! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor, recorder |
+//! | `control` | [`Control`] | – | supervisor → sampler, updater, recorder |
 //! | `reruns` | `[u32]`: rejected executions per rollout (K) | [`RerunHeader`] | updater → sampler (only with `run.nonfinite_reruns` > 0) |
 //! | `overdue` | [`Overdue`] | – | sampler → supervisor |
+//! | `notes` | [`RunNote`] | – | supervisor → recorder |
 //!
 //! Every receiving process owns one event service, its doorbell: `wake/updater`,
 //! `wake/sampler`, `wake/supervisor`, `wake/recorder`, `wake/worker/<w>`. A sender publishes its samples, then
@@ -70,7 +71,7 @@
 //! # The recorder
 //!
 //! The MCAP recorder (crate `record`) is a spare subscriber of `distribution`, `costs`,
-//! `control` and `lifecycle`; it is woken on its own doorbell, `wake/recorder`, so no sender on
+//! `control` and `lifecycle`, and the one subscriber of `notes`; it is woken on its own doorbell, `wake/recorder`, so no sender on
 //! the data paths pays for it. It acknowledges on `recorded` ([`RecorderAck`]). The updater
 //! applies back-pressure when a recorder was running at START (`recorded` has a publisher): it
 //! publishes distribution u only while u − `next_update` < [`Limits::recorder_max_lag`],
