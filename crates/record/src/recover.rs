@@ -13,7 +13,6 @@ use std::io::{BufWriter, Read, Seek, SeekFrom};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-use mcap::read::ChunkReader;
 use mcap::records::{MessageHeader, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use mcap::{Compression, WriteOptions};
@@ -254,7 +253,7 @@ fn copy_from(
     file.seek(SeekFrom::Start(from))
         .map_err(|e| RecordError::io(input, e))?;
     // Top-level records as they are (chunks still compressed): a chunk is decoded, and its CRC
-    // checked, by `ChunkReader`, and kept only if all of it decodes. No record is longer than
+    // checked, by `chunk_records`, and kept only if all of it decodes. No record is longer than
     // the file: a damaged length fails here instead of asking for that much memory.
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
@@ -292,18 +291,14 @@ fn copy_from(
             Err(e) => return Ok(Some((good_end, e.to_string()))),
         };
         match record {
-            Record::Chunk { header, data } => {
-                let inner: Result<Vec<Record<'_>>, _> =
-                    ChunkReader::new(header, &data).and_then(|r| r.collect());
-                match inner {
-                    Ok(records) => {
-                        for r in records {
-                            copier.copy(w, r, report)?;
-                        }
+            Record::Chunk { .. } => match chunk_records(body) {
+                Ok(records) => {
+                    for r in records {
+                        copier.copy(w, r, report)?;
                     }
-                    Err(e) => return Ok(Some((good_end, format!("damaged chunk: {e}")))),
                 }
-            }
+                Err(e) => return Ok(Some((good_end, format!("damaged chunk: {e}")))),
+            },
             Record::DataEnd(_) | Record::Footer(_) => return Ok(None),
             other => copier.copy(w, other, report)?,
         }
@@ -370,12 +365,46 @@ fn chunk_reads_whole(file: &File, at: u64, len: u64) -> std::io::Result<bool> {
     }
     let mut body = vec![0; record_len as usize];
     file.read_exact_at(&mut body, at + 9)?;
-    Ok(match mcap::parse_record(OP_CHUNK, &body) {
-        Ok(Record::Chunk { header, data }) => ChunkReader::new(header, &data)
-            .and_then(|r| r.collect::<Result<Vec<_>, _>>())
-            .is_ok(),
-        _ => false,
-    })
+    Ok(chunk_records(&body).is_ok())
+}
+
+/// The records of the chunk whose record body is `body`, read only if all of it is sound: its
+/// CRC is checked before any record is parsed, and neither it nor a record in it may be longer
+/// than zstd or lz4 can expand `body` to. `mcap::read::ChunkReader` took the lengths in damaged
+/// bytes at their word and reserved that much memory: `recover`, the command for damaged
+/// files, aborted ("memory allocation of 4611686018427387913 bytes failed") or panicked
+/// ("capacity overflow").
+fn chunk_records(body: &[u8]) -> Result<Vec<Record<'static>>, mcap::McapError> {
+    // zstd's densest block is RLE: 4 bytes for 128 KiB; lz4 expands less.
+    const MAX_EXPANSION: usize = (128 << 10) / 4;
+    let mut input = Vec::with_capacity(9 + body.len());
+    input.push(OP_CHUNK);
+    input.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    input.extend_from_slice(body);
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_start_magic(true)
+            .with_skip_end_magic(true)
+            .with_validate_chunk_crcs(true)
+            .with_prevalidate_chunk_crcs(true)
+            .with_record_length_limit(body.len().saturating_mul(MAX_EXPANSION)),
+    );
+    let mut rest = &input[..];
+    let mut records = Vec::new();
+    while let Some(event) = reader.next_event() {
+        match event? {
+            LinearReadEvent::ReadRequest(wanted) => {
+                let n = wanted.min(rest.len());
+                reader.insert(n).copy_from_slice(&rest[..n]);
+                reader.notify_read(n);
+                rest = &rest[n..];
+            }
+            LinearReadEvent::Record { opcode, data } => {
+                records.push(mcap::parse_record(opcode, data)?.into_owned());
+            }
+        }
+    }
+    Ok(records)
 }
 
 /// A full disk names the way out: the input is untouched, and recovered onto another disk it
@@ -689,6 +718,72 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// What a writer killed after its first record leaves at `path` (forgotten, it holds the
+    /// file's lock as a live writer would).
+    fn killed_after_its_first_record(path: &Path) {
+        let mut w = crate::RunWriter::create(path).unwrap();
+        w.write_event(0, crate::Event::Start, "recorder", 1, "started")
+            .unwrap();
+        w.flush().unwrap();
+        std::mem::forget(w);
+    }
+
+    /// CRC-32 (IEEE), as MCAP's chunk CRC.
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = (crc >> 1) ^ (0xedb8_8320 & (crc & 1).wrapping_neg());
+            }
+        }
+        !crc
+    }
+
+    /// A zstd chunk record whose compressed bytes decode without error (one raw block, as
+    /// damaged bytes may) to a record that claims 2⁶² bytes.
+    fn chunk_claiming_a_huge_record() -> Vec<u8> {
+        let mut content = vec![0x05]; // a message record…
+        content.extend_from_slice(&(1u64 << 62).to_le_bytes()); // …of 2⁶² bytes
+        let n = content.len() as u8;
+        // Frame: magic, descriptor (single segment, 1-byte content size), content size, then
+        // one block: last, raw, `n` bytes.
+        let mut frame = vec![0x28, 0xb5, 0x2f, 0xfd, 0x20, n];
+        frame.extend_from_slice(&((u32::from(n) << 3) | 1).to_le_bytes()[..3]);
+        frame.extend_from_slice(&content);
+        let mut body = Vec::new();
+        for v in [0u64, 0, content.len() as u64] {
+            body.extend_from_slice(&v.to_le_bytes()); // start, end time; uncompressed size
+        }
+        body.extend_from_slice(&crc32(&content).to_le_bytes());
+        body.extend_from_slice(&4u32.to_le_bytes());
+        body.extend_from_slice(b"zstd");
+        body.extend_from_slice(&(frame.len() as u64).to_le_bytes());
+        body.extend_from_slice(&frame);
+        let mut record = vec![OP_CHUNK];
+        record.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        record.extend_from_slice(&body);
+        record
+    }
+
+    #[test]
+    fn a_chunk_whose_bytes_claim_a_huge_record_is_damage_not_a_crash() {
+        let dir = std::env::temp_dir().join(format!("huge-record-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let written = dir.join("written.mcap");
+        killed_after_its_first_record(&written);
+        let input = dir.join("damaged.mcap");
+        let mut bytes = std::fs::read(&written).unwrap();
+        let at = bytes.len() as u64;
+        bytes.extend_from_slice(&chunk_claiming_a_huge_record());
+        std::fs::write(&input, &bytes).unwrap();
+        let report = recover(&input, &dir.join("recovered.mcap")).unwrap();
+        assert_eq!(report.messages, 1, "{report:?}");
+        assert_eq!(report.damage.len(), 1, "{report:?}");
+        assert_eq!(report.damage[0].offset, at, "{report:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn a_part_whose_recorder_died_before_its_first_record_holds_nothing() {
         let dir = std::env::temp_dir().join(format!("holds-nothing-{}", std::process::id()));
@@ -720,11 +815,7 @@ mod tests {
         assert!(!holds_nothing(&file("config.toml", b"[run]\nname = 'A1'\n")).unwrap());
         // A part with its first record written is recovered, not taken for empty.
         let started = dir.join("started.mcap");
-        let mut w = crate::RunWriter::create(&started).unwrap();
-        w.write_event(0, crate::Event::Start, "recorder", 1, "started")
-            .unwrap();
-        w.flush().unwrap();
-        std::mem::forget(w);
+        killed_after_its_first_record(&started);
         assert!(!holds_nothing(&started).unwrap());
         std::fs::remove_dir_all(&dir).unwrap();
     }
