@@ -548,7 +548,6 @@ mod tests {
 
     /// Compiles only while `serve`, `serve_main` and the in-process runner take a task that is
     /// not `Send` (they required it, though each keeps its task on one thread).
-    #[allow(dead_code)]
     fn serve_a_driver(args: &WorkerArgs) -> anyhow::Result<()> {
         serve(args, |_| {
             Ok(Driver {
@@ -557,7 +556,6 @@ mod tests {
         })
     }
 
-    #[allow(dead_code)]
     fn serve_main_a_driver() -> std::process::ExitCode {
         serve_main("driver-worker", |_| {
             Ok(Driver {
@@ -566,7 +564,6 @@ mod tests {
         })
     }
 
-    #[allow(dead_code)]
     fn run_a_driver_in_process(config: &RunConfig) -> anyhow::Result<session::InProcess> {
         let task = Driver {
             link: Default::default(),
