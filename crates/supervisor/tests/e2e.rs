@@ -167,6 +167,20 @@ fn run_id(n: u64) -> String {
 }
 
 impl Run {
+    /// The prefix of the run's shared memory files (`wire::file_prefix`).
+    fn shm_prefix(&self) -> String {
+        wire::file_prefix(self.id())
+    }
+
+    /// The run's iceoryx2 root directory (`wire::iceoryx_root`).
+    fn ipc_root(&self) -> PathBuf {
+        wire::iceoryx_root(self.id())
+    }
+
+    fn id(&self) -> u64 {
+        u64::from_str_radix(&self.run_id, 16).unwrap()
+    }
+
     fn start(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
         Self::start_with_env(scratch, id, args, &[])
     }
@@ -369,9 +383,9 @@ fn assert_nothing_left(run: &Run) {
     }
     let dir = run.runs.join(&run.run_id);
     assert!(!dir.exists(), "{} left behind", dir.display());
-    let root = PathBuf::from(format!("/tmp/p2c-{}", run.run_id));
+    let root = run.ipc_root();
     assert!(!root.exists(), "{} left behind", root.display());
-    let prefix = format!("p2c{}_", run.run_id);
+    let prefix = run.shm_prefix();
     for d in ["/dev/shm", "/tmp", "/tmp/iceoryx2"] {
         if let Ok(entries) = std::fs::read_dir(d) {
             for e in entries.flatten() {
@@ -1512,12 +1526,12 @@ fn next_short_run(scratch: &Scratch, id: u64) -> Run {
 /// The files of a run's iceoryx2 directory and shared memory, made two minutes old.
 fn backdate_ipc(run: &Run) {
     let then = std::time::SystemTime::now() - Duration::from_secs(120);
-    let prefix = format!("p2c{}_", run.run_id);
+    let prefix = run.shm_prefix();
     let shm = std::fs::read_dir("/dev/shm")
         .unwrap()
         .flatten()
         .map(|e| e.path());
-    let root = PathBuf::from(format!("/tmp/p2c-{}", run.run_id));
+    let root = run.ipc_root();
     for p in shm
         .filter(|p| {
             p.file_name()
@@ -1580,7 +1594,7 @@ fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
         &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
     );
     sigkill_after_3_updates(&mut killed);
-    let prefix = format!("p2c{}_", killed.run_id);
+    let prefix = killed.shm_prefix();
     let shm = || {
         std::fs::read_dir("/dev/shm")
             .unwrap()
@@ -5141,13 +5155,13 @@ fn a_set_at_the_update_a_killed_run_was_in_is_lost_with_that_update() {
         assert!(!point.start.published, "{}", file.display());
     }
     // What the killed run left (the next run's sweep would find it; no run follows here).
-    let prefix = format!("p2c{}_", run.run_id);
+    let prefix = run.shm_prefix();
     for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
         if e.file_name().to_string_lossy().starts_with(&prefix) {
             let _ = std::fs::remove_file(e.path());
         }
     }
-    let _ = std::fs::remove_dir_all(format!("/tmp/p2c-{}", run.run_id));
+    let _ = std::fs::remove_dir_all(run.ipc_root());
 }
 
 /// A `set` to the value in force, and one that overrides a scheduled change back to it, leave
