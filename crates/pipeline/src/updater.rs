@@ -360,7 +360,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     h.worker,
                     h.rollout,
                     ran_with_text(&h, &published, &*task),
-                    after_reruns(tried)
+                    after_reruns(&e, tried)
                 );
             }
             let issue =

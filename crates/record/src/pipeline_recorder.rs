@@ -812,7 +812,7 @@ impl WriterState {
         let message = format!(
             "cost of update {} rejected: {e}{}",
             h.update,
-            after_reruns(tried)
+            after_reruns(e, tried)
         );
         self.log_at(h.update, Event::Error, &by, 0, &message)
     }

@@ -29,11 +29,11 @@ use tasks::{Delayed, Task, TaskChange, TaskError};
 pub enum SessionError {
     /// The cost error is part of the message, not a source: chained, it would be printed twice
     /// (`update 4: cost … is NaN: cost … is NaN`).
-    #[error("update {update}: {error}")]
+    #[error("update {update}: {error}{}", reruns::without_reruns(error))]
     Cost { update: u64, error: CostError },
     /// A rollout whose costs were still not finite after `reruns` reruns
     /// (`run.nonfinite_reruns`).
-    #[error("update {update}: {error}{}", reruns::after_reruns(*reruns))]
+    #[error("update {update}: {error}{}", reruns::after_reruns(error, *reruns))]
     CostAfterReruns {
         update: u64,
         error: CostError,
@@ -626,7 +626,14 @@ mod tests {
         }
         assert_eq!(
             chain,
-            "update 4: cost of rollout 1 at step 0 is NaN; costs must be finite"
+            format!(
+                "update 4: cost of rollout 1 at step 0 is NaN; costs must be finite{}",
+                reruns::without_reruns(&CostError::NonFinite {
+                    rollout: 1,
+                    step: Some(0),
+                    value: f64::NAN,
+                })
+            )
         );
     }
 
@@ -935,7 +942,9 @@ mod tests {
             .to_string();
         assert_eq!(
             e,
-            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite"
+            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite (if the task \
+             gives such costs now and then, `run.nonfinite_reruns = N` runs such a rollout again, \
+             up to N times, with the same parameters)"
         );
         assert!(told.0.is_empty());
     }

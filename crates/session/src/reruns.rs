@@ -71,15 +71,28 @@ pub fn rerun_message(update: u64, error: &CostError, attempt: u32, limit: u32, b
 }
 
 /// What a run that fails on a non-finite cost adds to its message when it tried reruns: `, still
-/// after 2 reruns with the same parameters (run.nonfinite_reruns = 2)`. Nothing for 0, so that
-/// a run without reruns fails as it always has.
-pub fn after_reruns(reruns: u32) -> String {
+/// after 2 reruns with the same parameters (run.nonfinite_reruns = 2)`; after none (reruns
+/// off), [`without_reruns`] for a non-finite cost.
+pub fn after_reruns(error: &CostError, reruns: u32) -> String {
     match reruns {
-        0 => String::new(),
+        0 => without_reruns(error).to_string(),
         n => format!(
             ", still after {n} rerun{} with the same parameters (run.nonfinite_reruns = {n})",
             if n == 1 { "" } else { "s" }
         ),
+    }
+}
+
+/// What a run without reruns adds when it fails on a non-finite cost: the setting that would
+/// have run the rollout again. A simulator that gives NaN now and then (a contact solver that
+/// diverges) is common, and without this the option is found only in the README.
+pub fn without_reruns(error: &CostError) -> &'static str {
+    match error {
+        CostError::NonFinite { .. } => {
+            " (if the task gives such costs now and then, `run.nonfinite_reruns = N` runs such a \
+             rollout again, up to N times, with the same parameters)"
+        }
+        _ => "",
     }
 }
 
@@ -103,12 +116,28 @@ mod tests {
     }
 
     #[test]
-    fn without_reruns_the_first_non_finite_cost_fails_and_the_message_is_unchanged() {
+    fn without_reruns_the_first_non_finite_cost_fails_and_the_message_names_the_setting() {
         let mut r = NonfiniteReruns::new(0, 3);
         assert_eq!(r.reject(0), Verdict::Fail { reruns: 0 });
-        assert_eq!(after_reruns(0), "");
+        let nan = CostError::NonFinite {
+            rollout: 0,
+            step: None,
+            value: f64::NAN,
+        };
         assert_eq!(
-            after_reruns(1),
+            after_reruns(&nan, 0),
+            " (if the task gives such costs now and then, `run.nonfinite_reruns = N` runs such a \
+             rollout again, up to N times, with the same parameters)"
+        );
+        // Another cost error has nothing to do with reruns.
+        let short = CostError::WrongLength {
+            rollout: 0,
+            expected: 3,
+            got: 2,
+        };
+        assert_eq!(after_reruns(&short, 0), "");
+        assert_eq!(
+            after_reruns(&nan, 1),
             ", still after 1 rerun with the same parameters (run.nonfinite_reruns = 1)"
         );
     }

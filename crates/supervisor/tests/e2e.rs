@@ -1873,6 +1873,11 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
     assert!(!exit.success(), "{}", run.text());
     let out = run.text();
     assert!(out.contains("update 3") && out.contains("NaN"), "{out}");
+    // The run had no reruns: the error names the setting that would have rerun the rollout.
+    assert!(
+        out.contains("(if the task gives such costs now and then, `run.nonfinite_reruns = N`"),
+        "{out}"
+    );
     assert!(out.contains("updater exited"), "{out}");
     assert_nothing_left(&run);
 }
