@@ -1540,12 +1540,13 @@ fn plot_ellipses(rec: &Recording, path: &Path) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
     // Every update's, or for a long run those the digest kept (DISTRIBUTIONS_SHOWN).
     let kept = &rec.digest.distributions;
+    let from = |d| distribution_from_proto(d).map_err(|w| w.to_string());
     let mut dists = Vec::new();
     for s in &kept.shown {
-        dists.push((s.update, distribution_from_proto(&s.distribution)?));
+        dists.push((s.update, from(&s.distribution)?));
     }
     if let Some((u, last)) = &kept.last {
-        dists.push((*u, distribution_from_proto(last)?));
+        dists.push((*u, from(last)?));
     }
     let thinned = kept.shown.len() < rec.digest.points.len();
     let n = dists.len().max(1);

@@ -10,6 +10,28 @@ use session::{CovarianceName, Method, RunConfig, TaskSection, WeightingName};
 
 use crate::proto;
 
+/// A recorded distribution or hyperparameters message that does not convert back to the core's
+/// type. It knows no file: the caller, which read the message, names the file and update
+/// ([`crate::RecordError::Update`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ConvertError {
+    /// A distribution whose mean or covariance does not have the length its `dim` says.
+    #[error(
+        "distribution of dim {dim} has {mean} mean and {covariance} covariance entries \
+         (expected {dim} and {})",
+        dim * dim
+    )]
+    DistributionShape {
+        dim: usize,
+        mean: usize,
+        covariance: usize,
+    },
+    /// An enum field of the hyperparameters holding a value this build does not know (a
+    /// recording from a newer build, or damage).
+    #[error("hyperparameters.{field} = {value}: unknown")]
+    UnknownValue { field: &'static str, value: i32 },
+}
+
 pub(crate) fn distribution_to_proto(d: &Distribution) -> proto::Distribution {
     let n = d.dim();
     let mut covariance = Vec::with_capacity(n * n);
@@ -27,15 +49,14 @@ pub(crate) fn distribution_to_proto(d: &Distribution) -> proto::Distribution {
 
 /// The recorded distribution, bit for bit (not re-validated: a recording holds what the core
 /// produced). Errors name the inconsistent length.
-pub fn distribution_from_proto(d: &proto::Distribution) -> Result<Distribution, String> {
+pub fn distribution_from_proto(d: &proto::Distribution) -> Result<Distribution, ConvertError> {
     let n = d.dim as usize;
     if d.mean.len() != n || d.covariance.len() != n * n {
-        return Err(format!(
-            "distribution of dim {n} has {} mean and {} covariance entries (expected {n} and {})",
-            d.mean.len(),
-            d.covariance.len(),
-            n * n
-        ));
+        return Err(ConvertError::DistributionShape {
+            dim: n,
+            mean: d.mean.len(),
+            covariance: d.covariance.len(),
+        });
     }
     Ok(Distribution {
         mean: DVector::from_column_slice(&d.mean),
@@ -88,7 +109,10 @@ pub(crate) fn hyperparameters_to_proto(hp: &Hyperparameters) -> proto::Hyperpara
 }
 
 /// The core's hyperparameters from their recorded form; errors name the unknown field value.
-pub fn hyperparameters_from_proto(p: &proto::Hyperparameters) -> Result<Hyperparameters, String> {
+pub fn hyperparameters_from_proto(
+    p: &proto::Hyperparameters,
+) -> Result<Hyperparameters, ConvertError> {
+    let unknown = |field, value| ConvertError::UnknownValue { field, value };
     let mapping = match proto::CostMapping::try_from(p.mapping) {
         Ok(proto::CostMapping::Exponential) => CostMapping::Exponential {
             eliteness: p.eliteness,
@@ -96,7 +120,7 @@ pub fn hyperparameters_from_proto(p: &proto::Hyperparameters) -> Result<Hyperpar
         Ok(proto::CostMapping::Elites) => CostMapping::Elites {
             count: p.elites as usize,
         },
-        _ => return Err(format!("hyperparameters.mapping = {}: unknown", p.mapping)),
+        _ => return Err(unknown("mapping", p.mapping)),
     };
     let exploration = match proto::Exploration::try_from(p.exploration) {
         Ok(proto::Exploration::Constant) => Exploration::Constant,
@@ -107,12 +131,7 @@ pub fn hyperparameters_from_proto(p: &proto::Hyperparameters) -> Result<Hyperpar
                 max: p.lambda_max,
             },
         },
-        _ => {
-            return Err(format!(
-                "hyperparameters.exploration = {}: unknown",
-                p.exploration
-            ))
-        }
+        _ => return Err(unknown("exploration", p.exploration)),
     };
     let weighting = match proto::Weighting::try_from(p.weighting) {
         Ok(proto::Weighting::Episodic) => Weighting::Episodic,
@@ -122,12 +141,7 @@ pub fn hyperparameters_from_proto(p: &proto::Hyperparameters) -> Result<Hyperpar
         Ok(proto::Weighting::PerTimeStepBasisActivation) => Weighting::PerTimeStep {
             temporal: TemporalAveraging::BasisActivation,
         },
-        _ => {
-            return Err(format!(
-                "hyperparameters.weighting = {}: unknown",
-                p.weighting
-            ))
-        }
+        _ => return Err(unknown("weighting", p.weighting)),
     };
     Ok(Hyperparameters {
         rollouts: p.rollouts as usize,
@@ -376,6 +390,9 @@ mod tests {
             mean: vec![0.0; 3],
             covariance: vec![0.0; 4],
         };
-        assert!(distribution_from_proto(&bad).unwrap_err().contains("dim 3"));
+        assert_eq!(
+            distribution_from_proto(&bad).unwrap_err().to_string(),
+            "distribution of dim 3 has 3 mean and 4 covariance entries (expected 3 and 9)"
+        );
     }
 }

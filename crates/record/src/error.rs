@@ -1,7 +1,8 @@
-//! One error type for the library; every variant names the file (and, where it applies, the
-//! topic, update or field) it is about. The underlying error is part of the message, not a
-//! `source()`: reported through `anyhow`, it would otherwise be printed twice ("X: No such
-//! file… Caused by: No such file…").
+//! The library's error type; every variant names the file (and, where it applies, the topic,
+//! update or field) it is about. (A recorded message converted back to the core's types knows
+//! no file: [`crate::ConvertError`], which the readers wrap in [`RecordError::Update`].) The
+//! underlying error is part of the message, not a `source()`: reported through `anyhow`, it
+//! would otherwise be printed twice ("X: No such file… Caused by: No such file…").
 
 use std::path::PathBuf;
 

@@ -46,7 +46,9 @@ pub mod proto {
     pub use self::pi2cma::record::*;
 }
 
-pub use convert::{config_to_toml, distribution_from_proto, hyperparameters_from_proto};
+pub use convert::{
+    config_to_toml, distribution_from_proto, hyperparameters_from_proto, ConvertError,
+};
 pub use digest::{Digest, UpdatePoint};
 pub use error::RecordError;
 pub use reader::{

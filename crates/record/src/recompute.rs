@@ -46,7 +46,7 @@ fn recompute(
             .as_ref()
             .ok_or_else(|| e("no hyperparameters".into()))?,
     )
-    .map_err(e)?;
+    .map_err(|w| e(w.to_string()))?;
     let before = distribution_from_proto(u.before.as_ref().ok_or_else(|| e("no `before`".into()))?)
         .map_err(|w| e(format!("before: {w}")))?;
     let (k, p, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);

@@ -98,7 +98,7 @@ fn resume_point_within(path: &Path, depth: u32) -> Result<ResumePoint, RecordErr
         from.hyperparameters
             .ok_or_else(|| bad("no hyperparameters".into()))?,
     )
-    .map_err(bad)?;
+    .map_err(|w| bad(w.to_string()))?;
     Ok(ResumePoint {
         start: Start {
             update: from.start,
