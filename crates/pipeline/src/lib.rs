@@ -3,13 +3,15 @@
 //! workers by load) and [`worker`] (executes rollouts, writing costs straight into shared memory;
 //! [`worker::serve`] runs the same loop around a user's own task). The wire contract (message
 //! layouts, service names and settings) is the `wire` crate's; the binaries live in the
-//! `supervisor` crate, which starts and supervises these processes.
+//! `supervisor` crate, which starts and supervises these processes. The library's functions fail
+//! with [`ProcessError`]; [`run_main`], the processes' binary edge, reports it with context.
 //!
 //! **Architecture Invariant:** the processes never serialise on the data paths and do not spin:
 //! each waits on its doorbell event ([`wait_loop`]) and then drains its subscribers. The one
 //! bounded exception is a worker polling for its next work for at most
 //! `pipeline.worker_spin_us` after a chunk ([`wait_loop_spinning`]).
 
+mod error;
 pub mod result;
 pub mod sampler;
 pub mod updater;
@@ -19,7 +21,7 @@ use std::fmt::Debug;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::{anyhow, Context as _};
+use anyhow::Context as _;
 use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -31,6 +33,8 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 use session::RunConfig;
 use std::sync::atomic::{AtomicBool, Ordering};
 use wire::{Limits, Service};
+
+pub use error::ProcessError;
 
 /// Arguments every pipeline process takes (the supervisor passes them).
 #[derive(Debug, Clone, clap::Args)]
@@ -60,7 +64,7 @@ pub struct Context {
 }
 
 impl Context {
-    pub fn new(args: &ProcessArgs, node_name: &str) -> anyhow::Result<Self> {
+    pub fn new(args: &ProcessArgs, node_name: &str) -> Result<Self, ProcessError> {
         let config = RunConfig::load(&args.config)?;
         let limits = limits(&config)?;
         let node = wire::node(args.run_id, node_name)?;
@@ -81,7 +85,7 @@ impl Context {
     }
 
     /// A listener on the doorbell `wake/<owner>` of this run.
-    pub fn listener(&self, owner: &str) -> anyhow::Result<Listener<Service>> {
+    pub fn listener(&self, owner: &str) -> Result<Listener<Service>, ProcessError> {
         let bell = wire::doorbell(&self.node, self.run_id, owner, &self.limits)?;
         iox(
             bell.listener_builder().create(),
@@ -101,7 +105,7 @@ impl Context {
     }
 
     /// A notifier ringing the doorbell `wake/<owner>` of this run.
-    pub fn notifier(&self, owner: &str) -> anyhow::Result<Notifier<Service>> {
+    pub fn notifier(&self, owner: &str) -> Result<Notifier<Service>, ProcessError> {
         let bell = wire::doorbell(&self.node, self.run_id, owner, &self.limits)?;
         iox(
             bell.notifier_builder().create(),
@@ -118,15 +122,14 @@ pub fn result_path(run_dir: &Path) -> PathBuf {
 const _: () = assert!(session::MAX_EXTERNAL_SETTINGS == wire::MAX_SETTINGS);
 
 /// K, P, N and the worker limit of a config: the numbers every service is sized from.
-pub fn limits(config: &RunConfig) -> anyhow::Result<Limits> {
+pub fn limits(config: &RunConfig) -> Result<Limits, ProcessError> {
     let task = config.build_task()?;
     if task.settings().len() > wire::MAX_SETTINGS {
-        anyhow::bail!(
-            "task `{}` has {} settings; the wire headers carry at most {}",
-            task.name(),
-            task.settings().len(),
-            wire::MAX_SETTINGS
-        );
+        return Err(ProcessError::TooManySettings {
+            task: task.name(),
+            settings: task.settings().len(),
+            max: wire::MAX_SETTINGS,
+        });
     }
     Ok(Limits {
         max_workers: config.pipeline().max_workers,
@@ -139,20 +142,20 @@ pub fn limits(config: &RunConfig) -> anyhow::Result<Limits> {
 /// A subscriber or a publisher with iceoryx2's default settings on one of the run's services
 /// (as `wire` opens them), named in an error: `wire::control(…)?.subscriber("control")?`.
 pub trait Ports<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> {
-    fn subscriber(&self, name: &str) -> anyhow::Result<Subscriber<Service, P, H>>;
-    fn publisher(&self, name: &str) -> anyhow::Result<Publisher<Service, P, H>>;
+    fn subscriber(&self, name: &str) -> Result<Subscriber<Service, P, H>, ProcessError>;
+    fn publisher(&self, name: &str) -> Result<Publisher<Service, P, H>, ProcessError>;
 }
 
 impl<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> Ports<P, H>
     for PortFactory<Service, P, H>
 {
-    fn subscriber(&self, name: &str) -> anyhow::Result<Subscriber<Service, P, H>> {
+    fn subscriber(&self, name: &str) -> Result<Subscriber<Service, P, H>, ProcessError> {
         iox(
             self.subscriber_builder().create(),
             &format!("{name} subscriber"),
         )
     }
-    fn publisher(&self, name: &str) -> anyhow::Result<Publisher<Service, P, H>> {
+    fn publisher(&self, name: &str) -> Result<Publisher<Service, P, H>, ProcessError> {
         iox(
             self.publisher_builder().create(),
             &format!("{name} publisher"),
@@ -160,9 +163,13 @@ impl<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> Ports<P, H>
     }
 }
 
-/// Turns an iceoryx2 error (which are `Debug`) into an error that says what failed.
-pub fn iox<T, E: Debug>(r: Result<T, E>, what: &str) -> anyhow::Result<T> {
-    r.map_err(|e| anyhow!("{what}: {e:?}"))
+/// Turns an iceoryx2 error (which are `Debug`) into an error that says what failed
+/// ([`ProcessError::Port`]).
+pub fn iox<T, E: Debug>(r: Result<T, E>, what: &str) -> Result<T, ProcessError> {
+    r.map_err(|e| ProcessError::Port {
+        what: what.to_string(),
+        reason: format!("{e:?}"),
+    })
 }
 
 /// How a [`wait_loop`] ended.
@@ -201,11 +208,11 @@ pub fn wait_loop(
 
 /// [`wait_loop`], but polling the doorbell for up to `spin`'s budget before blocking: see
 /// [`Spin`].
-pub fn wait_loop_spinning(
+pub fn wait_loop_spinning<E>(
     doorbell: &Listener<Service>,
     spin: &mut Spin,
-    mut on_wake: impl FnMut() -> anyhow::Result<Flow>,
-) -> anyhow::Result<Exit> {
+    mut on_wake: impl FnMut() -> Result<Flow, E>,
+) -> Result<Exit, E> {
     loop {
         if on_wake()? == Flow::Stop {
             return Ok(Exit::Done);
@@ -314,7 +321,7 @@ pub fn announce_ready(
     role: u32,
     worker: u32,
     incarnation: u32,
-) -> anyhow::Result<Announced> {
+) -> Result<Announced, ProcessError> {
     let publisher = wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("lifecycle")?;
     iox(
         publisher.send_copy(wire::Lifecycle {
@@ -335,7 +342,7 @@ pub fn announce_ready(
 
 /// Runs a process main: prints the error chain and returns exit code 1 on failure,
 /// [`wire::EXIT_CONFIG_REFUSED`] when the process refused the run's config
-/// ([`worker::ConfigRefused`]).
+/// ([`ProcessError::refuses_config`]).
 pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::process::ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
     report_panics(name);
@@ -343,7 +350,9 @@ pub fn run_main(name: &str, f: impl FnOnce() -> anyhow::Result<()>) -> std::proc
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.downcast_ref::<worker::ConfigRefused>().is_some() {
+            if e.downcast_ref::<ProcessError>()
+                .is_some_and(ProcessError::refuses_config)
+            {
                 std::process::ExitCode::from(wire::EXIT_CONFIG_REFUSED)
             } else {
                 std::process::ExitCode::FAILURE

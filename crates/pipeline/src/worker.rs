@@ -6,7 +6,6 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::bail;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use session::RunConfig;
@@ -14,7 +13,8 @@ use tasks::Task;
 use wire::{CostHeader, Ready, WorkHeader};
 
 use crate::{
-    announce_ready, iox, wait_loop_spinning, Context, Flow, Ports as _, ProcessArgs, Spin,
+    announce_ready, iox, wait_loop_spinning, Context, Flow, Ports as _, ProcessArgs, ProcessError,
+    Spin,
 };
 
 #[derive(Debug, Clone, clap::Args)]
@@ -60,7 +60,7 @@ pub fn stop_requested() -> bool {
 
 /// The built-in `rollout-worker`: runs the config's own task (via-point, T-ball). That task is
 /// the one the run was sized from, so there is no shape to check.
-pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
+pub fn main(args: &WorkerArgs) -> Result<(), ProcessError> {
     slot(args, |ctx| Ok(session::build_task(&ctx.config)?))
 }
 
@@ -73,14 +73,25 @@ pub fn main(args: &WorkerArgs) -> anyhow::Result<()> {
 /// The task must have the shape the config declares — P parameters, N steps, the same setting
 /// names in the same order ([`session::check_task_shape`]) — or this fails at start, naming
 /// both. The same task runs without the pipeline through `session::InProcess::with_task`.
-pub fn serve<T: Task>(
+///
+/// `make_task` may fail with any error type that converts into a boxed error (`anyhow::Error`
+/// does); it comes back as [`ProcessError::MakeTask`], unchanged. The other failures: the
+/// run's config, services or ports ([`ProcessError::Config`], [`ProcessError::Service`],
+/// [`ProcessError::Port`]), the task's shape ([`ProcessError::TaskShape`]), a work item not of
+/// the run's shape ([`ProcessError::WorkItemShape`]), a setting value the task refuses with
+/// nothing to fall back to ([`ProcessError::SettingRefused`]). A stop (SIGTERM, SIGINT, the run
+/// directory gone) returns `Ok`. A closure that cannot fail names its error type, which is not
+/// inferred: `|_| Ok::<_, std::convert::Infallible>(task)`.
+pub fn serve<T: Task, E>(
     args: &WorkerArgs,
-    make_task: impl FnOnce(&RunConfig) -> anyhow::Result<T>,
-) -> anyhow::Result<()> {
+    make_task: impl FnOnce(&RunConfig) -> Result<T, E>,
+) -> Result<(), ProcessError>
+where
+    E: Into<Box<dyn std::error::Error + Send + Sync>>,
+{
     slot(args, |ctx| {
-        let task = make_task(&ctx.config)?;
-        session::check_task_shape(&task, &ctx.config)
-            .map_err(|e| anyhow::Error::new(ConfigRefused(e.into())))?;
+        let task = make_task(&ctx.config).map_err(|e| ProcessError::MakeTask(e.into()))?;
+        session::check_task_shape(&task, &ctx.config).map_err(ProcessError::TaskShape)?;
         Ok(task)
     })
 }
@@ -89,15 +100,15 @@ pub fn serve<T: Task>(
 /// context is open.
 fn slot<T: Task>(
     args: &WorkerArgs,
-    make_task: impl FnOnce(&Context) -> anyhow::Result<T>,
-) -> anyhow::Result<()> {
+    make_task: impl FnOnce(&Context) -> Result<T, ProcessError>,
+) -> Result<(), ProcessError> {
     let (w, incarnation) = (args.worker, args.incarnation);
     let ctx = Context::new(&args.process, &wire::worker_node_name(w, incarnation))?;
     if w as usize >= ctx.limits.max_workers {
-        bail!(
-            "worker slot {w} is beyond pipeline.max_workers = {}",
-            ctx.limits.max_workers
-        );
+        return Err(ProcessError::SlotBeyondLimit {
+            worker: w,
+            max_workers: ctx.limits.max_workers,
+        });
     }
     SERVING.store(true, Ordering::Relaxed);
     let mut task = make_task(&ctx)?;
@@ -130,7 +141,7 @@ fn slot<T: Task>(
     let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("ready")?;
     let updater_bell = ctx.notifier(wire::process::UPDATER)?;
     let sampler_bell = ctx.notifier(wire::process::SAMPLER)?;
-    let publish_ready = |chunk: u64, flags: u32| -> anyhow::Result<()> {
+    let publish_ready = |chunk: u64, flags: u32| -> Result<(), ProcessError> {
         iox(
             ready.send_copy(Ready {
                 run_id: ctx.run_id,
@@ -183,12 +194,13 @@ fn slot<T: Task>(
                 continue;
             }
             if item.payload().len() != dim || h.steps as usize != steps {
-                bail!(
-                    "work item of update {} has θ of length {} and {} steps, expected {dim} and {steps}",
-                    h.update,
-                    item.payload().len(),
-                    h.steps
-                );
+                return Err(ProcessError::WorkItemShape {
+                    update: h.update,
+                    len: item.payload().len(),
+                    steps: h.steps,
+                    expected_len: dim,
+                    expected_steps: steps,
+                });
             }
             let settings = wire::unpack_settings(&h.settings, h.settings_len);
             let previous = wire::unpack_settings(&h.previous_settings, h.settings_len);
@@ -345,7 +357,7 @@ impl Applied {
         update: u64,
         settings: &[f64],
         previous: &[f64],
-    ) -> anyhow::Result<Vec<(usize, f64, tasks::TaskError)>> {
+    ) -> Result<Vec<(usize, f64, tasks::TaskError)>, ProcessError> {
         let same = |a: f64, b: f64| a.to_bits() == b.to_bits();
         if update != self.update {
             self.update = update;
@@ -361,21 +373,16 @@ impl Applied {
         let off: Vec<usize> = (0..settings.len())
             .filter(|&i| !same(self.values[i], previous[i]))
             .collect();
-        if let Some((i, e)) = self.take(task, previous, off).into_iter().next() {
-            let in_force = if same(settings[i], previous[i]) {
-                "a value in force before this update (the config's, or an earlier change the \
-                 other workers took)"
-            } else {
-                "the value the update before ran with"
-            };
+        if let Some((i, reason)) = self.take(task, previous, off).into_iter().next() {
             // Not a crash to restart: a restarted worker's task meets the same value, and so
             // does every other worker the sampler hands the rollouts to.
-            return Err(anyhow::Error::new(ConfigRefused(anyhow::anyhow!(
-                "update {update}: the task refused {} = {} ({e}), {in_force}: nothing to fall \
-                 back to",
-                self.names[i],
-                tasks::value_text(previous[i])
-            ))));
+            return Err(ProcessError::SettingRefused {
+                update,
+                setting: self.names[i],
+                value: previous[i],
+                reason,
+                changed_by_update: !same(settings[i], previous[i]),
+            });
         }
         let changes: Vec<usize> = (0..settings.len())
             .filter(|&i| !same(settings[i], previous[i]))
@@ -417,7 +424,8 @@ impl Applied {
 }
 
 /// Parses the arguments the supervisor passes a worker and runs [`serve`]; returns the exit
-/// code (1, after printing the error chain, on failure). The whole `main` of a worker of your own:
+/// code (1, after printing the error chain, on failure; [`wire::EXIT_CONFIG_REFUSED`] when
+/// [`ProcessError::refuses_config`]). The whole `main` of a worker of your own:
 ///
 /// ```no_run
 /// # struct MySim;
@@ -437,10 +445,13 @@ impl Applied {
 ///     pipeline::worker::serve_main("my-sim-worker", MySim::new)
 /// }
 /// ```
-pub fn serve_main<T: Task>(
+pub fn serve_main<T: Task, E>(
     name: &str,
-    make_task: impl FnOnce(&RunConfig) -> anyhow::Result<T>,
-) -> std::process::ExitCode {
+    make_task: impl FnOnce(&RunConfig) -> Result<T, E>,
+) -> std::process::ExitCode
+where
+    E: Into<Box<dyn std::error::Error + Send + Sync>>,
+{
     use clap::Parser as _;
     #[derive(clap::Parser)]
     struct Cli {
@@ -448,21 +459,8 @@ pub fn serve_main<T: Task>(
         worker: WorkerArgs,
     }
     let cli = Cli::parse();
-    crate::run_main(name, || serve(&cli.worker, make_task))
+    crate::run_main(name, || Ok(serve(&cli.worker, make_task)?))
 }
-
-/// Why a worker refuses the run's config; [`crate::run_main`] exits with
-/// [`wire::EXIT_CONFIG_REFUSED`] for it.
-#[derive(Debug)]
-pub struct ConfigRefused(pub anyhow::Error);
-
-impl std::fmt::Display for ConfigRefused {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{:#}", self.0)
-    }
-}
-
-impl std::error::Error for ConfigRefused {}
 
 #[cfg(test)]
 mod tests {
@@ -548,9 +546,9 @@ mod tests {
 
     /// Compiles only while `serve`, `serve_main` and the in-process runner take a task that is
     /// not `Send` (they required it, though each keeps its task on one thread).
-    fn serve_a_driver(args: &WorkerArgs) -> anyhow::Result<()> {
+    fn serve_a_driver(args: &WorkerArgs) -> Result<(), ProcessError> {
         serve(args, |_| {
-            Ok(Driver {
+            Ok::<_, std::convert::Infallible>(Driver {
                 link: Default::default(),
             })
         })
@@ -558,7 +556,7 @@ mod tests {
 
     fn serve_main_a_driver() -> std::process::ExitCode {
         serve_main("driver-worker", |_| {
-            Ok(Driver {
+            Ok::<_, std::convert::Infallible>(Driver {
                 link: Default::default(),
             })
         })
@@ -573,7 +571,7 @@ mod tests {
 
     #[test]
     fn a_task_that_is_not_send_is_served_as_any_other() {
-        let served: fn(&WorkerArgs) -> anyhow::Result<()> = serve_a_driver;
+        let served: fn(&WorkerArgs) -> Result<(), ProcessError> = serve_a_driver;
         let main: fn() -> std::process::ExitCode = serve_main_a_driver;
         let in_process: fn(&RunConfig) -> anyhow::Result<session::InProcess> =
             run_a_driver_in_process;
@@ -687,7 +685,7 @@ mod tests {
         let e = applied
             .apply(&mut task, 0, &[0.3, 5.0], &[0.3, 5.0])
             .unwrap_err();
-        assert!(e.downcast_ref::<ConfigRefused>().is_some(), "{e}");
+        assert!(e.refuses_config(), "{e}");
         let e = e.to_string();
         assert!(
             e.starts_with(

@@ -236,12 +236,8 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let delay = std::time::Duration::from_secs_f64(cli.rollout_ms / 1e3);
     pipeline::run_main("reach-worker", || {
-        pipeline::worker::serve(&cli.worker, |config| {
-            Ok(Reach {
-                delay,
-                ..Reach::new(config)?
-            })
-        })
+        let make_task = |config: &RunConfig| Reach::new(config).map(|r| Reach { delay, ..r });
+        Ok(pipeline::worker::serve(&cli.worker, make_task)?)
     })
 }
 

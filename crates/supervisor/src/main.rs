@@ -129,7 +129,7 @@ fn main() -> ExitCode {
             record::pipeline_recorder::run_recorder(&args)
         }),
         Cmd::RolloutWorker { worker } => {
-            pipeline::run_main("rollout-worker", || pipeline::worker::main(&worker))
+            pipeline::run_main("rollout-worker", || Ok(pipeline::worker::main(&worker)?))
         }
     }
 }

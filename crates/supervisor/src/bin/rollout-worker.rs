@@ -10,5 +10,7 @@ struct Cli {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    pipeline::run_main("rollout-worker", || pipeline::worker::main(&cli.worker))
+    pipeline::run_main("rollout-worker", || {
+        Ok(pipeline::worker::main(&cli.worker)?)
+    })
 }

@@ -1,0 +1,97 @@
+//! Why a pipeline process failed: the steps every process takes (reading the run's config,
+//! opening its iceoryx2 services and ports), and those of the rollout worker loop, which runs
+//! a user's own task through [`crate::worker::serve`]. The built-in processes' mains add
+//! context at their binary edge ([`crate::run_main`]); a library caller gets this enum.
+
+/// Why a pipeline process — the worker loop of [`crate::worker::serve`] in particular — failed.
+/// The messages are those the supervisor reports as the process's last line.
+///
+/// Stopping is not an error: SIGTERM or SIGINT, a run directory that is gone, a rollout
+/// abandoned on [`crate::worker::stop_requested`] all end the loop with `Ok`.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ProcessError {
+    /// The run's config file could not be read or is not valid; the message names the file,
+    /// field and value.
+    #[error(transparent)]
+    Config(#[from] session::ConfigError),
+    /// The config's own task could not be built (every process builds it to size the run's
+    /// services, and the built-in worker to run it).
+    #[error(transparent)]
+    Task(#[from] tasks::TaskError),
+    /// The config's task has more settings than the wire headers carry.
+    #[error("task `{task}` has {settings} settings; the wire headers carry at most {max}")]
+    TooManySettings {
+        task: &'static str,
+        settings: usize,
+        max: usize,
+    },
+    /// One of the run's iceoryx2 services could not be opened or created; names the service
+    /// (a version mismatch says what to do).
+    #[error(transparent)]
+    Service(#[from] wire::WireError),
+    /// An iceoryx2 port could not be created, or an operation on one failed: `what` names the
+    /// port or the operation (`costs publisher`, `send ready`, `notify updater`), `reason` is
+    /// iceoryx2's error.
+    #[error("{what}: {reason}")]
+    Port { what: String, reason: String },
+    /// A worker started for a slot the run has no room for.
+    #[error("worker slot {worker} is beyond pipeline.max_workers = {max_workers}")]
+    SlotBeyondLimit { worker: u32, max_workers: usize },
+    /// The `make_task` given to [`crate::worker::serve`] failed; its error as it was.
+    #[error(transparent)]
+    MakeTask(Box<dyn std::error::Error + Send + Sync>),
+    /// The task of [`crate::worker::serve`] does not have the shape the config declares (P, N,
+    /// setting names), naming both. Refuses the config ([`ProcessError::refuses_config`]).
+    #[error(transparent)]
+    TaskShape(session::SessionError),
+    /// A work item whose θ or step count is not the run's: the worker refuses to run it.
+    #[error(
+        "work item of update {update} has θ of length {len} and {steps} steps, expected \
+         {expected_len} and {expected_steps}"
+    )]
+    WorkItemShape {
+        update: u64,
+        len: usize,
+        steps: u32,
+        expected_len: usize,
+        expected_steps: usize,
+    },
+    /// The task refused a setting value in force before `update` (the config's at a run's
+    /// first update, or one the other workers' tasks took): there is nothing to fall back to,
+    /// and a restarted worker would meet the same. Refuses the config
+    /// ([`ProcessError::refuses_config`]). A refused *change* is not an error: its rollouts run
+    /// with the value before, and the worker says so.
+    #[error(
+        "update {update}: the task refused {setting} = {} ({reason}), {}: nothing to fall back to",
+        tasks::value_text(*value),
+        in_force(*changed_by_update)
+    )]
+    SettingRefused {
+        update: u64,
+        setting: &'static str,
+        value: f64,
+        reason: tasks::TaskError,
+        /// `update` changes this setting, so `value` is the one the update before ran with;
+        /// otherwise `value` was in force from earlier on.
+        changed_by_update: bool,
+    },
+}
+
+impl ProcessError {
+    /// Whether the process refuses the run's config: restarting it would meet the same, so
+    /// [`crate::run_main`] exits with [`wire::EXIT_CONFIG_REFUSED`] and the supervisor does not
+    /// restart it.
+    pub fn refuses_config(&self) -> bool {
+        matches!(self, Self::TaskShape(_) | Self::SettingRefused { .. })
+    }
+}
+
+fn in_force(changed_by_update: bool) -> &'static str {
+    if changed_by_update {
+        "the value the update before ran with"
+    } else {
+        "a value in force before this update (the config's, or an earlier change the other \
+         workers took)"
+    }
+}
