@@ -95,3 +95,24 @@ fn in_force(changed_by_update: bool) -> &'static str {
          workers took)"
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::ProcessError;
+    use anyhow::Context as _;
+
+    #[test]
+    fn a_make_task_error_reads_as_it_did_unwrapped() {
+        let make = || -> anyhow::Result<()> {
+            Err(anyhow::anyhow!("no robot on /dev/ttyUSB0")).context("opening the arm")
+        };
+        let unwrapped = make().context("my-worker failed").unwrap_err();
+        let wrapped = anyhow::Error::from(ProcessError::MakeTask(make().unwrap_err().into()))
+            .context("my-worker failed");
+        assert_eq!(format!("{wrapped:#}"), format!("{unwrapped:#}"));
+        assert_eq!(
+            format!("{wrapped:#}"),
+            "my-worker failed: opening the arm: no robot on /dev/ttyUSB0"
+        );
+    }
+}
