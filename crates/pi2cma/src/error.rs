@@ -2,7 +2,8 @@
 
 use thiserror::Error;
 
-/// A cost trajectory that cannot enter an update.
+/// A cost trajectory that cannot enter an update, or an update that cannot be computed from
+/// what it was told.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum CostError {
     #[error("cost of rollout {rollout} {} is {value}; costs must be finite", match step { Some(s) => format!("at step {s}"), None => "(terminal)".to_string() })]
@@ -41,6 +42,20 @@ pub enum CostError {
         got: usize,
         got_steps: usize,
     },
+    /// The distribution or samples an update is told do not have the rule's P (K × P samples):
+    /// the caller resumed from, or sampled with, a distribution of another task.
+    #[error(
+        "the update rule is for P = {dim}, but the distribution has {mean} mean entries and a \
+         {rows}×{cols} covariance"
+    )]
+    WrongDistribution {
+        dim: usize,
+        mean: usize,
+        rows: usize,
+        cols: usize,
+    },
+    #[error("sample batch has {got} values, expected K × P = {expected}")]
+    WrongSamples { expected: usize, got: usize },
 }
 
 /// Hyperparameters or an initial distribution that cannot run.

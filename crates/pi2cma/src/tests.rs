@@ -468,6 +468,83 @@ fn an_update_that_overflows_is_refused() {
     );
 }
 
+/// A distribution or sample batch of another P is refused with an error naming both shapes
+/// (the rule is for P = 2), directly and through an optimizer resumed from such a
+/// distribution, instead of a panic; the rule then still computes a right-shaped update.
+#[test]
+fn a_distribution_or_samples_of_another_dimension_are_refused() {
+    let exploration = Exploration::Adaptive {
+        bounds: EigenvalueBounds::new(0.0, f64::INFINITY).unwrap(),
+    };
+    let h = hp(
+        3,
+        CostMapping::Exponential { eliteness: 2.0 },
+        exploration,
+        PER_STEP,
+    );
+    let mut rule = update_rule(h.clone(), 2, 2);
+    let costs = hand_costs();
+    let wide = Distribution::isotropic(DVector::zeros(3), 1.0).unwrap();
+    let samples3 = vec![0.5; 9];
+    let r = rule.update(&wide, &samples3, &costs).map(|(d, _)| d);
+    assert_eq!(
+        r,
+        Err(CostError::WrongDistribution {
+            dim: 2,
+            mean: 3,
+            rows: 3,
+            cols: 3
+        })
+    );
+    // A mean of the right length with a covariance of another shape.
+    let odd = Distribution {
+        mean: DVector::zeros(2),
+        covariance: DMatrix::identity(3, 3),
+    };
+    let r = rule.update(&odd, &[0.5; 6], &costs).map(|(d, _)| d);
+    assert!(
+        matches!(
+            r,
+            Err(CostError::WrongDistribution {
+                rows: 3,
+                cols: 3,
+                ..
+            })
+        ),
+        "{r:?}"
+    );
+    let old = Distribution::isotropic(DVector::zeros(2), 1.0).unwrap();
+    let r = rule.update(&old, &samples3, &costs).map(|(d, _)| d);
+    assert_eq!(
+        r,
+        Err(CostError::WrongSamples {
+            expected: 6,
+            got: 9
+        })
+    );
+    let e = r.unwrap_err().to_string();
+    assert!(e.contains("K × P = 6") && e.contains("9 values"), "{e}");
+    let (new, _) = rule
+        .update(&old, &[0.0, 0.0, 1.0, 0.5, -1.0, 0.25], &costs)
+        .unwrap();
+    assert_eq!(new.dim(), 2);
+
+    let mut opt = Optimizer::resume(update_rule(h, 2, 2), wide, 7, 0);
+    let told = opt.tell(&costs).map(|s| s.update);
+    assert!(
+        matches!(
+            told,
+            Err(CostError::WrongDistribution {
+                dim: 2,
+                mean: 3,
+                ..
+            })
+        ),
+        "{told:?}"
+    );
+    assert_eq!(opt.update_index(), 0, "a refused update does not advance");
+}
+
 /// One rollout is θ itself: with or without it in the update, nothing would be learned.
 #[test]
 fn one_rollout_is_refused_with_or_without_the_evaluation_in_the_update() {

@@ -396,8 +396,21 @@ impl UpdateRule {
         if !self.totals.iter().all(|t| t.is_finite()) {
             costs.validate_filled()?;
         }
-        assert_eq!(samples.len(), k_all * p, "sample batch has the wrong shape");
-        assert_eq!(old.dim(), p, "distribution has the wrong dimension");
+        let (rows, cols) = old.covariance.shape();
+        if old.dim() != p || rows != p || cols != p {
+            return Err(CostError::WrongDistribution {
+                dim: p,
+                mean: old.dim(),
+                rows,
+                cols,
+            });
+        }
+        if samples.len() != k_all * p {
+            return Err(CostError::WrongSamples {
+                expected: k_all * p,
+                got: samples.len(),
+            });
+        }
         let first = self.hp.first_updating_rollout();
         let m = k_all - first;
         let theta = old.mean.as_slice();

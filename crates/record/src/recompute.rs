@@ -50,13 +50,7 @@ fn recompute(
     let before = distribution_from_proto(u.before.as_ref().ok_or_else(|| e("no `before`".into()))?)
         .map_err(|w| e(format!("before: {w}")))?;
     let (k, p, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
-    // The core asserts this (a caller's bug there); in a file it is damage, so it is an error.
-    if before.dim() != p {
-        return Err(e(format!(
-            "P = {p} but `before` has dimension {}",
-            before.dim()
-        )));
-    }
+    // A `before` of another P is the core's error (CostError::WrongDistribution), below.
     if u.samples.len() != k * p || u.cost_per_step.len() != k * n || u.cost_terminal.len() != k {
         return Err(e(format!(
             "K = {k}, P = {p}, N = {n} but {} samples, {} step costs, {} terminal costs",
@@ -189,7 +183,7 @@ mod tests {
         assert!(recompute(path, None, &update(2)).is_ok());
         let e = recompute(path, None, &update(3)).unwrap_err().to_string();
         assert!(
-            e.contains("damaged.mcap") && e.contains("update 4") && e.contains("dimension 3"),
+            e.contains("damaged.mcap") && e.contains("update 4") && e.contains("3 mean entries"),
             "{e}"
         );
     }
