@@ -340,6 +340,44 @@ pub fn announce_ready(
     })
 }
 
+/// Which of the messages of workers that cannot be of this run (a slot beyond the run's, an
+/// update no updater of the run can be at: a worker started with another config or of another
+/// revision) to warn about. Such a worker may send them all the time, and one line each would
+/// fill the output and the recording: the first message of each worker id is named, for up to
+/// [`OncePerWorker::NAMED`] ids, and one last warning says the rest go unsaid.
+#[derive(Debug, Default)]
+pub struct OncePerWorker {
+    named: Vec<u32>,
+    silent: bool,
+}
+
+/// What [`OncePerWorker::say`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Say {
+    /// The first message of this worker id: name it, and that its like goes unsaid from now on.
+    First,
+    /// A worker id beyond the named ones: say that no more are named.
+    Last,
+    Nothing,
+}
+
+impl OncePerWorker {
+    /// Worker ids named one by one; more are a flood, not a misconfigured worker or two.
+    pub const NAMED: usize = 8;
+
+    pub fn say(&mut self, worker: u32) -> Say {
+        if self.silent || self.named.contains(&worker) {
+            Say::Nothing
+        } else if self.named.len() == Self::NAMED {
+            self.silent = true;
+            Say::Last
+        } else {
+            self.named.push(worker);
+            Say::First
+        }
+    }
+}
+
 /// Runs a process main: prints the error chain and returns exit code 1 on failure,
 /// [`wire::EXIT_CONFIG_REFUSED`] when the process refused the run's config
 /// ([`ProcessError::refuses_config`]).
@@ -448,6 +486,21 @@ mod tests {
     use super::*;
 
     const MAX: Duration = Duration::from_micros(200);
+
+    #[test]
+    fn a_worker_id_is_named_once_and_a_flood_of_ids_once_more() {
+        let mut once = OncePerWorker::default();
+        assert_eq!(once.say(300), Say::First);
+        assert_eq!(once.say(300), Say::Nothing);
+        for w in 1..OncePerWorker::NAMED as u32 {
+            assert_eq!(once.say(300 + w), Say::First);
+            assert_eq!(once.say(300 + w), Say::Nothing);
+        }
+        assert_eq!(once.say(900), Say::Last);
+        assert_eq!(once.say(901), Say::Nothing);
+        assert_eq!(once.say(900), Say::Nothing);
+        assert_eq!(once.say(300), Say::Nothing);
+    }
 
     #[test]
     fn a_panic_is_one_line_with_its_message_and_place() {

@@ -23,7 +23,9 @@ use nalgebra::{DMatrix, DVector};
 use pi2cma::{Distribution, ParameterBatch};
 use wire::{Control, DistributionHeader, Ready, Service, WorkHeader, MAX_SETTINGS};
 
-use crate::{announce_ready, iox, wait_loop, Context, Flow, Ports as _, ProcessArgs};
+use crate::{
+    announce_ready, iox, wait_loop, Context, Flow, OncePerWorker, Ports as _, ProcessArgs, Say,
+};
 
 /// The distribution of a `distribution` sample; one too short for the run's P is an error, as
 /// in the recorder (it came from another process).
@@ -167,6 +169,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     // latencies included): sizes the chunks (chunk_len).
     let mut per_rollout: Option<Duration> = None;
     let mut finished = false;
+    let mut beyond = OncePerWorker::default();
     let mut last_scan = Instant::now();
     // PI2CMA_TRACE=1: one line per distribution, request and chunk (µs since start).
     let trace = std::env::var_os("PI2CMA_TRACE").is_some();
@@ -284,6 +287,13 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             }
             if trace {
                 eprintln!("{} ready w{} chunk {}", us(), r.worker, r.chunk as i64);
+            }
+            // A worker of another config (or revision) may ask from a slot the run's services
+            // and shared memory are not sized for (the built-in worker refuses such a slot at
+            // start): it gets no work, and opening its inbox, which may fail, would fail the run.
+            if r.worker as usize >= ctx.limits.max_workers {
+                beyond_slots(&mut beyond, &r, ctx.limits.max_workers);
+                continue;
             }
             if r.flags & Ready::ROLLOUT_DONE != 0 {
                 let on_its_chunk = workers
@@ -562,6 +572,28 @@ fn requeue(
                 held_back.hold(k);
             }
         }
+    }
+}
+
+/// The warning for a `Ready` of worker `r.worker`, at or above `max_workers`, if one is due.
+fn beyond_slots(once: &mut OncePerWorker, r: &Ready, max_workers: usize) {
+    match once.say(r.worker) {
+        Say::First => eprintln!(
+            "warning: worker {} (pid {}, incarnation {}) asked for work, but worker ids must be \
+             below pipeline.max_workers = {max_workers} (the slots this run is sized for): it \
+             gets none, and its further requests are ignored without a word. Was it started \
+             with another config?",
+            r.worker, r.pid, r.incarnation
+        ),
+        Say::Last => eprintln!(
+            "warning: worker {} (pid {}) asked for work too: more than {} worker ids at or \
+             above pipeline.max_workers = {max_workers} asked; any more are ignored without a \
+             word",
+            r.worker,
+            r.pid,
+            OncePerWorker::NAMED
+        ),
+        Say::Nothing => {}
     }
 }
 

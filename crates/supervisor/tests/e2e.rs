@@ -1015,6 +1015,80 @@ fn joined_workers_never_share_a_slot() {
     assert_nothing_left(&run);
 }
 
+/// A process of `run` that the supervisor knows nothing of (as a worker of another config or
+/// revision would be), with its node named `name`.
+fn foreign_process(run: &Run, name: &str) -> pipeline::Context {
+    let run_dir = run.runs.join(&run.run_id);
+    let args = pipeline::ProcessArgs {
+        config: run_dir.join("config.toml"),
+        run_dir,
+        run_id: run.id(),
+    };
+    pipeline::Context::new(&args, name).unwrap()
+}
+
+/// A `Ready` from a worker id at or above `pipeline.max_workers` (a worker started with another
+/// config, or of another revision) is ignored with one warning that names the id and the bound,
+/// however often it comes, and the run goes on. Before, the sampler opened `work/<w>` and the
+/// worker's doorbell for it, outside the slots the run is sized for, and handed it rollouts.
+#[test]
+fn a_ready_from_beyond_max_workers_is_ignored_with_one_warning() {
+    let scratch = Scratch::new("beyond-slots");
+    let text = config(&[
+        ("updates = 40", "updates = 100000"),
+        DELAYED,
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "beyond.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = start_traced(&scratch, 5150, &cfg, &result);
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let ctx = foreign_process(&run, "beyond-slots");
+    let ready = {
+        use pipeline::Ports as _;
+        wire::ready(&ctx.node, ctx.run_id, &ctx.limits)
+            .unwrap()
+            .publisher("ready")
+            .unwrap()
+    };
+    let sampler = ctx.notifier(wire::process::SAMPLER).unwrap();
+    let worker = ctx.limits.max_workers as u32 + 7;
+    for _ in 0..5 {
+        let request = wire::Ready {
+            run_id: ctx.run_id,
+            chunk: wire::Ready::NO_CHUNK,
+            worker,
+            incarnation: 0,
+            pid: std::process::id(),
+            flags: 0,
+        };
+        ready.send_copy(request).unwrap();
+        sampler.notify_with_custom_event_id(wire::WAKE).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let end = Instant::now() + Duration::from_secs(30);
+    let warning = format!(
+        "[sampler] warning: worker {worker} (pid {}, incarnation 0) asked for work, but worker \
+         ids must be below pipeline.max_workers = {}",
+        std::process::id(),
+        ctx.limits.max_workers
+    );
+    run.wait_output(&warning, end);
+    let at = updates_in(&run.ctl_ok(&["status"]));
+    run.wait_status("3 more updates", |s| updates_in(s) >= at + 3);
+    drop((ready, sampler, ctx));
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(30), 0);
+    let out = run.text();
+    assert_eq!(
+        out.matches(&format!("warning: worker {worker} ")).count(),
+        1,
+        "{out}"
+    );
+    assert!(!out.contains(&format!("-> w{worker}")), "{out}");
+    assert_nothing_left(&run);
+}
+
 #[test]
 fn a_crashed_unsupervised_worker_is_found_by_the_sampler() {
     // A worker the supervisor does not manage (as one written in another language would be):
