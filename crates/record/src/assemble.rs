@@ -3,6 +3,12 @@
 //! pipeline's recorder process feeds it from iceoryx2 services and writes what it returns with
 //! [`crate::RunWriter`]; tests feed it directly.
 //!
+//! Costs of an update further ahead than the updater can be are dropped: it publishes update u
+//! only while u is less than the recorder's oldest unwritten update plus the lag bound
+//! (`wire::Limits::recorder_max_lag`), and takes costs of the update it is at only, so costs
+//! beyond that come from no worker of this run's updater (one of another config or revision),
+//! and kept, each would hold a K × N batch for good.
+//!
 //! An update u is complete once its distribution, all K costs and the distribution of u + 1 are
 //! in. The recorder then recomputes the update with the core (`Optimizer::resume` + `tell`),
 //! which yields the samples (a pure function of seed, u, k), the weights and the summary exactly
@@ -18,6 +24,39 @@ use pi2cma::{
 };
 
 use crate::RolloutTiming;
+
+/// Why the assembler cannot take a distribution or hand out an update.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AssembleError {
+    #[error(
+        "distribution of update {update}: {mean} mean and {covariance} covariance values for \
+         P = {dim}"
+    )]
+    DistributionLength {
+        update: u64,
+        mean: usize,
+        covariance: usize,
+        dim: usize,
+    },
+    #[error("update {update}: cannot build the update rule: {error}")]
+    Rule {
+        update: u64,
+        error: pi2cma::ParameterError,
+    },
+    #[error("update {update}: {error}")]
+    Update { update: u64, error: CostError },
+}
+
+/// Costs the assembler held from before its first distribution, dropped then because their
+/// update is further ahead of it than the updater can be ([`Assembler::take_dropped`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dropped {
+    pub update: u64,
+    /// The first distribution's update.
+    pub first: u64,
+    /// The workers that sent them, as their timings name them.
+    pub workers: Vec<String>,
+}
 
 /// A published distribution: the one update `update` samples from.
 #[derive(Debug, Clone)]
@@ -77,6 +116,11 @@ pub struct Assembler {
     last_settings: Option<Vec<f64>>,
     /// Updates below this were handed out (or skipped); their messages are stale.
     next: Option<u64>,
+    /// How far the updater may run ahead of the oldest update not handed out: costs of
+    /// `next + lag` and later are dropped ([`CostOutcome::OutOfReach`]).
+    lag: u64,
+    /// Costs held from before the first distribution and dropped at it.
+    dropped: Vec<Dropped>,
 }
 
 /// The task changes of the update after the last one handed out ([`Assembler::changes_ahead`]).
@@ -100,16 +144,26 @@ pub enum CostOutcome {
     Duplicate,
     /// For an update already written or skipped.
     Stale,
+    /// For an update the updater cannot have reached (see the module's documentation): at or
+    /// beyond `limit`, the oldest update not written plus the lag bound; `None` before the first
+    /// distribution, when costs of more updates came in than the lag bound allows (lag + 1:
+    /// the update whose distribution came before the recorder looked, and the lag's). Dropped.
+    OutOfReach {
+        limit: Option<u64>,
+    },
 }
 
 impl Assembler {
-    /// `setting_names`: the task's settings, in the order the distribution header carries them.
+    /// `setting_names`: the task's settings, in the order the distribution header carries them;
+    /// `lag`: how far the updater runs ahead of what is handed out
+    /// (`wire::Limits::recorder_max_lag`).
     pub fn new(
         hp: Hyperparameters,
         dim: usize,
         steps: usize,
         basis: Option<Vec<f64>>,
         setting_names: Vec<String>,
+        lag: u64,
     ) -> Self {
         Self {
             hp,
@@ -123,6 +177,8 @@ impl Assembler {
             pending: BTreeMap::new(),
             last_settings: None,
             next: None,
+            lag,
+            dropped: Vec::new(),
         }
     }
 
@@ -150,22 +206,37 @@ impl Assembler {
         mean: &[f64],
         covariance_col_major: &[f64],
         settings: &[f64],
-    ) -> Result<(), String> {
+    ) -> Result<(), AssembleError> {
         let p = self.dim;
         if mean.len() != p || covariance_col_major.len() != p * p {
-            return Err(format!(
-                "distribution of update {update}: {} mean and {} covariance values for P = {p}",
-                mean.len(),
-                covariance_col_major.len()
-            ));
+            return Err(AssembleError::DistributionLength {
+                update,
+                mean: mean.len(),
+                covariance: covariance_col_major.len(),
+                dim: p,
+            });
         }
         if self.next.is_some_and(|n| update < n) {
             return Ok(());
         }
         if self.next.is_none() {
             // A recorder that joined a run under way may hold costs of an update whose
-            // distribution it missed: they can never complete one.
+            // distribution it missed: they can never complete one. Those of updates the lag
+            // bound puts out of the updater's reach came from no worker of its.
             self.pending.retain(|&u, _| u >= update);
+            let ahead = self.pending.split_off(&update.saturating_add(self.lag));
+            for (u, p) in ahead {
+                let mut workers: Vec<String> =
+                    p.timings.into_iter().flatten().map(|t| t.worker).collect();
+                workers.sort();
+                workers.dedup();
+                self.dropped.push(Dropped {
+                    update: u,
+                    first: update,
+                    workers,
+                });
+                self.recycle(p.costs);
+            }
             self.next = Some(update);
         }
         self.distributions.insert(
@@ -193,8 +264,17 @@ impl Assembler {
         timing: RolloutTiming,
         ran_with: Option<&[f64]>,
     ) -> Result<CostOutcome, CostError> {
-        if self.next.is_some_and(|n| update < n) {
-            return Ok(CostOutcome::Stale);
+        match self.next {
+            Some(n) if update < n => return Ok(CostOutcome::Stale),
+            Some(n) if update >= n.saturating_add(self.lag) => {
+                return Ok(CostOutcome::OutOfReach {
+                    limit: Some(n.saturating_add(self.lag)),
+                })
+            }
+            None if !self.pending.contains_key(&update) && self.pending.len() as u64 > self.lag => {
+                return Ok(CostOutcome::OutOfReach { limit: None })
+            }
+            _ => {}
         }
         let (k, n) = (self.hp.rollouts, self.steps);
         let spare = &mut self.spare;
@@ -225,6 +305,11 @@ impl Assembler {
         }
     }
 
+    /// The costs dropped at the first distribution ([`Dropped`]), for the caller to report.
+    pub fn take_dropped(&mut self) -> Vec<Dropped> {
+        std::mem::take(&mut self.dropped)
+    }
+
     /// Takes back the cost batch of an update handed out and written, for a later update: a
     /// new one is K × N zeroed values (12 kB for A1) allocated per update.
     pub fn recycle(&mut self, mut costs: CostBatch) {
@@ -239,7 +324,7 @@ impl Assembler {
     }
 
     /// The next update if it is complete. Call until it returns `None`.
-    pub fn next_complete(&mut self) -> Option<Result<Assembled, String>> {
+    pub fn next_complete(&mut self) -> Option<Result<Assembled, AssembleError>> {
         let u = self.next?;
         let complete = self.distributions.contains_key(&u)
             && self.distributions.contains_key(&(u + 1))
@@ -330,11 +415,11 @@ impl Assembler {
         before: Published,
         pending: Pending,
         after: Distribution,
-    ) -> Result<Assembled, String> {
+    ) -> Result<Assembled, AssembleError> {
         let rule = match self.rule.take() {
             Some(rule) => rule,
             None => UpdateRule::new(self.hp.clone(), self.dim, self.steps, self.basis.as_deref())
-                .map_err(|e| format!("update {u}: cannot build the update rule: {e}"))?,
+                .map_err(|error| AssembleError::Rule { update: u, error })?,
         };
         let mut opt = Optimizer::resume(rule, before.distribution.clone(), before.seed, u);
         let samples = opt.ask().clone();
@@ -347,7 +432,7 @@ impl Assembler {
                 after.covariance.as_slice(),
             );
         self.rule = Some(opt.into_rule());
-        let summary = told.map_err(|e| format!("update {u}: {e}"))?;
+        let summary = told.map_err(|error| AssembleError::Update { update: u, error })?;
         // The updater fails the run when rollouts disagree, so the first one speaks for all.
         let ran = pending
             .ran_with
@@ -444,6 +529,7 @@ mod tests {
             task.steps(),
             task.basis_activations(),
             names,
+            wire::RECORDER_MAX_LAG,
         );
         let k = cfg.optimizer.rollouts;
         let mut out = Vec::new();
@@ -530,7 +616,7 @@ mod tests {
         let hp = session::RunConfig::default_config().hyperparameters();
         let names = vec!["viapoint".to_string()];
         let (mean, cov) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
-        let mut a = Assembler::new(hp.clone(), 2, 101, None, names.clone());
+        let mut a = Assembler::new(hp.clone(), 2, 101, None, names.clone(), 16);
         assert_eq!(a.changes_ahead(), None);
         a.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
         let costs = vec![1.0; 101];
@@ -565,7 +651,7 @@ mod tests {
             })
         );
 
-        let mut resumed = Assembler::new(hp.clone(), 2, 101, None, names);
+        let mut resumed = Assembler::new(hp.clone(), 2, 101, None, names, 16);
         resumed.continue_from(vec![0.1]);
         resumed.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
         for k in 0..hp.rollouts {
@@ -582,7 +668,7 @@ mod tests {
     #[test]
     fn a_change_the_rollouts_did_not_run_with_is_refused_not_taken() {
         let hp = session::RunConfig::default_config().hyperparameters();
-        let mut a = Assembler::new(hp.clone(), 2, 3, None, vec!["viapoint".to_string()]);
+        let mut a = Assembler::new(hp.clone(), 2, 3, None, vec!["viapoint".to_string()], 16);
         let (mean, cov) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
         let timing = || RolloutTiming {
             worker: "w".into(),
@@ -611,11 +697,93 @@ mod tests {
         assert!(updates[0].refused.is_empty() && updates[2].refused.is_empty());
     }
 
+    /// The updater publishes update u only while u < (oldest update not written) + lag, so a
+    /// cost of a later update comes from no worker of its: dropped, however far ahead (before,
+    /// each distinct update held a K × N batch for good).
+    #[test]
+    fn costs_further_ahead_than_the_updater_can_be_are_dropped() {
+        let hp = RunConfig::default_config().hyperparameters();
+        let timing = |w: &str| RolloutTiming {
+            worker: w.into(),
+            start_ns: 0,
+            end_ns: 0,
+        };
+        let (d, c) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
+        let mut a = Assembler::new(hp.clone(), 2, 3, None, vec![], 2);
+        a.distribution(7, 1, &d, &c, &[]).unwrap();
+        let cost = |a: &mut Assembler, u: u64| a.cost(u, 0, &[1.0; 3], 0.0, timing("w"), None);
+        assert_eq!(cost(&mut a, 8).unwrap(), CostOutcome::Stored);
+        assert_eq!(
+            cost(&mut a, 9).unwrap(),
+            CostOutcome::OutOfReach { limit: Some(9) }
+        );
+        for u in (1000..2000).chain([u64::MAX]) {
+            assert_eq!(
+                cost(&mut a, u).unwrap(),
+                CostOutcome::OutOfReach { limit: Some(9) }
+            );
+        }
+        assert_eq!(a.pending.len(), 1);
+        // Update 7 written, the window moves on.
+        for k in 0..hp.rollouts {
+            a.cost(7, k, &[1.0; 3], 0.0, timing("w"), None).unwrap();
+        }
+        a.distribution(8, 1, &d, &c, &[]).unwrap();
+        assert_eq!(a.next_complete().unwrap().unwrap().update, 7);
+        assert_eq!(cost(&mut a, 9).unwrap(), CostOutcome::Stored);
+
+        // Before the first distribution: the update whose distribution came before the
+        // recorder looked and `lag` more; at the first distribution, those beyond its reach go.
+        let mut b = Assembler::new(hp, 2, 3, None, vec![], 2);
+        let from = |b: &mut Assembler, u: u64, w: &str| {
+            b.cost(u, 0, &[1.0; 3], 0.0, timing(w), None).unwrap()
+        };
+        assert_eq!(from(&mut b, 500, "worker-300"), CostOutcome::Stored);
+        assert_eq!(from(&mut b, 4, "worker-0"), CostOutcome::Stored);
+        assert_eq!(from(&mut b, 5, "worker-1"), CostOutcome::Stored);
+        assert_eq!(
+            from(&mut b, 6, "worker-0"),
+            CostOutcome::OutOfReach { limit: None }
+        );
+        assert_eq!(from(&mut b, 500, "worker-301"), CostOutcome::Duplicate);
+        b.distribution(5, 1, &d, &c, &[]).unwrap();
+        assert_eq!(
+            b.take_dropped(),
+            [Dropped {
+                update: 500,
+                first: 5,
+                workers: vec!["worker-300".into()],
+            }]
+        );
+        assert_eq!(b.pending.keys().copied().collect::<Vec<_>>(), [5]);
+        assert!(b.take_dropped().is_empty());
+    }
+
+    #[test]
+    fn a_distribution_of_another_length_is_an_error_naming_both() {
+        let hp = RunConfig::default_config().hyperparameters();
+        let mut a = Assembler::new(hp, 2, 3, None, vec![], 2);
+        let e = a.distribution(3, 1, &[0.0; 3], &[1.0; 4], &[]).unwrap_err();
+        assert_eq!(
+            e,
+            AssembleError::DistributionLength {
+                update: 3,
+                mean: 3,
+                covariance: 4,
+                dim: 2
+            }
+        );
+        assert_eq!(
+            e.to_string(),
+            "distribution of update 3: 3 mean and 4 covariance values for P = 2"
+        );
+    }
+
     #[test]
     fn lost_costs_are_skipped_and_reported() {
         let cfg = RunConfig::default_config();
         let hp = cfg.hyperparameters();
-        let mut a = Assembler::new(hp, 2, 3, None, vec![]);
+        let mut a = Assembler::new(hp, 2, 3, None, vec![], 16);
         let d = [0.0, 0.0];
         let c = [1.0, 0.0, 0.0, 1.0];
         for u in 0..3 {

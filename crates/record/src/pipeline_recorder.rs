@@ -28,11 +28,11 @@
 
 use std::path::PathBuf;
 
-use crate::assemble::{Assembler, CostOutcome};
+use crate::assemble::{Assembler, CostOutcome, Dropped};
 use crate::{now_ns, Event, RolloutTiming, RunFiles, RunStart, UpdateData};
 use anyhow::Context as _;
 use pi2cma::CostError;
-use pipeline::{announce_ready, iox, Context, Ports as _};
+use pipeline::{announce_ready, iox, Context, OncePerWorker, Ports as _, Say};
 use session::reruns::{after_reruns, rerun_message, NonfiniteReruns, Verdict};
 use wire::{Control, CostHeader, DistributionHeader, Lifecycle, RunNote};
 
@@ -70,9 +70,6 @@ pub struct RecorderArgs {
 enum Msg<'a> {
     /// The header, the mean and Σ (column-major).
     Distribution(DistributionHeader, &'a [f64], &'a [f64]),
-    /// With the time it was taken in, read only for a worker that does not stamp its
-    /// rollouts (see [`rollout_timing`]); 0 otherwise.
-    Cost(CostHeader, &'a [f64], u64),
     Control(Control),
     Lifecycle(Lifecycle),
     Note(Box<RunNote>),
@@ -193,11 +190,14 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             let h = *s.user_header();
             if h.run_id == ctx.run_id {
                 took_in = true;
-                taken.add(h.update);
                 // A clock read per cost message showed in the recorder's profile; a worker
                 // that stamps its rollouts does not need it.
                 let received_ns = if h.start_ns == 0 { now_ns() } else { 0 };
-                state.handle(Msg::Cost(h, s.payload(), received_ns))?;
+                // Costs dropped as out of the updater's reach are not counted: the updater
+                // does not count them either (it counts only updates it has issued).
+                if state.cost(h, s.payload(), received_ns)? {
+                    taken.add(h.update);
+                }
             }
         }
         // The supervisor sends START after every process has announced itself, but the
@@ -386,6 +386,10 @@ struct WriterState {
     /// is a warning, the one that fails the run an error (why not from the updater's
     /// `reruns` samples: [`Self::cost_rejected`]).
     reruns: std::collections::BTreeMap<u64, NonfiniteReruns>,
+    /// How far the updater runs ahead of the recorder (`wire::Limits::recorder_max_lag`).
+    lag: u64,
+    /// Which workers' costs out of the updater's reach were warned about.
+    ahead: OncePerWorker,
 }
 
 /// Why a worker incarnation was started, as far as the recorder can tell ([`WorkerSlots`]).
@@ -449,12 +453,14 @@ impl WriterState {
         let names: Vec<String> = task.settings().iter().map(|(n, _)| n.to_string()).collect();
         let basis = task.basis_activations();
         let (dim, steps) = (ctx.limits.dim, ctx.limits.steps);
+        let lag = ctx.limits.recorder_max_lag();
         let mut assembler = Assembler::new(
             cfg.hyperparameters(),
             dim,
             steps,
             basis.clone(),
             names.clone(),
+            lag,
         );
         // A resumed run's first update is compared with the settings the recording it resumes
         // ended with, so that a change taking effect there (a scheduled one the stopped run did
@@ -497,6 +503,8 @@ impl WriterState {
             slots: WorkerSlots::default(),
             worker_names: WorkerNames::default(),
             reruns: Default::default(),
+            lag,
+            ahead: OncePerWorker::default(),
         })
     }
 
@@ -643,26 +651,10 @@ impl WriterState {
                 }
                 self.current_update = self.current_update.max(h.update);
                 self.assembler
-                    .distribution(h.update, h.seed, mean, cov, settings)
-                    .map_err(anyhow::Error::msg)?;
+                    .distribution(h.update, h.seed, mean, cov, settings)?;
+                self.report_dropped()?;
                 if h.flags & DistributionHeader::FINAL != 0 {
                     self.final_update = Some(h.update);
-                }
-            }
-            Msg::Cost(h, costs, received_ns) => {
-                let timing = rollout_timing(&h, received_ns, &mut self.worker_names);
-                let ran_with = (h.settings_len > 0).then(|| h.ran_with(&[]));
-                match self.assembler.cost(
-                    h.update,
-                    h.rollout as usize,
-                    costs,
-                    h.terminal,
-                    timing,
-                    ran_with,
-                ) {
-                    Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
-                    // Before a restarted recorder's first distribution, it has no part yet.
-                    Err(e) => self.cost_rejected(&h, &e)?,
                 }
             }
             Msg::Control(c) => match c.kind {
@@ -754,6 +746,88 @@ impl WriterState {
                     ),
                 )?;
             }
+        }
+        Ok(())
+    }
+
+    /// A cost message, with the time it was taken in, read only for a worker that does not
+    /// stamp its rollouts (see [`rollout_timing`]), 0 otherwise: whether it is kept (not
+    /// dropped as out of the updater's reach).
+    fn cost(&mut self, h: CostHeader, costs: &[f64], received_ns: u64) -> anyhow::Result<bool> {
+        let timing = rollout_timing(&h, received_ns, &mut self.worker_names);
+        let ran_with = (h.settings_len > 0).then(|| h.ran_with(&[]));
+        match self.assembler.cost(
+            h.update,
+            h.rollout as usize,
+            costs,
+            h.terminal,
+            timing,
+            ran_with,
+        ) {
+            Ok(CostOutcome::Stored | CostOutcome::Stale | CostOutcome::Duplicate) => {}
+            Ok(CostOutcome::OutOfReach { limit }) => {
+                self.cost_ahead(&h, limit)?;
+                return Ok(false);
+            }
+            // Before a restarted recorder's first distribution, it has no part yet.
+            Err(e) => self.cost_rejected(&h, &e)?,
+        }
+        Ok(true)
+    }
+
+    /// The warning for costs of an update the updater cannot be at (the assembler's
+    /// [`CostOutcome::OutOfReach`]), once per worker ([`OncePerWorker`]).
+    fn cost_ahead(&mut self, h: &CostHeader, limit: Option<u64>) -> anyhow::Result<()> {
+        let by = format!("worker-{}", h.worker);
+        let lag = self.lag;
+        let message = match self.ahead.say(h.worker) {
+            Say::Nothing => return Ok(()),
+            Say::First => {
+                let why = match limit {
+                    Some(limit) => format!(
+                        "the updater runs at most {lag} updates (the lag bound) ahead of the \
+                         oldest update the recorder has not written, so no update from {limit} \
+                         on can be under way"
+                    ),
+                    None => format!(
+                        "before its first distribution the recorder keeps the costs of at most \
+                         {} updates (the lag bound {lag}, and one more)",
+                        lag + 1
+                    ),
+                };
+                format!(
+                    "cost of update {} (rollout {}) from {by} dropped: {why}. Was the worker \
+                     started with another config? Its further costs of such updates are \
+                     dropped without a word",
+                    h.update, h.rollout
+                )
+            }
+            Say::Last => format!(
+                "cost of update {} from {by} dropped as out of the updater's reach too: more \
+                 than {} workers sent such costs; any more are dropped without a word",
+                h.update,
+                OncePerWorker::NAMED
+            ),
+        };
+        self.log(Event::Warning, &by, 0, &message)
+    }
+
+    /// The warnings for costs held from before the first distribution and dropped at it.
+    fn report_dropped(&mut self) -> anyhow::Result<()> {
+        let lag = self.lag;
+        for Dropped {
+            update,
+            first,
+            workers,
+        } in self.assembler.take_dropped()
+        {
+            let message = format!(
+                "costs of update {update} from {} dropped: the recording begins at update \
+                 {first}, and the updater runs at most {lag} updates (the lag bound) ahead of it. \
+                 Was a worker started with another config?",
+                workers.join(", ")
+            );
+            self.log(Event::Warning, "recorder", self.pid, &message)?;
         }
         Ok(())
     }
@@ -890,7 +964,7 @@ impl WriterState {
         let pid = self.pid;
         loop {
             while let Some(a) = self.assembler.next_complete() {
-                let a = a.map_err(anyhow::Error::msg)?;
+                let a = a?;
                 for (name, value) in &a.changed {
                     self.writer.write_task_change(a.update, name, *value)?;
                 }

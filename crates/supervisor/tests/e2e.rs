@@ -1027,6 +1027,69 @@ fn foreign_process(run: &Run, name: &str) -> pipeline::Context {
     pipeline::Context::new(&args, name).unwrap()
 }
 
+/// Costs of an update the updater cannot reach (it runs at most the lag bound ahead of the
+/// recorder, and takes costs of the update it is at only) are dropped by the recorder with one
+/// warning naming the update and the worker, however often they come, and the run is recorded
+/// whole. Before, the recorder kept a K × N batch for each such update for good, and said
+/// nothing.
+#[test]
+fn costs_of_an_update_out_of_the_updaters_reach_are_dropped_with_one_warning() {
+    use iceoryx2::prelude::AllocationStrategy;
+    let scratch = Scratch::new("far-costs");
+    let text = config(&[("updates = 40", "updates = 150"), DELAYED]);
+    let cfg = write_config(&scratch, "far.toml", &text);
+    let mcap = scratch.path("far.mcap");
+    let args = [
+        cfg.to_str().unwrap(),
+        "--quiet",
+        "--record",
+        mcap.to_str().unwrap(),
+    ];
+    let mut run = Run::start(&scratch, 5151, &args);
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let ctx = foreign_process(&run, "far-costs");
+    let steps = ctx.limits.steps;
+    let costs = wire::costs(&ctx.node, ctx.run_id, &ctx.limits)
+        .unwrap()
+        .publisher_builder()
+        .initial_max_slice_len(steps)
+        .allocation_strategy(AllocationStrategy::Static)
+        .create()
+        .unwrap();
+    let recorder = ctx.notifier(wire::process::RECORDER).unwrap();
+    let far = 1_000_000_000_000u64;
+    for i in 0..40u64 {
+        let sample = costs.loan_slice_uninit(steps).unwrap();
+        let mut sample = sample.write_from_fn(|_| 1.0);
+        *sample.user_header_mut() = wire::CostHeader {
+            run_id: ctx.run_id,
+            update: far + i,
+            rollout: 0,
+            worker: 2,
+            ..Default::default()
+        };
+        sample.send().unwrap();
+        recorder.notify_with_custom_event_id(wire::WAKE).unwrap();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    drop((costs, recorder, ctx));
+    run.wait_exit(Duration::from_secs(60), 0);
+    let rec = record::read_recording(&mcap).unwrap();
+    assert_recorded(&rec, 150);
+    assert_recording_matches_in_process(&text, &rec);
+    let logged = warnings(&rec);
+    assert_eq!(logged.len(), 1, "{logged:?}");
+    let (_, name, message) = &logged[0];
+    assert_eq!(name, "worker-2");
+    assert!(
+        message.starts_with(&format!(
+            "cost of update {far} (rollout 0) from worker-2 dropped: the updater runs at most"
+        )),
+        "{message}"
+    );
+    assert_nothing_left(&run);
+}
+
 /// A `Ready` from a worker id at or above `pipeline.max_workers` (a worker started with another
 /// config, or of another revision) is ignored with one warning that names the id and the bound,
 /// however often it comes, and the run goes on. Before, the sampler opened `work/<w>` and the
