@@ -641,6 +641,26 @@ fn supervisor_alone_hosts_all_roles_as_after_cargo_run() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(text.contains("summary: run"), "{text}");
+    // The run's time is given with digits that say something: 40 updates take milliseconds,
+    // which "0.01 s" gave to within 50 %. It agrees with the rate printed beside it.
+    let (elapsed, rate) = text
+        .split_once("updates of 40 in ")
+        .and_then(|(_, t)| {
+            let (time, rest) = t.split_once(" (")?;
+            let (n, unit) = time.split_once(' ')?;
+            let scale = match unit {
+                "s" => 1.0,
+                "ms" => 1e-3,
+                _ => return None,
+            };
+            let rate = rest.split_once(" updates/s")?.0.parse::<f64>().ok()?;
+            Some((n.parse::<f64>().ok()? * scale, rate))
+        })
+        .unwrap_or_else(|| panic!("no time and rate in {text}"));
+    assert!(
+        ((40.0 / elapsed) / rate - 1.0).abs() < 0.1,
+        "40 updates in {elapsed} s, but {rate} updates/s: {text}"
+    );
     assert_bit_identical(session::DEFAULT_CONFIG, &result);
     // The recorder role too: the quick start records without crate record's binaries. (At
     // full speed beside the other tests' runs it may lose updates; the recording test checks
