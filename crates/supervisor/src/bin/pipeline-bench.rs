@@ -89,9 +89,7 @@ fn overhead(dir: &Path, updates: u64) -> anyhow::Result<()> {
     let identical = mean == d.mean.as_slice() && cov == d.covariance.as_slice();
     let ip_rate = updates as f64 / in_process;
     let pl_rate = r.updates as f64 / r.elapsed_s;
-    println!(
-        "## Pipeline overhead: via-point (K = 15, P = 2, N = 100), 1 worker, {updates} updates"
-    );
+    println!("{}", overhead_title(&cfg, updates)?);
     println!(
         "in-process : {ip_rate:>9.0} updates/s ({:>6.1} µs/update)",
         1e6 / ip_rate
@@ -106,6 +104,16 @@ fn overhead(dir: &Path, updates: u64) -> anyhow::Result<()> {
     );
     println!();
     Ok(())
+}
+
+/// The overhead part's heading, with the run's K, P and N (it said N = 100 of the via-point's
+/// 101 steps when they were written out by hand).
+fn overhead_title(cfg: &RunConfig, updates: u64) -> anyhow::Result<String> {
+    let size = cfg.memory_need()?;
+    Ok(format!(
+        "## Pipeline overhead: via-point (K = {}, P = {}, N = {}), 1 worker, {updates} updates",
+        size.rollouts, size.parameters, size.steps
+    ))
 }
 
 fn scaling(dir: &Path, updates: u64) -> anyhow::Result<()> {
@@ -249,4 +257,20 @@ fn main() -> anyhow::Result<()> {
     })();
     let _ = std::fs::remove_dir_all(&dir);
     r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_overhead_heading_gives_the_runs_own_size() -> anyhow::Result<()> {
+        let text = config(&[("updates = 40", "updates = 7")]);
+        let cfg = RunConfig::parse(&text, Path::new("overhead.toml"))?;
+        assert_eq!(
+            overhead_title(&cfg, 7)?,
+            "## Pipeline overhead: via-point (K = 15, P = 2, N = 101), 1 worker, 7 updates"
+        );
+        Ok(())
+    }
 }
