@@ -9,7 +9,7 @@
 #
 # Needs: python3 with tools/requirements.txt installed, cargo. Run from anywhere; --release uses
 # the release binaries.
-set -euo pipefail
+set -Eeuo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$root"
 target="${CARGO_TARGET_DIR:-$root/target}"
@@ -27,12 +27,21 @@ cargo build --quiet "${flags[@]}" -p pi2cma-cli --bins
 bin="$target/$profile"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
+# The last line counts the checks that ran: each stage is added when it has passed, and a failing
+# command (set -e) reports the stage it was in.
+passed=()
+stage=""
+begin() { stage="$1"; echo "== $1"; }
+done_stage() { passed+=("$stage"); }
+trap 'echo "recordings: ${#passed[@]} passed, 1 failed (${stage})" >&2' ERR
 
-echo "== in-process run"
+begin "in-process run"
 "$bin/mcap-tool" record --out "$work/in-process.mcap"
 python3 tools/plot_learning_curve.py --check "$work/in-process.mcap" -o "$work/in-process.png"
 
-echo "== pipeline run with the recorder process"
+done_stage
+
+begin "pipeline run with the recorder process"
 run_id="$(printf '%08x%08x' $$ 4242)"
 sed 's/^viapoint_weight = 1000.0$/viapoint_weight = 1000.0\nrollout_delay_ms = 1.0/' \
   crates/session/src/default.toml > "$work/pipeline.toml"
@@ -47,7 +56,9 @@ PI2CMA_RUN_DIR="$work/runs" timeout 120 "$bin/supervisor" run "$work/pipeline.to
 wait "$recorder"
 python3 tools/plot_learning_curve.py --check "$work/pipeline.mcap" -o "$work/pipeline.png"
 
-echo "== in-process run killed with SIGKILL, then recovered"
+done_stage
+
+begin "in-process run killed with SIGKILL, then recovered"
 "$bin/mcap-tool" record --progress --updates 100000 --rollout-delay-ms 1 \
   --out "$work/killed.mcap" > "$work/progress.txt" 2>/dev/null &
 writer=$!
@@ -66,9 +77,11 @@ python3 tools/plot_learning_curve.py --check "$work/killed.mcap"
 recorded="$("$bin/mcap-tool" info "$work/killed.mcap" | sed -n 's/^  updates: \([0-9]*\) .*/\1/p')"
 if [ "$recorded" -le "$flushed" ]; then
   echo "FAIL: update $flushed was reported flushed but only $recorded updates were recovered" >&2
+  echo "recordings: ${#passed[@]} passed, 1 failed (${stage})" >&2
   exit 1
 fi
-echo "== the update rule of every variant, recomputed by an independent NumPy implementation"
+done_stage
+begin "the update rule of every variant, recomputed by an independent NumPy implementation"
 # tools/check_update.py is written from the paper, not from our code: it catches what `mcap-tool
 # verify` (our code recomputing itself) cannot. Each variant is a config of config/ changed by
 # sed; together they reach every kernel of the update (P = 2 closed form, 3 ≤ P ≤ m dense,
@@ -91,5 +104,6 @@ variant tball-per-dimension tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "
 variant tball-per-dimension-per-step tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "per-dimension"/; s/^weighting = .*/weighting = "per-time-step"/'
 "$bin/mcap-tool" verify "$work/tball-per-dimension-per-step/run.mcap"
 python3 tools/check_update.py "${checked[@]}"
+done_stage
 
-echo "recordings: 4 passed, 0 failed"
+echo "recordings: ${#passed[@]} passed, 0 failed"
