@@ -3,11 +3,16 @@
 //! pipeline's recorder process feeds it from iceoryx2 services and writes what it returns with
 //! [`crate::RunWriter`]; tests feed it directly.
 //!
-//! Costs of an update further ahead than the updater can be are dropped: it publishes update u
-//! only while u is less than the recorder's oldest unwritten update plus the lag bound
-//! (`wire::Limits::recorder_max_lag`), and takes costs of the update it is at only, so costs
-//! beyond that come from no worker of this run's updater (one of another config or revision),
-//! and kept, each would hold a K × N batch for good.
+//! Costs of an update further ahead than the updater can be are dropped: held back by this
+//! recorder, it publishes update u only while u is less than the recorder's oldest unwritten
+//! update plus the lag bound (`wire::Limits::recorder_max_lag`), and takes costs of the update it
+//! is at only, so costs beyond that come from no worker of this run's updater (one of another
+//! config or revision), and kept, each would hold a K × N batch for good. The bound is counted
+//! from the newest distribution taken in, not from the oldest unwritten update: an updater not
+//! (yet) held back by this recorder runs further ahead — until it hears of a recorder started
+//! again, and after it, when it counts the lag from the update it is at, which the recorder may
+//! not have written for a while. Every distribution it published came before its costs, so an
+//! update more than the lag bound past the newest one the recorder has seen is none of its.
 //!
 //! An update u is complete once its distribution, all K costs and the distribution of u + 1 are
 //! in. The recorder then recomputes the update with the core (`Optimizer::resume` + `tell`),
@@ -56,6 +61,11 @@ pub struct Dropped {
     pub first: u64,
     /// The workers that sent them, as their timings name them.
     pub workers: Vec<String>,
+}
+
+/// [`Assembler::reach`] once the newest distribution taken in is `newest`.
+fn reach(newest: u64, lag: u64) -> u64 {
+    newest.saturating_add(lag).saturating_add(1)
 }
 
 /// A published distribution: the one update `update` samples from.
@@ -116,8 +126,10 @@ pub struct Assembler {
     last_settings: Option<Vec<f64>>,
     /// Updates below this were handed out (or skipped); their messages are stale.
     next: Option<u64>,
-    /// How far the updater may run ahead of the oldest update not handed out: costs of
-    /// `next + lag` and later are dropped ([`CostOutcome::OutOfReach`]).
+    /// The newest distribution taken in.
+    newest: Option<u64>,
+    /// How far the updater may run ahead of what it knows to be written: costs of
+    /// `newest + 1 + lag` and later are dropped ([`Assembler::reach`]).
     lag: u64,
     /// Costs held from before the first distribution and dropped at it.
     dropped: Vec<Dropped>,
@@ -145,7 +157,8 @@ pub enum CostOutcome {
     /// For an update already written or skipped.
     Stale,
     /// For an update the updater cannot have reached (see the module's documentation): at or
-    /// beyond `limit`, the oldest update not written plus the lag bound; `None` before the first
+    /// beyond `limit`, the newest distribution taken in plus one plus the lag bound
+    /// ([`Assembler::reach`]); `None` before the first
     /// distribution, when costs of more updates came in than the lag bound allows (lag + 1:
     /// the update whose distribution came before the recorder looked, and the lag's). Dropped.
     OutOfReach {
@@ -177,6 +190,7 @@ impl Assembler {
             pending: BTreeMap::new(),
             last_settings: None,
             next: None,
+            newest: None,
             lag,
             dropped: Vec::new(),
         }
@@ -224,7 +238,7 @@ impl Assembler {
             // distribution it missed: they can never complete one. Those of updates the lag
             // bound puts out of the updater's reach came from no worker of its.
             self.pending.retain(|&u, _| u >= update);
-            let ahead = self.pending.split_off(&update.saturating_add(self.lag));
+            let ahead = self.pending.split_off(&reach(update, self.lag));
             for (u, p) in ahead {
                 let mut workers: Vec<String> =
                     p.timings.into_iter().flatten().map(|t| t.worker).collect();
@@ -239,6 +253,7 @@ impl Assembler {
             }
             self.next = Some(update);
         }
+        self.newest = Some(self.newest.map_or(update, |d| d.max(update)));
         self.distributions.insert(
             update,
             Published {
@@ -264,14 +279,14 @@ impl Assembler {
         timing: RolloutTiming,
         ran_with: Option<&[f64]>,
     ) -> Result<CostOutcome, CostError> {
-        match self.next {
-            Some(n) if update < n => return Ok(CostOutcome::Stale),
-            Some(n) if update >= n.saturating_add(self.lag) => {
-                return Ok(CostOutcome::OutOfReach {
-                    limit: Some(n.saturating_add(self.lag)),
-                })
+        match (self.next, self.reach()) {
+            (Some(n), _) if update < n => return Ok(CostOutcome::Stale),
+            (_, Some(limit)) if update >= limit => {
+                return Ok(CostOutcome::OutOfReach { limit: Some(limit) })
             }
-            None if !self.pending.contains_key(&update) && self.pending.len() as u64 > self.lag => {
+            (None, _)
+                if !self.pending.contains_key(&update) && self.pending.len() as u64 > self.lag =>
+            {
                 return Ok(CostOutcome::OutOfReach { limit: None })
             }
             _ => {}
@@ -303,6 +318,12 @@ impl Assembler {
             }
             Err(e) => Err(e),
         }
+    }
+
+    /// The first update the updater cannot have published (see the module's documentation):
+    /// the lag bound past the newest distribution taken in; `None` before the first.
+    pub fn reach(&self) -> Option<u64> {
+        self.newest.map(|d| reach(d, self.lag))
     }
 
     /// The costs dropped at the first distribution ([`Dropped`]), for the caller to report.
@@ -697,40 +718,45 @@ mod tests {
         assert!(updates[0].refused.is_empty() && updates[2].refused.is_empty());
     }
 
-    /// The updater publishes update u only while u < (oldest update not written) + lag, so a
-    /// cost of a later update comes from no worker of its: dropped, however far ahead (before,
-    /// each distinct update held a K × N batch for good).
-    #[test]
-    fn costs_further_ahead_than_the_updater_can_be_are_dropped() {
-        let hp = RunConfig::default_config().hyperparameters();
-        let timing = |w: &str| RolloutTiming {
+    fn timing(w: &str) -> RolloutTiming {
+        RolloutTiming {
             worker: w.into(),
             start_ns: 0,
             end_ns: 0,
-        };
+        }
+    }
+
+    /// The updater publishes update u only while u < (oldest update not written) + lag, and a
+    /// distribution before its costs, so a cost of an update the lag bound past the newest
+    /// distribution comes from no worker of its: dropped, however far ahead (before, each
+    /// distinct update held a K × N batch for good).
+    #[test]
+    fn costs_further_ahead_than_the_updater_can_be_are_dropped() {
+        let hp = RunConfig::default_config().hyperparameters();
         let (d, c) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
         let mut a = Assembler::new(hp.clone(), 2, 3, None, vec![], 2);
         a.distribution(7, 1, &d, &c, &[]).unwrap();
         let cost = |a: &mut Assembler, u: u64| a.cost(u, 0, &[1.0; 3], 0.0, timing("w"), None);
         assert_eq!(cost(&mut a, 8).unwrap(), CostOutcome::Stored);
+        assert_eq!(cost(&mut a, 9).unwrap(), CostOutcome::Stored);
         assert_eq!(
-            cost(&mut a, 9).unwrap(),
-            CostOutcome::OutOfReach { limit: Some(9) }
+            cost(&mut a, 10).unwrap(),
+            CostOutcome::OutOfReach { limit: Some(10) }
         );
         for u in (1000..2000).chain([u64::MAX]) {
             assert_eq!(
                 cost(&mut a, u).unwrap(),
-                CostOutcome::OutOfReach { limit: Some(9) }
+                CostOutcome::OutOfReach { limit: Some(10) }
             );
         }
-        assert_eq!(a.pending.len(), 1);
+        assert_eq!(a.pending.len(), 2);
         // Update 7 written, the window moves on.
         for k in 0..hp.rollouts {
             a.cost(7, k, &[1.0; 3], 0.0, timing("w"), None).unwrap();
         }
         a.distribution(8, 1, &d, &c, &[]).unwrap();
         assert_eq!(a.next_complete().unwrap().unwrap().update, 7);
-        assert_eq!(cost(&mut a, 9).unwrap(), CostOutcome::Stored);
+        assert_eq!(cost(&mut a, 10).unwrap(), CostOutcome::Stored);
 
         // Before the first distribution: the update whose distribution came before the
         // recorder looked and `lag` more; at the first distribution, those beyond its reach go.
@@ -757,6 +783,35 @@ mod tests {
         );
         assert_eq!(b.pending.keys().copied().collect::<Vec<_>>(), [5]);
         assert!(b.take_dropped().is_empty());
+    }
+
+    /// An updater not held back by this recorder runs ahead of it: after a recorder is started
+    /// again (restarted, or `supervisor record`), until the updater hears of it, and after it,
+    /// when the updater counts the lag from the update it is at. A round of the recorder then
+    /// takes in the distributions and costs of more updates than the lag bound: the costs are
+    /// the run's, and every update is handed out. (They were dropped as "out of the updater's
+    /// reach" from the oldest update not written plus the lag bound on, and those updates
+    /// skipped as lost.)
+    #[test]
+    fn costs_of_every_distribution_taken_in_are_kept_however_far_ahead_of_the_writing() {
+        let hp = RunConfig::default_config().hyperparameters();
+        let (d, c) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
+        let mut a = Assembler::new(hp.clone(), 2, 3, None, vec![], 2);
+        // One round: the distributions first, then the costs, as the recorder drains them.
+        for u in 20..=30 {
+            a.distribution(u, 1, &d, &c, &[]).unwrap();
+        }
+        for u in 20..30 {
+            for k in 0..hp.rollouts {
+                let outcome = a.cost(u, k, &[1.0; 3], 0.0, timing("worker-0"), None);
+                assert_eq!(outcome.unwrap(), CostOutcome::Stored, "update {u}");
+            }
+        }
+        let handed: Vec<u64> = std::iter::from_fn(|| a.next_complete())
+            .map(|r| r.unwrap().update)
+            .collect();
+        assert_eq!(handed, (20..30).collect::<Vec<_>>());
+        assert_eq!(a.reach(), Some(33));
     }
 
     #[test]

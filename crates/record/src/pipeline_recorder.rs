@@ -786,8 +786,9 @@ impl WriterState {
                 let why = match limit {
                     Some(limit) => format!(
                         "the updater runs at most {lag} updates (the lag bound) ahead of the \
-                         oldest update the recorder has not written, so no update from {limit} \
-                         on can be under way"
+                         recorder and publishes an update's distribution before its costs, so \
+                         no update from {limit} on (the lag bound past the newest distribution \
+                         the recorder has taken in) can be under way"
                     ),
                     None => format!(
                         "before its first distribution the recorder keeps the costs of at most \

@@ -3108,6 +3108,50 @@ fn supervisor_record_starts_a_recorder_that_was_not_restarted_again() {
     assert_nothing_left(&run);
 }
 
+/// A recorder started again (`supervisor record`) while the run goes at full speed: until the
+/// updater hears of it (Control::RECORDER_BACK) it runs free, so the new recorder takes in the
+/// distributions and costs of more updates in a round than the lag bound, and after it the
+/// updater counts the lag from where it is, not from the recorder's first update. Those costs
+/// are the run's own: none may be dropped as out of the updater's reach. They were, each worker
+/// named as one "started with another config" (in about half of such restarts: three here).
+#[test]
+fn a_recorder_started_again_at_full_speed_drops_no_cost_of_the_run() {
+    let scratch = Scratch::new("rec-again-fast");
+    let text = config(&[
+        UNBOUNDED,
+        ("max_workers = 16", "max_workers = 16\nrestart_limit = 0"),
+    ]);
+    let cfg = write_config(&scratch, "again-fast.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 5250, &cfg, &result);
+    let path = scratch.recording("A1", 5250);
+    let mut status = run.wait_status("100 updates", |s| updates_in(s) >= 100);
+    for part in 2..=4 {
+        sigkill_recorder(&status);
+        run.wait_status("the recorder gone", |s| {
+            s.contains("`supervisor record` starts it again")
+        });
+        run.ctl_ok(&["record"]);
+        let file = record::part_path(&path, part);
+        status = run.wait_status(&format!("300 updates in part {part}"), |_| {
+            record::read_recording(&file).is_ok_and(|r| r.updates.len() >= 300)
+        });
+    }
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    for part in 2..=4 {
+        let rec = record::read_recording(&record::part_path(&path, part)).unwrap();
+        let dropped: Vec<&str> = rec
+            .logs
+            .iter()
+            .filter(|l| l.message.contains(" dropped: "))
+            .map(|l| l.message.as_str())
+            .collect();
+        assert!(dropped.is_empty(), "part {part}: {dropped:#?}");
+    }
+    assert_nothing_left(&run);
+}
+
 /// A recorder that dies again and again (a recurring crash, within `restart_limit`): each
 /// death starts a recovery thread for the part it left. Before, none was joined until the run
 /// ended, and each kept its stack mapped (2 MB, two mappings): the supervisor's address space
