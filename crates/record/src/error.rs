@@ -38,13 +38,17 @@ pub enum RecordError {
         what: String,
     },
     /// A recording whose writer failed mid-run (a full disk): `cause` names the file and the
-    /// error; the file holds `updates` updates from `first` on.
-    #[error("{cause}; the recording stopped there: {}", stopped_note(file, *first, *updates))]
+    /// error; the recording `file` (with its later parts, `parts` files in all, when split)
+    /// holds `updates` updates from `first` on, and `unfinished` is its part that is not
+    /// finished, if one is not (the last).
+    #[error("{cause}; the recording stopped there: {}", stopped_note(self))]
     Stopped {
         file: PathBuf,
         cause: String,
         first: u64,
         updates: u64,
+        parts: usize,
+        unfinished: Option<PathBuf>,
     },
     #[error("{file}: figure {figure}: {what}")]
     Plot {
@@ -54,18 +58,47 @@ pub enum RecordError {
     },
 }
 
-/// What a recording whose writer failed holds, and how to complete it.
-fn stopped_note(file: &std::path::Path, first: u64, updates: u64) -> String {
-    let file = file.display();
+/// What a recording whose writer failed ([`RecordError::Stopped`]) holds, and how to complete
+/// it: a split recording's parts before the last were finished when the next began, so the
+/// part to recover is the last, not the file the run was given.
+fn stopped_note(e: &RecordError) -> String {
+    let RecordError::Stopped {
+        file,
+        first,
+        updates,
+        parts,
+        unfinished,
+        ..
+    } = e
+    else {
+        return String::new();
+    };
+    let (first, updates) = (*first, *updates);
+    let (what, holds) = match parts {
+        0 | 1 => (file.display().to_string(), "holds"),
+        n => (
+            format!("{} and its {} later part(s)", file.display(), n - 1),
+            "hold",
+        ),
+    };
     let held = match updates {
-        0 => return format!("{file} holds no update"),
+        0 => return format!("{what} {holds} no update"),
         1 => format!("1 update ({first})"),
         n => format!("{n} updates ({first}..={})", first + n - 1),
     };
+    let Some(part) = unfinished else {
+        return format!("{what} {holds} {held}, finished");
+    };
+    let part = part.display();
+    let state = if *parts > 1 {
+        format!("; its last part, {part}, is not finished")
+    } else {
+        " but is not finished".to_string()
+    };
     format!(
-        "{file} holds {held} but is not finished: `pi2cma recover {file} --out OTHER_DISK/FILE` \
-         (or `mcap-tool recover …`) completes it, or, once there is room, `pi2cma recover \
-         {file}` in place"
+        "{what} {holds} {held}{state}: `pi2cma recover {part} --out OTHER_DISK/FILE` (or \
+         `mcap-tool recover …`) completes it, or, once there is room, `pi2cma recover {part}` \
+         in place"
     )
 }
 

@@ -302,7 +302,7 @@ pub(crate) fn could_be_mcap(head: &[u8]) -> bool {
 
 /// Whether the file has a readable summary section (it was finished or recovered), read from
 /// its end.
-fn has_summary(path: &Path) -> Result<bool, RecordError> {
+pub(crate) fn has_summary(path: &Path) -> Result<bool, RecordError> {
     let mut file = std::fs::File::open(path).map_err(|e| RecordError::io(path, e))?;
     let len = file.metadata().map_err(|e| RecordError::io(path, e))?.len();
     Ok(summary_of(&mut file, len)

@@ -358,12 +358,25 @@ impl McapRecorder {
     pub fn finish(mut self) -> Result<u64, RecordError> {
         self.close()?;
         match self.error.take() {
-            Some(e) => Err(RecordError::Stopped {
-                file: self.path.clone(),
-                cause: e.to_string(),
-                first: self.first_update.unwrap_or(0),
-                updates: self.updates,
-            }),
+            Some(e) => {
+                // A split recording's earlier parts were finished as the next began: the one
+                // to recover is the last there is (one that holds nothing, created as the disk
+                // filled up, holds none of the updates).
+                let parts: Vec<PathBuf> = crate::recording_parts(&self.path)
+                    .into_iter()
+                    .filter(|p| p.is_file() && !crate::recover::holds_nothing(p).unwrap_or(false))
+                    .collect();
+                let last = parts.last().unwrap_or(&self.path);
+                let finished = crate::reader::has_summary(last).unwrap_or(false);
+                Err(RecordError::Stopped {
+                    file: self.path.clone(),
+                    cause: e.to_string(),
+                    first: self.first_update.unwrap_or(0),
+                    updates: self.updates,
+                    parts: parts.len(),
+                    unfinished: (!finished).then(|| last.clone()),
+                })
+            }
             None => Ok(self.updates),
         }
     }

@@ -389,3 +389,45 @@ fn a_recording_that_fails_stops_the_run_and_says_what_it_holds() {
         (held as usize, 0)
     );
 }
+
+/// A split recording whose next part cannot be created (here a directory is in its way; a full
+/// disk does the same) names its parts as they are: the first part, which the run was given, is
+/// finished, as is every part before the last. It said `FILE holds 152 updates (0..=151) but is
+/// not finished: pi2cma recover FILE …` of the first part, which held 76 of them and was finished.
+#[test]
+fn a_split_recording_that_fails_names_its_parts_as_they_are() {
+    let out = tmp("split-fails.mcap");
+    for p in record::recording_parts(&out) {
+        let _ = std::fs::remove_file(&p);
+    }
+    let text = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 200")
+        + "\n[recording]\nsplit_mb = 1\n";
+    let cfg = session::RunConfig::parse(&text, Path::new("split-fails.toml")).unwrap();
+    let mut rec = record::McapRecorder::create(&out).unwrap();
+    // After the recorder removed the stale parts: part 3 cannot be created.
+    let blocked = record::part_path(&out, 3);
+    let _ = std::fs::remove_dir(&blocked);
+    std::fs::create_dir(&blocked).unwrap();
+    session::run_session(&cfg, 1, &mut rec).unwrap();
+    let e = rec.finish().unwrap_err().to_string();
+    std::fs::remove_dir(&blocked).unwrap();
+    let part2 = record::part_path(&out, 2);
+    let held: Vec<usize> = [&out, &part2]
+        .map(|p| read_recording(p).unwrap())
+        .iter()
+        .map(|r| {
+            assert!(r.indexed, "{}", r.path.display());
+            r.updates.len()
+        })
+        .collect();
+    let n = held[0] + held[1];
+    assert!(
+        e.ends_with(&format!(
+            "the recording stopped there: {} and its 1 later part(s) hold {n} updates \
+             (0..={}), finished",
+            out.display(),
+            n - 1
+        )),
+        "{e}"
+    );
+}
