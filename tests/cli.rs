@@ -211,6 +211,15 @@ fn an_experiment_refuses_before_its_first_session() {
         !refused.status.success() && err.contains("would both record to"),
         "{err}"
     );
+    // Names that differ only where a file name takes `_` record to one file too, and the
+    // error says so (it said "the same run.name" of two different ones).
+    let refused = experiment(&[&cfg("day 1"), &cfg("day_1")]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success()
+            && err.contains("would both record to res/mcap/day_1-seed1.mcap (run.name \"day 1\" and \"day_1\" make the same file name"),
+        "{err}"
+    );
     // A bad config given last is found first too.
     let bad = d.join("bad.toml");
     std::fs::write(&bad, "[run\n").expect("bad config");

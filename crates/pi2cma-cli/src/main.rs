@@ -596,9 +596,22 @@ fn run(cli: Cli) -> Result<()> {
                 for (path, cfg) in &planned {
                     for s in 0..sessions as u64 {
                         let file = recording(cfg, cfg.run.seed + s);
-                        if let Some(other) = files.insert(file.clone(), path) {
+                        let name = cfg.run.name.as_str();
+                        if let Some((other, other_name)) = files.insert(file.clone(), (path, name))
+                        {
+                            // Names that differ only in characters a file name cannot take
+                            // (`day 1`, `day_1`) give the same file.
+                            let same = if other_name == name {
+                                "the same run.name and seed".to_string()
+                            } else {
+                                format!(
+                                    "run.name {other_name:?} and {name:?} make the same file \
+                                     name, every character other than an ASCII letter, digit, \
+                                     `-`, `_` or `.` written as `_`; and the same seed"
+                                )
+                            };
                             bail!(
-                                "{} and {} would both record to {} (the same run.name and seed): give them different run.name",
+                                "{} and {} would both record to {} ({same}): give them different run.name",
                                 other.display(),
                                 path.display(),
                                 file.display()
