@@ -141,10 +141,11 @@ def check(path, by_topic):
         failures.append(f"{path}: {msg}")
 
     # A run that ended before its first update (stopped, or a worker that could not start) is a
-    # recording too, as `analyze` reads it: its /run and events, or its events alone. Only the
-    # topics every update writes are then absent.
+    # recording too, as `analyze` reads it: its /run and events, its events alone, or its /run
+    # alone (a restarted recorder killed right after writing it). Only the topics every update
+    # writes are then absent.
     no_updates = "/update" not in by_topic
-    optional = {"/task_change", "/unfinished_update"} | ({"/update", "/summary", "/rollout"} if no_updates else set())
+    optional = {"/task_change", "/unfinished_update"} | ({"/update", "/summary", "/rollout", "/log"} if no_updates else set())
     if no_updates and set(by_topic) <= {"/log"} and by_topic:
         optional.add("/run")
     for topic, schema in EXPECTED_TOPICS.items():
@@ -273,7 +274,11 @@ def join(paths, read_files, metas):
     the updates missing at seams where a recorder was restarted."""
     joined = collections.defaultdict(list)
     failures, missing = [], []
+    # The last file that held updates, and the file just before (a restarted recorder killed
+    # before its first update leaves a part without any; the next restart's part names that
+    # part as its `previous_part`, as `analyze` compares it).
     last, last_path, last_meta, last_run = None, None, {}, None
+    prev_path, prev_meta, prev_run = None, {}, None
     for path, by_topic, meta in zip(paths, read_files, metas):
         updates = [m for _, m in by_topic.get("/update", [])]
         run = next((m for _, m in by_topic.get("/run", [])), None)
@@ -282,7 +287,8 @@ def join(paths, read_files, metas):
             goes_on = first.update == last.update + 1 and list(first.before.mean) == list(
                 last.after.mean
             ) and list(first.before.covariance) == list(last.after.covariance)
-            if not goes_on and after_restart(last_path, last_meta, last_run, last.update + 1, meta, run):
+            if not goes_on and after_restart(prev_path, prev_meta or last_meta, prev_run or last_run,
+                                             last.update + 1, meta, run):
                 goes_on = True
                 if first.update > last.update + 1:
                     missing.append(missing_text(last.update + 1, first.update - 1))
@@ -295,6 +301,7 @@ def join(paths, read_files, metas):
             joined[topic] += msgs
         if updates:
             last, last_path, last_meta, last_run = updates[-1], path, meta, run
+        prev_path, prev_meta, prev_run = path, meta, run
     return joined, failures, missing
 
 

@@ -3003,10 +3003,7 @@ fn a_killed_recorder_is_restarted_into_a_new_part_and_only_its_unwritten_updates
     assert!(info.contains("missing"), "{info}");
     // The Python reader's `--join` takes the parts as one run as well, with the gaps named
     // (it refused them: "does not go on where … ends"). Needs tools/requirements.txt.
-    let tool = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/plot_learning_curve.py");
-    let mut args = vec![tool.as_os_str(), "--join".as_ref(), "--check".as_ref()];
-    args.extend([&path, &part2, &part3].map(|p| p.as_os_str()));
-    let text = python_ok(&args, &[]);
+    let text = python_join_check(&[&path, &part2, &part3]);
     assert!(
         text.contains("joined 3 files: updates 0..199; missing ")
             && text.contains("(not recorded: the recorder was restarted)")
@@ -3356,6 +3353,59 @@ fn a_restarted_recorder_that_ends_before_its_first_update_leaves_no_part_behind(
     assert_eq!(record::join_resumed(parts).len(), 1, "{out}");
     let resume = record::resume::resume_point(&path);
     assert!(resume.is_ok(), "{:?}\n{out}", resume.err());
+    assert_nothing_left(&run);
+}
+
+/// A restarted recorder killed after it wrote its part's `/run` but before the part's first
+/// update leaves a part that holds no update; the next restart's part names it as its
+/// `previous_part`. `analyze` joins the three parts as one run; so must the Python reader's
+/// `--join` (it compared `previous_part` with the last file that held updates, and refused the
+/// seam: "does not go on where … ends").
+#[test]
+fn parts_joined_across_a_restarted_recorders_part_without_updates() {
+    let scratch = Scratch::new("rec-part-without-updates");
+    let text = config(&[
+        ("updates = 40", "updates = 400"),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 60.0",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "no-updates.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 5251, &cfg, &result);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let path = scratch.recording("A1", 5251);
+    let part2 = record::part_path(&path, 2);
+    sigkill_recorder(&status);
+    let second = restarted_recorder(&run, 1, Instant::now() + Duration::from_secs(10));
+    // Killed once its part has its `/run` and before its first update is in.
+    let end = Instant::now() + Duration::from_secs(20);
+    while !record::read_recording(&part2).is_ok_and(|r| r.run_info().is_some()) {
+        assert!(Instant::now() < end, "no /run in part 2:\n{}", run.text());
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    signal(second, "-9");
+    let part3 = record::part_path(&path, 3);
+    run.wait_status("2 updates in part 3", |_| {
+        record::read_recording(&part3).is_ok_and(|r| r.updates.len() >= 2)
+    });
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let parts = [&path, &part2, &part3].map(|p| record::read_recording(p).unwrap());
+    assert!(
+        parts[1].updates.is_empty(),
+        "part 2 holds updates: {}",
+        run.text()
+    );
+    assert_eq!(
+        record::join_resumed(parts.to_vec()).len(),
+        1,
+        "{}",
+        run.text()
+    );
+    let text = python_join_check(&[&path, &part2, &part3]);
+    assert!(text.contains("join passed"), "{text}");
     assert_nothing_left(&run);
 }
 
@@ -4196,6 +4246,15 @@ except w.ConfigRefused as e:  # exits 78: the supervisor does not restart it
         text.contains("other basis activations than task.external.basis_activations in"),
         "{text}"
     );
+}
+
+/// The Python reader's `--join --check` of `files`, which must succeed; returns its output.
+/// Needs tools/requirements.txt.
+fn python_join_check(files: &[&Path]) -> String {
+    let tool = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/plot_learning_curve.py");
+    let mut args = vec![tool.as_os_str(), "--join".as_ref(), "--check".as_ref()];
+    args.extend(files.iter().map(|p| p.as_os_str()));
+    python_ok(&args, &[])
 }
 
 /// `python3 ARGS` with `env`, which must succeed; returns its stdout and stderr.
