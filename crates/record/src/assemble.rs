@@ -279,17 +279,11 @@ impl Assembler {
         timing: RolloutTiming,
         ran_with: Option<&[f64]>,
     ) -> Result<CostOutcome, CostError> {
-        match (self.next, self.reach()) {
-            (Some(n), _) if update < n => return Ok(CostOutcome::Stale),
-            (_, Some(limit)) if update >= limit => {
-                return Ok(CostOutcome::OutOfReach { limit: Some(limit) })
-            }
-            (None, _)
-                if !self.pending.contains_key(&update) && self.pending.len() as u64 > self.lag =>
-            {
-                return Ok(CostOutcome::OutOfReach { limit: None })
-            }
-            _ => {}
+        if self.next.is_some_and(|n| update < n) {
+            return Ok(CostOutcome::Stale);
+        }
+        if let Some(out) = self.out_of_reach(update) {
+            return Ok(out);
         }
         let (k, n) = (self.hp.rollouts, self.steps);
         let spare = &mut self.spare;
@@ -317,6 +311,19 @@ impl Assembler {
                 Ok(CostOutcome::Duplicate)
             }
             Err(e) => Err(e),
+        }
+    }
+
+    /// [`CostOutcome::OutOfReach`] if a cost of `update` (not stale) would be dropped now. A
+    /// caller that can take in more distributions first (published after it last looked)
+    /// should, before it hands such a cost over.
+    pub fn out_of_reach(&self, update: u64) -> Option<CostOutcome> {
+        match self.reach() {
+            Some(limit) if update >= limit => Some(CostOutcome::OutOfReach { limit: Some(limit) }),
+            None if !self.pending.contains_key(&update) && self.pending.len() as u64 > self.lag => {
+                Some(CostOutcome::OutOfReach { limit: None })
+            }
+            _ => None,
         }
     }
 

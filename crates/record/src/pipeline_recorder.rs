@@ -31,6 +31,7 @@ use std::path::PathBuf;
 use crate::assemble::{Assembler, CostOutcome, Dropped};
 use crate::{now_ns, Event, RolloutTiming, RunFiles, RunStart, UpdateData};
 use anyhow::Context as _;
+use iceoryx2::port::subscriber::Subscriber;
 use pi2cma::CostError;
 use pipeline::{announce_ready, iox, Context, OncePerWorker, Ports as _, Say};
 use session::reruns::{after_reruns, rerun_message, NonfiniteReruns, Verdict};
@@ -140,7 +141,6 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     };
     eprintln!("recording to {}", out.display());
 
-    let p = ctx.limits.dim;
     let lag = ctx.limits.recorder_max_lag();
     // The first distribution not yet taken in.
     let mut next_update: Option<u64> = None;
@@ -163,33 +163,21 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         )?;
         rounds += 1;
         holds += u64::from(hold);
-        let mut took_in = false;
         // Distributions before costs: every cost of update u was published before the
         // distribution of u + 1, so after this order of draining, a seen distribution's
         // predecessor costs are all in hand.
-        while let Some(s) = iox(dist_sub.receive(), "receive distribution")? {
-            let h: DistributionHeader = *s.user_header();
-            if h.run_id != ctx.run_id {
-                continue;
-            }
-            let payload = s.payload();
-            let Some((mean, cov)) = wire::distribution_parts(payload, p) else {
-                anyhow::bail!(
-                    "distribution of update {}: {} values, expected {}",
-                    h.update,
-                    payload.len(),
-                    p + p * p
-                );
-            };
-            next_update = Some(next_update.unwrap_or(0).max(h.update + 1));
-            acked.get_or_insert(h.update);
-            took_in = true;
-            state.handle(Msg::Distribution(h, mean, cov))?;
-        }
+        let mut took_in =
+            take_distributions(&dist_sub, &ctx, &mut state, &mut next_update, &mut acked)?;
         while let Some(s) = iox(costs_sub.receive(), "receive costs")? {
             let h = *s.user_header();
             if h.run_id == ctx.run_id {
                 took_in = true;
+                // Its update's distribution was published before it, maybe after the drain
+                // above: a cost is judged out of the updater's reach only once the
+                // distributions there are are in.
+                if state.assembler.out_of_reach(h.update).is_some() {
+                    take_distributions(&dist_sub, &ctx, &mut state, &mut next_update, &mut acked)?;
+                }
                 // A clock read per cost message showed in the recorder's profile; a worker
                 // that stamps its rollouts does not need it.
                 let received_ns = if h.start_ns == 0 { now_ns() } else { 0 };
@@ -322,6 +310,39 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
          by a held updater)"
     );
     Ok(())
+}
+
+/// Takes in every distribution waiting on `distribution`; `next_update` becomes the one after
+/// the newest, `acked` the first taken in (if none was before). Returns whether any was.
+fn take_distributions(
+    dist_sub: &Subscriber<wire::Service, [f64], DistributionHeader>,
+    ctx: &Context,
+    state: &mut WriterState,
+    next_update: &mut Option<u64>,
+    acked: &mut Option<u64>,
+) -> anyhow::Result<bool> {
+    let p = ctx.limits.dim;
+    let mut took = false;
+    while let Some(s) = iox(dist_sub.receive(), "receive distribution")? {
+        let h: DistributionHeader = *s.user_header();
+        if h.run_id != ctx.run_id {
+            continue;
+        }
+        let payload = s.payload();
+        let Some((mean, cov)) = wire::distribution_parts(payload, p) else {
+            anyhow::bail!(
+                "distribution of update {}: {} values, expected {}",
+                h.update,
+                payload.len(),
+                p + p * p
+            );
+        };
+        *next_update = Some(next_update.unwrap_or(0).max(h.update + 1));
+        acked.get_or_insert(h.update);
+        took = true;
+        state.handle(Msg::Distribution(h, mean, cov))?;
+    }
+    Ok(took)
 }
 
 /// The cost messages taken in of each update not yet acknowledged as written: what
