@@ -41,6 +41,13 @@ pub enum ProcessError {
     /// The `make_task` given to [`crate::worker::serve`] failed; its error as it was.
     #[error(transparent)]
     MakeTask(Box<dyn std::error::Error + Send + Sync>),
+    /// Returned by a `make_task` of your own (as an `Err(ProcessError::ConfigRefused(…))`):
+    /// your task cannot run the run's config (a robot without the joint it names, a simulator
+    /// of another model), which a restart would not mend. Refuses the config
+    /// ([`ProcessError::refuses_config`]): the worker exits with [`wire::EXIT_CONFIG_REFUSED`]
+    /// and the supervisor does not restart it. The message is the reason's.
+    #[error(transparent)]
+    ConfigRefused(Box<dyn std::error::Error + Send + Sync>),
     /// The task of [`crate::worker::serve`] does not have the shape the config declares (P, N,
     /// setting names), naming both. Refuses the config ([`ProcessError::refuses_config`]).
     #[error(transparent)]
@@ -83,7 +90,34 @@ impl ProcessError {
     /// [`crate::run_main`] exits with [`wire::EXIT_CONFIG_REFUSED`] and the supervisor does not
     /// restart it.
     pub fn refuses_config(&self) -> bool {
-        matches!(self, Self::TaskShape(_) | Self::SettingRefused { .. })
+        matches!(
+            self,
+            Self::TaskShape(_) | Self::SettingRefused { .. } | Self::ConfigRefused(_)
+        )
+    }
+
+    /// The error of a `make_task`: a [`ProcessError`] it returned (e.g.
+    /// [`ProcessError::ConfigRefused`]), also inside an `anyhow::Error` (`?` in a function
+    /// returning `anyhow::Result`), as it is; anything else as [`ProcessError::MakeTask`].
+    pub(crate) fn from_make_task<E>(e: E) -> Self
+    where
+        E: Into<Box<dyn std::error::Error + Send + Sync>> + 'static,
+    {
+        // anyhow's conversion into a boxed error hides the type it holds: ask anyhow first.
+        let e = match (Box::new(e) as Box<dyn std::any::Any>).downcast::<anyhow::Error>() {
+            Ok(a) => match a.downcast::<ProcessError>() {
+                Ok(p) => return p,
+                Err(a) => a.into(),
+            },
+            Err(other) => match other.downcast::<E>() {
+                Ok(e) => (*e).into(),
+                Err(_) => unreachable!("the box holds an E"),
+            },
+        };
+        match e.downcast::<ProcessError>() {
+            Ok(e) => *e,
+            Err(e) => Self::MakeTask(e),
+        }
     }
 }
 
@@ -100,6 +134,23 @@ fn in_force(changed_by_update: bool) -> &'static str {
 mod tests {
     use super::ProcessError;
     use anyhow::Context as _;
+
+    /// A task of your own refuses the config through `make_task` (exit 78, not restarted), as
+    /// `worker::ConfigRefused` let it before the typed error; any other error is `MakeTask`.
+    #[test]
+    fn a_make_task_may_refuse_the_config() {
+        let e = ProcessError::from_make_task(ProcessError::ConfigRefused(
+            "the arm has 6 joints, the config 7".into(),
+        ));
+        assert!(e.refuses_config(), "{e:?}");
+        assert_eq!(e.to_string(), "the arm has 6 joints, the config 7");
+        // Returned through an `anyhow::Result` (`Err(ProcessError::ConfigRefused(…))?`) too.
+        let through_anyhow = anyhow::Error::from(ProcessError::ConfigRefused("no joint 7".into()));
+        assert!(ProcessError::from_make_task(through_anyhow).refuses_config());
+        let other = ProcessError::from_make_task(anyhow::anyhow!("no robot on /dev/ttyUSB0"));
+        assert!(matches!(other, ProcessError::MakeTask(_)), "{other:?}");
+        assert!(!other.refuses_config());
+    }
 
     #[test]
     fn a_make_task_error_reads_as_it_did_unwrapped() {

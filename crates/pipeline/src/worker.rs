@@ -87,10 +87,10 @@ pub fn serve<T: Task, E>(
     make_task: impl FnOnce(&RunConfig) -> Result<T, E>,
 ) -> Result<(), ProcessError>
 where
-    E: Into<Box<dyn std::error::Error + Send + Sync>>,
+    E: Into<Box<dyn std::error::Error + Send + Sync>> + 'static,
 {
     slot(args, |ctx| {
-        let task = make_task(&ctx.config).map_err(|e| ProcessError::MakeTask(e.into()))?;
+        let task = make_task(&ctx.config).map_err(ProcessError::from_make_task)?;
         session::check_task_shape(&task, &ctx.config).map_err(ProcessError::TaskShape)?;
         Ok(task)
     })
@@ -450,7 +450,7 @@ pub fn serve_main<T: Task, E>(
     make_task: impl FnOnce(&RunConfig) -> Result<T, E>,
 ) -> std::process::ExitCode
 where
-    E: Into<Box<dyn std::error::Error + Send + Sync>>,
+    E: Into<Box<dyn std::error::Error + Send + Sync>> + 'static,
 {
     use clap::Parser as _;
     #[derive(clap::Parser)]
