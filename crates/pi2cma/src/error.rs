@@ -5,6 +5,7 @@ use thiserror::Error;
 /// A cost trajectory that cannot enter an update, or an update that cannot be computed from
 /// what it was told.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum CostError {
     #[error("cost of rollout {rollout} {} is {value}; costs must be finite", match step { Some(s) => format!("at step {s}"), None => "(terminal)".to_string() })]
     NonFinite {
@@ -60,6 +61,7 @@ pub enum CostError {
 
 /// Hyperparameters or an initial distribution that cannot run.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum ParameterError {
     #[error("{field} = {value}: {reason}")]
     OutOfRange {

@@ -32,6 +32,7 @@ use crate::RolloutTiming;
 
 /// Why the assembler cannot take a distribution or hand out an update.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum AssembleError {
     #[error(
         "distribution of update {update}: {mean} mean and {covariance} covariance values for \

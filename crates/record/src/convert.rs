@@ -14,6 +14,7 @@ use crate::proto;
 /// type. It knows no file: the caller, which read the message, names the file and update
 /// ([`crate::RecordError::Update`]).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
 pub enum ConvertError {
     /// A distribution whose mean or covariance does not have the length its `dim` says.
     #[error(

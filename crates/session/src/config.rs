@@ -11,6 +11,7 @@ use serde::Deserialize;
 use tasks::{TaskChange, TaskSchedule, ViaPointSpec};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum ConfigError {
     #[error("{file}: cannot read: {reason}")]
     Read { file: PathBuf, reason: String },

@@ -26,6 +26,7 @@ use pi2cma::{
 use tasks::{Delayed, Task, TaskChange, TaskError};
 
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SessionError {
     /// The cost error is part of the message, not a source: chained, it would be printed twice
     /// (`update 4: cost … is NaN: cost … is NaN`).

@@ -34,6 +34,7 @@ pub fn settings_text<N: std::fmt::Display>(settings: impl IntoIterator<Item = (N
 }
 
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum TaskError {
     #[error("task `{task}` has no setting `{name}` (it has: {known})")]
     UnknownSetting {
