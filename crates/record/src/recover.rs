@@ -585,7 +585,18 @@ fn refuse_replacing_another_file(input: &Path, out: &Path) -> Result<(), RecordE
         (Ok(a), Ok(b)) => a == b,
         _ => false,
     };
-    if meta.is_dir() || meta.len() == 0 || same(input, out) {
+    if meta.is_dir() {
+        // Was "outdir: Is a directory (os error 21)" once the recovery had been read.
+        let name = input.file_name().map(Path::new).unwrap_or(input);
+        return Err(RecordError::invalid(
+            out,
+            format!(
+                "is a directory; --out names the recovered file (e.g. {})",
+                out.join(name).display()
+            ),
+        ));
+    }
+    if meta.len() == 0 || same(input, out) {
         return Ok(());
     }
     Err(RecordError::invalid(
@@ -710,6 +721,16 @@ mod tests {
             "{e}"
         );
         assert_eq!(std::fs::read(&other).unwrap(), b"another recording");
+        // A directory is named as such, with the file name to give instead.
+        let e = run(&args(&dir)).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}: is a directory; --out names the recovered file (e.g. {})",
+                dir.display(),
+                dir.join("a.mcap").display()
+            )
+        );
         // In place, named as --out (also by another spelling), is no other file.
         let again = dir.join(".").join("a.mcap");
         for out in [&input, &again] {
