@@ -33,7 +33,10 @@ passed=()
 stage=""
 begin() { stage="$1"; echo "== $1"; }
 done_stage() { passed+=("$stage"); }
-trap 'echo "recordings: ${#passed[@]} passed, 1 failed (${stage})" >&2' ERR
+failed() { echo "recordings: ${#passed[@]} passed, 1 failed (${stage})" >&2; }
+# Only in this shell: set -E hands the trap to command substitutions too, whose failure then
+# printed the line twice (once there, once for the assignment that failed with it).
+trap '[ "$BASHPID" = "$$" ] && failed' ERR
 
 begin "in-process run"
 "$bin/mcap-tool" record --out "$work/in-process.mcap"
@@ -75,9 +78,17 @@ python3 tools/check_update.py "$work/killed.mcap"
 python3 tools/plot_learning_curve.py --check "$work/killed.mcap"
 "$bin/mcap-tool" verify "$work/killed.mcap"
 recorded="$("$bin/mcap-tool" info "$work/killed.mcap" | sed -n 's/^  updates: \([0-9]*\) .*/\1/p')"
+# A figure that is not a number (a changed output format) fails too: `[ "" -le 3 ]` is an
+# error that `if` takes for false, and the check passed unseen.
+if ! [[ "$flushed" =~ ^[0-9]+$ && "$recorded" =~ ^[0-9]+$ ]]; then
+  echo "FAIL: an update number that is not one: flushed '$flushed' (the progress's last line), \
+recovered '$recorded' (mcap-tool info)" >&2
+  failed
+  exit 1
+fi
 if [ "$recorded" -le "$flushed" ]; then
   echo "FAIL: update $flushed was reported flushed but only $recorded updates were recovered" >&2
-  echo "recordings: ${#passed[@]} passed, 1 failed (${stage})" >&2
+  failed
   exit 1
 fi
 done_stage
