@@ -98,25 +98,42 @@ impl ProcessError {
 
     /// The error of a `make_task`: a [`ProcessError`] it returned (e.g.
     /// [`ProcessError::ConfigRefused`]), also inside an `anyhow::Error` (`?` in a function
-    /// returning `anyhow::Result`), as it is; anything else as [`ProcessError::MakeTask`].
+    /// returning `anyhow::Result`), as it is — with context added there, a refusal stays one and
+    /// keeps the context; anything else as [`ProcessError::MakeTask`].
     pub(crate) fn from_make_task<E>(e: E) -> Self
     where
         E: Into<Box<dyn std::error::Error + Send + Sync>> + 'static,
     {
         // anyhow's conversion into a boxed error hides the type it holds: ask anyhow first.
-        let e = match (Box::new(e) as Box<dyn std::any::Any>).downcast::<anyhow::Error>() {
-            Ok(a) => match a.downcast::<ProcessError>() {
-                Ok(p) => return p,
-                Err(a) => a.into(),
-            },
-            Err(other) => match other.downcast::<E>() {
-                Ok(e) => (*e).into(),
-                Err(_) => unreachable!("the box holds an E"),
-            },
-        };
+        let e: Box<dyn std::error::Error + Send + Sync> =
+            match (Box::new(e) as Box<dyn std::any::Any>).downcast::<anyhow::Error>() {
+                Ok(a) => return Self::from_anyhow(*a),
+                Err(other) => match other.downcast::<E>() {
+                    Ok(e) => (*e).into(),
+                    Err(_) => unreachable!("the box holds an E"),
+                },
+            };
         match e.downcast::<ProcessError>() {
             Ok(e) => *e,
             Err(e) => Self::MakeTask(e),
+        }
+    }
+
+    /// A `ProcessError` in an `anyhow::Error` as it is; one wrapped in context
+    /// (`.context("opening the arm")`) keeps that context in its message, and a refusal stays
+    /// one. Taking the inner error out would drop the context: anyhow's downcast sees through it.
+    fn from_anyhow(a: anyhow::Error) -> Self {
+        let in_context = a
+            .chain()
+            .next()
+            .is_some_and(|outer| !outer.is::<ProcessError>());
+        match a.downcast_ref::<ProcessError>() {
+            Some(p) if in_context && p.refuses_config() => Self::ConfigRefused(a.into()),
+            Some(_) if !in_context => match a.downcast() {
+                Ok(p) => p,
+                Err(a) => Self::MakeTask(a.into()),
+            },
+            _ => Self::MakeTask(a.into()),
         }
     }
 }
@@ -164,6 +181,36 @@ mod tests {
         assert_eq!(
             format!("{wrapped:#}"),
             "my-worker failed: opening the arm: no robot on /dev/ttyUSB0"
+        );
+    }
+
+    /// A refusal wrapped in context (`.context("opening the arm")?`) still refuses the config,
+    /// and its message keeps the context, as an unwrapped error's would.
+    #[test]
+    fn a_refusal_in_context_keeps_its_context() {
+        let make = || -> anyhow::Result<()> {
+            Err(ProcessError::ConfigRefused("no joint 7".into())).context("opening the arm")
+        };
+        let e = ProcessError::from_make_task(make().unwrap_err());
+        assert!(e.refuses_config(), "{e:?}");
+        let reported = anyhow::Error::from(e).context("my-worker failed");
+        assert_eq!(
+            format!("{reported:#}"),
+            "my-worker failed: opening the arm: no joint 7"
+        );
+        // Any other process error in context keeps it too, as an error of make_task.
+        let port = || -> anyhow::Result<()> {
+            Err(ProcessError::Port {
+                what: "arm bus".into(),
+                reason: "busy".into(),
+            })
+            .context("opening the arm")
+        };
+        let e = ProcessError::from_make_task(port().unwrap_err());
+        assert!(matches!(e, ProcessError::MakeTask(_)), "{e:?}");
+        assert_eq!(
+            format!("{:#}", anyhow::Error::from(e)),
+            "opening the arm: arm bus: busy"
         );
     }
 }
