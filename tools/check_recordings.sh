@@ -26,7 +26,9 @@ cargo build --quiet "${flags[@]}" -p supervisor --bins
 cargo build --quiet "${flags[@]}" -p pi2cma-cli --bins
 bin="$target/$profile"
 work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
+# Background processes too: a recorder left waiting by a failed stage held the output pipe open,
+# and a CI log piped through it never ended.
+trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$work"' EXIT
 # The last line counts the checks that ran: each stage is added when it has passed, and a failing
 # command (set -e) reports the stage it was in.
 passed=()

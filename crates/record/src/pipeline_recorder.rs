@@ -156,7 +156,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let mut hold = false;
     // For the exit line: rounds of draining and writing, and requests of a held updater.
     let (mut rounds, mut holds) = (0u64, 0u64);
-    let signal = loop {
+    let mut last_run_dir_check = std::time::Instant::now();
+    let why = loop {
         iox(
             doorbell.try_wait(|a| hold |= a.id == wire::HOLD),
             "doorbell",
@@ -268,7 +269,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         }
         ring_back(&mut hold);
         if state.done() {
-            break false;
+            break "run complete";
         }
         // Samples published after the drain above, whose publisher may not have rung (it saw
         // an acknowledgement that said this process was busy): take them in before sleeping.
@@ -278,7 +279,21 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             continue;
         }
         if pipeline::termination_requested() {
-            break true;
+            break "signal";
+        }
+        // A recorder started by hand (`supervisor run --no-record`) is not stopped by the
+        // supervisor: as a worker started by hand does, it learns that the run has ended from
+        // the run directory, which the supervisor removes last. Without this, a run that never
+        // came or whose supervisor died left it waiting forever with its file unfinished.
+        if last_run_dir_check.elapsed() >= std::time::Duration::from_secs(1) {
+            last_run_dir_check = std::time::Instant::now();
+            if !ctx.run_dir.exists() {
+                eprintln!(
+                    "the run has ended (its run directory {} is gone): finishing the recording",
+                    ctx.run_dir.display()
+                );
+                break "run directory gone";
+            }
         }
         // A bounded wait, as in the pipeline's processes (`pipeline::wait_loop`); shorter while
         // the run is active, because the updater skips rings within RECORDER_RING_INTERVAL of
@@ -290,7 +305,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         };
         let _ = doorbell.timed_wait(|a| hold |= a.id == wire::HOLD, wait);
     };
-    let written = state.finish(signal)?;
+    let written = state.finish(why)?;
     let cpu = process_cpu_seconds();
     // Per update only when there were updates: the CPU of a start and stop is not a rate.
     let cost = match written {
@@ -535,9 +550,9 @@ impl WriterState {
             .is_some_and(|f| self.assembler.first_update().is_none_or(|n| n >= f))
     }
 
-    /// Logs the recorder's exit and finishes the file (summary, indexes); returns the number of
-    /// updates written.
-    fn finish(mut self, signal: bool) -> anyhow::Result<u64> {
+    /// Logs the recorder's exit and `why` (`run complete`, `signal`, `run directory gone`) and
+    /// finishes the file (summary, indexes); returns the number of updates written.
+    fn finish(mut self, why: &str) -> anyhow::Result<u64> {
         let pid = self.pid;
         let (written, mismatches) = (self.written, self.mismatches);
         // A change that takes effect at the update after the last written one (the run was
@@ -584,9 +599,8 @@ impl WriterState {
             "recorder",
             pid,
             &format!(
-                "recorder exits ({}): {written} updates written, {mismatches} recomputation \
-                 mismatches",
-                if signal { "signal" } else { "run complete" }
+                "recorder exits ({why}): {written} updates written, {mismatches} recomputation \
+                 mismatches"
             ),
         )?;
         self.writer.finish()?;

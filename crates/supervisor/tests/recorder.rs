@@ -55,6 +55,7 @@ fn setup_with(name: &str, updates: u64, delay_ms: f64, run_lines: &str) -> Run {
         "stop" => 3,
         "stop-reruns" => 4,
         "stop-reruns-one-worker" => 5,
+        "gone" => 6,
         _ => 2,
     };
     Run {
@@ -180,6 +181,31 @@ fn a_killed_pipeline_recorder_is_recovered_with_every_flushed_update() {
         .args(["-INT", &sup.0.id().to_string()])
         .status();
     wait_bounded(&mut sup.0, 60);
+}
+
+/// A recorder started by hand (`supervisor run --no-record`) is not the supervisor's to stop: like
+/// a worker started by hand, it learns that the run has ended from the run directory, which the
+/// supervisor removes last. Before, a run that never came (a supervisor that failed at start)
+/// left it waiting forever, holding its file open and unfinished.
+#[test]
+fn a_recorder_started_by_hand_finishes_its_file_when_the_run_directory_is_gone() {
+    let bin = bin_dir();
+    let run = setup("gone", 40, 0.0);
+    let out = scratch::scratch("pipeline-gone-out").join("run.mcap");
+    let mut rec = KillOnDrop(start_recorder(&bin, &run, &out));
+    std::fs::remove_dir_all(&run.dir).unwrap();
+    let status = wait_bounded(&mut rec.0, 10);
+    assert!(status.success(), "{status}");
+    let r = read_recording(&out).unwrap();
+    assert!(r.indexed, "not finished: {out:?}");
+    assert!(r.updates.is_empty());
+    assert!(
+        r.logs
+            .iter()
+            .any(|l| l.event == "exit" && l.name == "recorder"),
+        "{:?}",
+        r.logs
+    );
 }
 
 /// Updates completed so far, from the updater's result file or the supervisor's progress lines
