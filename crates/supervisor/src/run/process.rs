@@ -1,0 +1,278 @@
+//! A child process as the operating system sees it: which program runs a role ([`Launcher`]),
+//! signals, whether a pid still runs (pid reuse included), dying with the supervisor, and what a
+//! SIGBUS most likely means. It is not the supervisor's bookkeeping of its children
+//! (`children`).
+
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus};
+
+use anyhow::{bail, Context};
+use session::{executable_file, RunConfig};
+
+use crate::shm::{size, SHM_DIR};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Role {
+    Recorder,
+    Updater,
+    Sampler,
+    Worker(u32),
+}
+
+impl Role {
+    pub(super) fn name(self) -> String {
+        match self {
+            Role::Recorder => "recorder".into(),
+            Role::Updater => "updater".into(),
+            Role::Sampler => "sampler".into(),
+            Role::Worker(w) => format!("worker-{w}"),
+        }
+    }
+    fn binary(self) -> &'static str {
+        match self {
+            Role::Recorder => "recorder",
+            Role::Updater => "updater",
+            Role::Sampler => "sampler",
+            Role::Worker(_) => "rollout-worker",
+        }
+    }
+}
+
+const BINARIES: [&str; 3] = ["updater", "sampler", "rollout-worker"];
+
+/// How children are started: the `updater`, `sampler` and `rollout-worker` binaries of a
+/// directory, or — when they are not next to the supervisor, as after `cargo run`, which builds
+/// only the binary it runs — the supervisor's own executable, which hosts all four roles. The
+/// recorder (the `recorder` binary) is taken from the directory when it is there,
+/// else hosted by the supervisor's executable too. An external task's workers are the user's
+/// program (`task.external.worker`).
+#[derive(Debug, Clone)]
+pub(super) struct Launcher {
+    binaries: Binaries,
+    /// The program and leading arguments of an external task's workers (`task.external.worker`),
+    /// which replace `rollout-worker`.
+    external_worker: Option<(PathBuf, Vec<String>)>,
+}
+
+#[derive(Debug, Clone)]
+enum Binaries {
+    InDir { dir: PathBuf, exe: PathBuf },
+    SelfHosted(PathBuf),
+}
+
+impl Launcher {
+    pub(super) fn find(bin_dir: Option<&Path>, cfg: &RunConfig) -> anyhow::Result<Self> {
+        let external_worker = cfg.external_worker_program()?;
+        let binaries = Binaries::find(bin_dir)?;
+        Ok(Self {
+            binaries,
+            external_worker,
+        })
+    }
+
+    /// The program and its leading arguments for `role`.
+    pub(super) fn program(&self, role: Role) -> (PathBuf, Vec<String>) {
+        if let (Role::Worker(_), Some((program, args))) = (role, &self.external_worker) {
+            return (program.clone(), args.clone());
+        }
+        let hosted = |exe: &PathBuf| (exe.clone(), vec![role.binary().to_string()]);
+        match &self.binaries {
+            Binaries::InDir { dir, exe } => {
+                let bin = dir.join(role.binary());
+                if role == Role::Recorder && !bin.is_file() {
+                    hosted(exe)
+                } else {
+                    (bin, Vec::new())
+                }
+            }
+            Binaries::SelfHosted(exe) => hosted(exe),
+        }
+    }
+}
+
+impl Binaries {
+    fn find(bin_dir: Option<&Path>) -> anyhow::Result<Self> {
+        if let Some(dir) = bin_dir {
+            for b in BINARIES {
+                let p = dir.join(b);
+                if !p.exists() {
+                    bail!(
+                        "missing binary `{b}`: {} does not exist (--bin-dir {} must hold {}; \
+                         without --bin-dir the supervisor runs them from its own directory, \
+                         or its own executable runs them)",
+                        p.display(),
+                        dir.display(),
+                        BINARIES.join(", ")
+                    );
+                }
+                // Found now rather than when it is started, after the processes before it.
+                if !executable_file(&p) {
+                    bail!("binary `{b}`: {} is not an executable file", p.display());
+                }
+            }
+            return Ok(Self::InDir {
+                dir: dir.to_path_buf(),
+                exe: std::env::current_exe()?,
+            });
+        }
+        let exe = std::env::current_exe()?;
+        let dir = exe
+            .parent()
+            .context("the supervisor executable has no directory")?;
+        Ok(if BINARIES.iter().all(|b| executable_file(&dir.join(b))) {
+            Self::InDir {
+                dir: dir.to_path_buf(),
+                exe: exe.clone(),
+            }
+        } else {
+            Self::SelfHosted(exe)
+        })
+    }
+}
+
+/// Whether process `pid` runs: it exists and is not a zombie (one that has exited and waits to
+/// be reaped still has `/proc/<pid>`).
+pub fn process_alive(pid: u32) -> bool {
+    process_started(pid).is_some()
+}
+
+/// Whether the process that had pid `pid` and start time `started` still runs, not another that
+/// got its pid.
+pub(super) fn still_runs(pid: u32, started: u64) -> bool {
+    process_started(pid) == Some(started)
+}
+
+/// When process `pid` started (clock ticks after boot, field 22 of `/proc/<pid>/stat`) if it
+/// runs: with the pid, an identity that pid reuse does not fool. `None` for a zombie.
+pub(super) fn process_started(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The fields follow the parenthesised command name, which may contain spaces and `)`.
+    let (_, rest) = stat.rsplit_once(')')?;
+    let mut fields = rest.split_whitespace();
+    // Field 3, the state; field 22 is 18 further on.
+    if fields.next()? == "Z" {
+        return None;
+    }
+    fields.nth(18)?.parse().ok()
+}
+
+/// Signals one process that is not ours to group-kill (a worker that joined from outside).
+/// The pid comes from a shared-memory message: 0 or one beyond `pid_t` would signal a process
+/// group or everything the user owns, so only a plain other process's pid is signalled.
+pub(super) fn signal_process(pid: u32, sig: libc::c_int) {
+    if pid == 0 || pid > i32::MAX as u32 || pid == std::process::id() {
+        return;
+    }
+    // SAFETY: kill has no memory-safety preconditions; a stale pid only yields ESRCH.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::kill(pid as libc::pid_t, sig);
+    }
+}
+
+/// Sends `sig` to the process group of child `pid` (each child leads its own group).
+pub(super) fn signal_group(pid: u32, sig: libc::c_int) {
+    // SAFETY: killpg has no memory-safety preconditions; a stale group id only yields ESRCH.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::killpg(pid as libc::pid_t, sig);
+    }
+}
+
+/// What a child killed by SIGBUS most likely ran into: iceoryx2 sizes its segments without
+/// reserving their pages, so a full /dev/shm shows only as SIGBUS at the first write to a page
+/// it has no room for, and `signal: 7 (SIGBUS)` alone does not say so.
+pub(super) fn sigbus_hint(status: ExitStatus, shm: Option<(u64, u64)>) -> Option<String> {
+    use std::os::unix::process::ExitStatusExt as _;
+    if status.signal() != Some(libc::SIGBUS) {
+        return None;
+    }
+    let space = match shm {
+        Some((free, total)) => format!("{SHM_DIR} has {} free of {}", size(free), size(total)),
+        None => format!("{SHM_DIR} could not be inspected"),
+    };
+    Some(format!(
+        "SIGBUS here most likely means the shared memory is full: {space}; free space there \
+         (or enlarge it), or make the run's messages smaller (K, P, N, pipeline.max_workers)"
+    ))
+}
+
+/// The child gets SIGKILL when the supervisor dies, however it dies.
+pub(super) fn die_with_parent(cmd: &mut Command) {
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs in the forked child before exec and only calls the
+    // async-signal-safe functions prctl, getppid and _exit; it allocates nothing.
+    #[allow(unsafe_code)]
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The supervisor died between fork and prctl: the signal would never come.
+            if libc::getppid() != parent {
+                libc::_exit(1);
+            }
+            Ok(())
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn a_child_killed_by_sigbus_is_said_to_have_found_the_shared_memory_full() {
+        use std::os::unix::process::ExitStatusExt as _;
+        let bus = ExitStatus::from_raw(libc::SIGBUS);
+        let hint = sigbus_hint(bus, Some((12 << 10, 64 << 20))).unwrap();
+        assert!(
+            hint.contains("shared memory is full: /dev/shm has 12 KiB free of 64.0 MiB"),
+            "{hint}"
+        );
+        assert!(sigbus_hint(bus, None)
+            .unwrap()
+            .contains("/dev/shm could not be inspected"));
+        for other in [
+            ExitStatus::from_raw(libc::SIGSEGV),
+            ExitStatus::from_raw(1 << 8),
+        ] {
+            assert_eq!(sigbus_hint(other, Some((0, 1))), None);
+        }
+    }
+
+    /// A process's start time identifies it across pid reuse; a zombie or a reaped process has
+    /// none; a command name with spaces and `)` does not shift the fields.
+    #[test]
+    fn process_started_reads_the_start_time_of_live_processes_only() {
+        let own = process_started(std::process::id()).expect("this process runs");
+        assert_eq!(process_started(std::process::id()), Some(own));
+        let dir = std::env::temp_dir().join(format!("started-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let odd = dir.join("a) b 7 Z");
+        std::fs::copy("/bin/sleep", &odd).expect("copy sleep");
+        let mut child = std::process::Command::new(&odd)
+            .arg("30")
+            .spawn()
+            .expect("spawn");
+        let pid = child.id();
+        let started = process_started(pid).expect("child runs");
+        assert!(started >= own, "{started} < {own}");
+        child.kill().expect("kill");
+        // Killed but not reaped: a zombie, not running.
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while process_started(pid).is_some() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert_eq!(process_started(pid), None);
+        assert!(
+            std::fs::metadata(format!("/proc/{pid}")).is_ok(),
+            "reaped early"
+        );
+        child.wait().expect("reap");
+        assert_eq!(process_started(pid), None);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
