@@ -16,9 +16,35 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     if n == 0 {
         return;
     }
+    // Products of two entries (QL's e_l·e_(l+1), the squares in its rotations) leave f64's
+    // range for a matrix far from 1 in size, and the eigenvalues came out 0 or NaN. Such a
+    // matrix is scaled by a power of 2 towards 1 first, as LAPACK's dsteqr does; a power of 2
+    // scales every step of the algorithm exactly, so the eigenvectors are those of the matrix
+    // and the eigenvalues scale back exactly. Other matrices are decomposed as they are.
+    let unscale = unscale_for(v.iter().fold(0.0f64, |m, x| m.max(x.abs())));
+    if let Some(unscale) = unscale {
+        let scale = 1.0 / unscale;
+        v.iter_mut().for_each(|x| *x *= scale);
+    }
     reduce(n, v, d, e);
     accumulate(n, v, d, e);
     ql::<true>(n, v, d, e);
+    if let Some(unscale) = unscale {
+        d.iter_mut().for_each(|x| *x *= unscale);
+    }
+}
+
+/// For a symmetric matrix whose largest |entry| is `amax`: the power of 2 to divide it by
+/// before an eigen-decomposition (and to multiply the eigenvalues by after), or `None` if
+/// `amax` is within 2^±240, where the square of an entry and its product with f64::EPSILON stay
+/// far inside f64's normal range and the matrix is decomposed as it is. A power of 2 scales
+/// every step of the algorithms exactly.
+pub(crate) fn unscale_for(amax: f64) -> Option<f64> {
+    const SAFE_MIN: f64 = 1.0 / (1u128 << 120) as f64 / (1u128 << 120) as f64;
+    if !(amax.is_finite() && amax > 0.0) || (SAFE_MIN..=1.0 / SAFE_MIN).contains(&amax) {
+        return None;
+    }
+    Some(2f64.powi((amax.log2().floor() as i32).clamp(-1022, 1023)))
 }
 
 /// Householder reduction of the symmetric matrix in `v` to tridiagonal form (tred2's first
@@ -150,7 +176,7 @@ fn ql<const VECTORS: bool>(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]
             for _ in 0..100 {
                 let mut g = d[l];
                 let mut p = (d[l + 1] - g) / (2.0 * e[l]);
-                let mut r = (p * p + 1.0).sqrt();
+                let mut r = hypot(p, 1.0);
                 if p < 0.0 {
                     r = -r;
                 }
@@ -172,7 +198,7 @@ fn ql<const VECTORS: bool>(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]
                     s2 = s;
                     g = c * e[i];
                     h = c * p;
-                    r = (p * p + e[i] * e[i]).sqrt();
+                    r = hypot(p, e[i]);
                     e[i + 1] = s * r;
                     s = e[i] / r;
                     c = p / r;
@@ -197,6 +223,21 @@ fn ql<const VECTORS: bool>(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]
         }
         d[l] += f;
         e[l] = 0.0;
+    }
+}
+
+/// sqrt(x² + y²) by the plain formula, which vectorises and costs a fraction of `f64::hypot`,
+/// except where the squares leave the range in which it is exact to rounding: an off-diagonal
+/// many orders of magnitude below the diagonals beside it makes a QL shift p whose square
+/// overflows, and QL then divided by ∞ (eigenvalues 0 and ∞, or NaN). Within the range the
+/// result is the formula's, bit for bit, as before.
+#[inline(always)]
+fn hypot(x: f64, y: f64) -> f64 {
+    let s = x * x + y * y;
+    if (f64::MIN_POSITIVE / f64::EPSILON..f64::INFINITY).contains(&s) {
+        s.sqrt()
+    } else {
+        x.hypot(y)
     }
 }
 
@@ -720,6 +761,60 @@ mod tests {
             let zm = DMatrix::from_columns(&vectors);
             assert!((zm.transpose() * &zm - DMatrix::identity(n, n)).amax() < 1e-12 * n as f64);
         }
+    }
+
+    /// A covariance driven towards 0 (CEM, or λ_min = 0, over many updates) or made huge has
+    /// entries far from 1: the QL rotations' sqrt(p² + e²) underflowed to 0 (entries near
+    /// 1e-300) or overflowed (a p of 1e160 from tiny off-diagonals), and the eigenvalues came out
+    /// ±inf or NaN, which the sampler turned into NaN parameters. Scaled matrices must decompose
+    /// as well as unscaled ones, relative to their size.
+    #[test]
+    fn decomposes_matrices_of_any_scale() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+        for scale in [
+            1e-305, 1e-300, 1e-250, 1e-200, 1e-160, 1e-32, 1e150, 1e200, 1e300,
+        ] {
+            for trial in 0..40 {
+                let n = 3 + trial % 30;
+                // Rank n/3: most eigenvalues are 0 to rounding, as in a low-rank covariance.
+                let b = DMatrix::from_fn(n, (n / 3).max(1), |_, _| rng.random_range(-1.0..1.0));
+                let a = &b * b.transpose() * (scale / n as f64);
+                let a = (&a + a.transpose()) * 0.5;
+                let mut v = a.as_slice().to_vec();
+                let (mut d, mut e) = (vec![0.0; n], vec![0.0; n]);
+                symmetric_eigen(n, &mut v, &mut d, &mut e);
+                assert!(
+                    d.iter().chain(&v).all(|x| x.is_finite()),
+                    "scale {scale:e}, n = {n}: eigenvalues {d:?}"
+                );
+                let vm = DMatrix::from_column_slice(n, n, &v);
+                let rebuilt = &vm
+                    * DMatrix::from_diagonal(&nalgebra::DVector::from_vec(d.clone()))
+                    * vm.transpose();
+                let off = (&rebuilt - &a).amax() / a.amax();
+                assert!(
+                    off < 1e-12 * n as f64,
+                    "scale {scale:e}, n = {n}: off by {off:e}"
+                );
+            }
+        }
+        // Within the range, an off-diagonal 1e-190 beside diagonals 1e-200 and 1 made QL's first
+        // shift p = (1 − 1e-200)/(2·1e-190) ≈ 5e189, whose square overflowed: eigenvalues 0 and
+        // ∞ instead of 1e-200 and 1 (the CEM run of P = 200 that drew NaN parameters).
+        #[rustfmt::skip]
+        let a = DMatrix::from_row_slice(3, 3, &[
+            1e-200, 1e-190, 0.0,
+            1e-190, 1.0, 0.0,
+            0.0, 0.0, 2.0,
+        ]);
+        let mut v = a.as_slice().to_vec();
+        let (mut d, mut e) = (vec![0.0; 3], vec![0.0; 3]);
+        symmetric_eigen(3, &mut v, &mut d, &mut e);
+        d.sort_by(f64::total_cmp);
+        assert!(
+            (d[0] / 1e-200 - 1.0).abs() < 1e-12 && d[1] == 1.0 && d[2] == 2.0,
+            "{d:?}"
+        );
     }
 
     #[test]

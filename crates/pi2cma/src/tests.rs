@@ -888,3 +888,57 @@ fn per_dimension_needs_p_to_be_a_multiple_of_the_block() {
     };
     assert!(zero.check().is_err());
 }
+
+/// A user whose task stops giving information (costs unrelated to θ) keeps learning: CEM has no
+/// lower bound, so Σ shrinks towards 0 update after update, as does PI²-CMA bounded to
+/// [0, 1e-300]. Σ then has entries far below 1 and eigenvalues spanning hundreds of orders of
+/// magnitude, and the eigen-decomposition the sampler falls back on (Cholesky fails on a
+/// singular Σ) gave eigenvalues ±∞: parameters came out NaN after 253 CEM updates of P = 200
+/// ("cost of rollout 1 (terminal) is NaN" from a task that multiplies θ by 0), and at once
+/// for the 1e-300 bound. Every batch must stay finite and every update go through.
+#[test]
+fn a_covariance_shrinking_towards_zero_keeps_drawing_finite_parameters() {
+    let episodic = |mapping, bounds| Hyperparameters {
+        evaluation_in_update: false,
+        ..hp(
+            10,
+            mapping,
+            Exploration::Adaptive { bounds },
+            Weighting::Episodic,
+        )
+    };
+    let cem = episodic(
+        CostMapping::Elites { count: 3 },
+        EigenvalueBounds::unbounded(),
+    );
+    let tiny = episodic(
+        CostMapping::Exponential { eliteness: 10.0 },
+        EigenvalueBounds::new(0.0, 1e-300).unwrap(),
+    );
+    for (name, hp, updates) in [("CEM", cem, 300u64), ("λ_max = 1e-300", tiny, 5)] {
+        let p = 200;
+        let initial = Distribution::isotropic(DVector::from_element(p, 3.0), 1.0).unwrap();
+        let mut opt = Optimizer::new(hp, initial, 3, 7, None).unwrap();
+        for u in 0..updates {
+            let lambda = opt.lambda();
+            let batch = opt.ask();
+            if let Some(bad) = batch.values.iter().position(|v| !v.is_finite()) {
+                panic!(
+                    "{name}, update {u}: parameter {bad} of the batch is {} (λ {:e})",
+                    batch.values[bad], lambda
+                );
+            }
+            let mut costs = opt.cost_batch();
+            for k in 0..10 {
+                let uninformative = ((u * 31 + k * 7) % 13) as f64;
+                costs.insert(k as usize, &[0.0; 3], uninformative).unwrap();
+            }
+            if let Err(e) = opt.tell(&costs) {
+                panic!("{name}, update {u}: {e}");
+            }
+        }
+        let d = opt.distribution();
+        assert!(opt.lambda().is_finite() && opt.lambda() >= 0.0, "{name}");
+        assert!(d.smallest_eigenvalue().is_finite(), "{name}");
+    }
+}
