@@ -88,6 +88,13 @@ pub fn largest_eigenvalue(m: &DMatrix<f64>) -> f64 {
 /// returns the eigenvalues and unit eigenvectors (as [x, y] pairs).
 #[inline]
 pub fn eigen2(a: f64, b: f64, c: f64) -> ([f64; 2], [[f64; 2]; 2]) {
+    // Entries past ~1e154 overflow the squares below (λ came out ∞ for a finite Σ), entries
+    // below ~1e-154 underflow them (λ of a collapsed CEM Σ came out wrong): such a matrix is
+    // decomposed scaled by a power of 2, which is exact.
+    if let Some(unscale) = crate::symeig::unscale_for(a.abs().max(b.abs()).max(c.abs())) {
+        let (l, v) = eigen2(a / unscale, b / unscale, c / unscale);
+        return ([l[0] * unscale, l[1] * unscale], v);
+    }
     let half_trace = 0.5 * (a + c);
     let half_diff = 0.5 * (a - c);
     // sqrt(x² + y²) rather than hypot: covariance entries are far from overflow, and hypot's
@@ -318,6 +325,30 @@ mod tests {
                 assert!((m * x - x * l[i]).amax() < 1e-9);
                 assert!((x.norm() - 1.0).abs() < 1e-12);
             }
+        }
+    }
+
+    /// The closed form squares the entries: a 2×2 Σ of entries 1e170 had λ = ∞ (the summary of
+    /// an update from λ_init = 1e300 reported it), [[2, 1], [1, 1.5]]·1e-170 (a collapsed CEM
+    /// Σ) had λ = 1.75e-170 instead of 2.78e-170. The eigenpairs of a scaled matrix must be
+    /// those of the unscaled one, scaled.
+    #[test]
+    fn eigen2_of_entries_far_from_one() {
+        let (l, v) = eigen2(2.0, 1.0, 1.5);
+        for scale in [1e-300, 1e-170, 1e170, 1e300] {
+            let (ls, vs) = eigen2(2.0 * scale, scale, 1.5 * scale);
+            for i in 0..2 {
+                assert!(
+                    (ls[i] / scale - l[i]).abs() < 1e-14 * l[i].abs(),
+                    "scale {scale:e}: {ls:?} vs {l:?}"
+                );
+                for j in 0..2 {
+                    assert!((vs[i][j] - v[i][j]).abs() < 1e-14, "{vs:?} vs {v:?}");
+                }
+            }
+            let m = DMatrix::from_row_slice(2, 2, &[2.0 * scale, scale, scale, 1.5 * scale]);
+            let lambda = largest_eigenvalue(&m) / scale;
+            assert!((lambda - l[0].max(l[1])).abs() < 1e-14 * lambda, "{lambda}");
         }
     }
 

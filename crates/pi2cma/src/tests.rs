@@ -439,10 +439,12 @@ fn threaded_low_rank_update_is_bit_identical_and_matches_algorithm_1() {
     assert!((&one.covariance - &cov).amax() < 1e-10 * (1.0 + cov.amax()));
 }
 
-/// Finite costs and a finite distribution can still overflow the update's arithmetic (here the
-/// 2×2 eigendecomposition squares covariance entries of 1e160): the update is refused, naming
-/// what went non-finite, instead of handing on a NaN distribution that fails one update later
-/// as NaN costs.
+/// Finite costs and a finite distribution can still overflow the update's arithmetic (here
+/// ε·εᵀ of samples 1e160 from the mean): the update is refused, naming what went non-finite,
+/// instead of handing on a NaN distribution that fails one update later as NaN costs. Samples
+/// 1e150 away give a Σ of entries up to 9e300, which the 2×2 closed form squared into NaN and
+/// refused too; it now scales such a Σ and computes the update: Σ_k P_k ε_k ε_kᵀ (within the
+/// bounds, so unchanged by boundcovar).
 #[test]
 fn an_update_that_overflows_is_refused() {
     let mut rule = update_rule(
@@ -458,14 +460,21 @@ fn an_update_that_overflows_is_refused() {
         2,
     );
     let old = Distribution::isotropic(DVector::zeros(2), 1e300).unwrap();
-    let samples = [0.0, 0.0, 1e150, 3e150, -2e150, 1e150];
     let costs = hand_costs();
+    let samples = [0.0, 0.0, 1e160, 3e160, -2e160, 1e160];
     let r = rule.update(&old, &samples, &costs);
     assert!(
         matches!(r, Err(CostError::NonFiniteUpdate { .. })),
         "{:?}",
         r.map(|(d, _)| d)
     );
+    let samples = [0.0, 0.0, 1e150, 3e150, -2e150, 1e150];
+    let (new, weights) = rule.update(&old, &samples, &costs).unwrap();
+    let p = &weights.per_rollout;
+    let eps = |k: usize| DVector::from_column_slice(&samples[2 * k..2 * k + 2]);
+    let expected: DMatrix<f64> = (1..3).map(|k| eps(k) * eps(k).transpose() * p[k]).sum();
+    let off = (&new.covariance - &expected).amax() / expected.amax();
+    assert!(off < 1e-14, "{} vs {expected}", new.covariance);
 }
 
 /// A distribution or sample batch of another P is refused with an error naming both shapes
