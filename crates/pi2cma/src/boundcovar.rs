@@ -9,11 +9,14 @@ use crate::error::ParameterError;
 /// Bounds on the eigenvalues of Σ. `max = f64::INFINITY` means no upper bound.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EigenvalueBounds {
+    /// Lower bound λ_min, ≥ 0: keeps exploring in every direction (0: no lower bound).
     pub min: f64,
+    /// Upper bound λ_max, ≥ `min`; `f64::INFINITY` for none.
     pub max: f64,
 }
 
 impl EigenvalueBounds {
+    /// Bounds [min, max]; refuses a negative or non-finite `min` and a `max` below it or NaN.
     pub fn new(min: f64, max: f64) -> Result<Self, ParameterError> {
         if !(min.is_finite() && min >= 0.0) {
             return Err(ParameterError::OutOfRange {
@@ -32,6 +35,7 @@ impl EigenvalueBounds {
         Ok(Self { min, max })
     }
 
+    /// [0, ∞): `boundcovar` changes nothing (CEM as usually written).
     pub fn unbounded() -> Self {
         Self {
             min: 0.0,
@@ -39,6 +43,7 @@ impl EigenvalueBounds {
         }
     }
 
+    /// `v` clipped to [min, max].
     #[inline]
     pub fn clip(&self, v: f64) -> f64 {
         v.max(self.min).min(self.max)
@@ -66,6 +71,7 @@ pub fn symmetric_eigen(m: &DMatrix<f64>) -> (Vec<f64>, DMatrix<f64>) {
     (values, vectors)
 }
 
+/// The largest eigenvalue of the symmetric matrix `m` (λ of a covariance); 0 for 0×0.
 pub fn largest_eigenvalue(m: &DMatrix<f64>) -> f64 {
     match m.nrows() {
         0 => 0.0,

@@ -7,11 +7,14 @@ use crate::error::CostError;
 /// Episodic tasks that only know a total cost report it as `terminal` with zero step costs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CostTrajectory {
+    /// q_i for the N time steps i = 0…N−1.
     pub per_step: Vec<f64>,
+    /// φ_N, added after the last step.
     pub terminal: f64,
 }
 
 impl CostTrajectory {
+    /// N zero step costs and a zero terminal cost.
     pub fn zeros(steps: usize) -> Self {
         Self {
             per_step: vec![0.0; steps],
@@ -42,6 +45,8 @@ pub struct CostBatch {
 }
 
 impl CostBatch {
+    /// An empty batch (no rollout filled yet) of K = `rollouts` trajectories of N = `steps` steps;
+    /// [`crate::Optimizer::cost_batch`] gives one of the optimizer's shape.
     pub fn new(rollouts: usize, steps: usize) -> Self {
         Self {
             steps,
@@ -51,10 +56,12 @@ impl CostBatch {
         }
     }
 
+    /// K.
     pub fn rollouts(&self) -> usize {
         self.terminal.len()
     }
 
+    /// N.
     pub fn steps(&self) -> usize {
         self.steps
     }
@@ -86,6 +93,7 @@ impl CostBatch {
         Ok(())
     }
 
+    /// [`CostBatch::insert`] of a [`CostTrajectory`].
     pub fn insert_trajectory(&mut self, k: usize, cost: &CostTrajectory) -> Result<(), CostError> {
         self.insert(k, &cost.per_step, cost.terminal)
     }
@@ -100,10 +108,12 @@ impl CostBatch {
         )
     }
 
+    /// Whether every rollout has been filled.
     pub fn is_complete(&self) -> bool {
         self.filled.iter().all(|f| *f)
     }
 
+    /// The rollouts not filled yet, ascending.
     pub fn missing(&self) -> impl Iterator<Item = usize> + '_ {
         self.filled
             .iter()
@@ -112,18 +122,22 @@ impl CostBatch {
             .map(|(k, _)| k)
     }
 
+    /// Rollout `k`'s N immediate costs.
     pub fn per_step(&self, k: usize) -> &[f64] {
         &self.per_step[k * self.steps..(k + 1) * self.steps]
     }
 
+    /// Rollout `k`'s terminal cost.
     pub fn terminal(&self, k: usize) -> f64 {
         self.terminal[k]
     }
 
+    /// Rollout `k`'s total cost S_0 (terminal plus every step).
     pub fn total(&self, k: usize) -> f64 {
         self.terminal[k] + sum(self.per_step(k))
     }
 
+    /// Rollout `k`'s costs as an owned [`CostTrajectory`].
     pub fn trajectory(&self, k: usize) -> CostTrajectory {
         CostTrajectory {
             per_step: self.per_step(k).to_vec(),
@@ -160,6 +174,7 @@ impl CostBatch {
         Ok(())
     }
 
+    /// Marks every rollout unfilled, to fill the batch again (the values stay until overwritten).
     pub fn clear(&mut self) {
         self.filled.iter_mut().for_each(|f| *f = false);
     }

@@ -9,7 +9,9 @@ use crate::error::ParameterError;
 /// Gaussian search distribution over policy parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Distribution {
+    /// θ: the P policy parameters.
     pub mean: DVector<f64>,
+    /// Σ: P×P, symmetric positive semi-definite.
     pub covariance: DMatrix<f64>,
 }
 
@@ -17,8 +19,11 @@ pub struct Distribution {
 /// parameters never depend on which process draws them or in which order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct NoiseKey {
+    /// The run's seed.
     pub seed: u64,
+    /// Index u of the update (0-based).
     pub update: u64,
+    /// Index k of the rollout within the update; 0 draws no noise.
     pub rollout: u64,
 }
 
@@ -112,6 +117,8 @@ impl rand::RngCore for Philox {
 }
 
 impl Distribution {
+    /// N(mean, covariance); refuses a covariance of another size than the mean, a non-finite
+    /// value, and a covariance that is not symmetric positive semi-definite (to rounding).
     pub fn new(mean: DVector<f64>, covariance: DMatrix<f64>) -> Result<Self, ParameterError> {
         let dim = mean.len();
         if covariance.nrows() != dim || covariance.ncols() != dim {
@@ -149,6 +156,7 @@ impl Distribution {
         Self::new(mean, DMatrix::identity(n, n) * lambda)
     }
 
+    /// P: the number of parameters.
     pub fn dim(&self) -> usize {
         self.mean.len()
     }
@@ -158,6 +166,7 @@ impl Distribution {
         largest_eigenvalue(&self.covariance)
     }
 
+    /// The smallest eigenvalue of Σ (0 for P = 0).
     pub fn smallest_eigenvalue(&self) -> f64 {
         if self.dim() == 0 {
             return 0.0;
@@ -203,6 +212,8 @@ pub struct Sampler {
 }
 
 impl Sampler {
+    /// Writes rollout `key.rollout`'s parameters into `out` (P values; panics on another
+    /// length). Rollout 0 gets the mean itself.
     pub fn sample_into(&mut self, key: NoiseKey, out: &mut [f64]) {
         let n = self.mean.len();
         assert_eq!(out.len(), n, "output slice has the wrong length");

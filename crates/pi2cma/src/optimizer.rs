@@ -10,10 +10,15 @@ use crate::update::{Exploration, Hyperparameters, UpdateRule, Weighting};
 /// The K parameter vectors of one update, row-major K × P. Row 0 is the noise-free evaluation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ParameterBatch {
+    /// The run's seed the noise was drawn with.
     pub seed: u64,
+    /// Index u of the update this batch is for.
     pub update: u64,
+    /// K: parameter vectors in the batch.
     pub rollouts: usize,
+    /// P: parameters per vector.
     pub dim: usize,
+    /// K × P values, rollout-major: [`ParameterBatch::row`] k is θ_k.
     pub values: Vec<f64>,
 }
 
@@ -43,6 +48,7 @@ impl ParameterBatch {
         }
     }
 
+    /// θ_k, the parameters of rollout `k` (P values).
     pub fn row(&self, k: usize) -> &[f64] {
         &self.values[k * self.dim..(k + 1) * self.dim]
     }
@@ -55,8 +61,9 @@ pub struct UpdateSummary {
     pub update: u64,
     /// Total cost of the evaluation rollout 0 (θ_0 = θ).
     pub eval_cost: f64,
-    /// Mean and sample standard deviation of the total costs of rollouts 1..K.
+    /// Mean of the total costs of rollouts 1..K.
     pub exploration_cost_mean: f64,
+    /// Sample standard deviation of the total costs of rollouts 1..K (0 for one such rollout).
     pub exploration_cost_std: f64,
     /// λ_u: largest eigenvalue of the Σ the batch was sampled from.
     pub lambda: f64,
@@ -64,6 +71,7 @@ pub struct UpdateSummary {
     pub lambda_next: f64,
     /// Per-rollout probability used for the mean update (time-averaged in per-time-step mode).
     pub weights: Vec<f64>,
+    /// The weighting the update used.
     pub weighting: Weighting,
 }
 
@@ -79,6 +87,10 @@ pub struct Optimizer {
 }
 
 impl Optimizer {
+    /// An optimizer at update 0. `steps` is N, the length of every cost trajectory (1 for a task
+    /// with only a total cost, told as its terminal cost); `seed` fixes every rollout's noise;
+    /// `basis_activations` (row-major N × P) only for [`crate::TemporalAveraging::BasisActivation`].
+    /// Refuses hyperparameters that cannot run, naming the field and value.
     pub fn new(
         hp: Hyperparameters,
         initial: Distribution,
@@ -103,6 +115,7 @@ impl Optimizer {
         }
     }
 
+    /// The current search distribution N(θ, Σ): after [`Optimizer::tell`], the updated one.
     pub fn distribution(&self) -> &Distribution {
         &self.distribution
     }
@@ -114,18 +127,23 @@ impl Optimizer {
         self.rule
     }
 
+    /// The hyperparameters the optimizer runs with.
     pub fn hyperparameters(&self) -> &Hyperparameters {
         self.rule.hyperparameters()
     }
 
+    /// Index u of the current update (0-based): the number of updates told so far, plus the
+    /// update the optimizer was resumed at.
     pub fn update_index(&self) -> u64 {
         self.update
     }
 
+    /// The run's seed.
     pub fn seed(&self) -> u64 {
         self.seed
     }
 
+    /// N: the length of every cost trajectory.
     pub fn steps(&self) -> usize {
         self.rule.steps()
     }

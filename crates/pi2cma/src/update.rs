@@ -19,10 +19,16 @@ pub enum Exploration {
     /// PI²: Σ stays λ·I.
     Constant,
     /// PI² with decay: Σ ← D·Σ per update, so λ_u = λ_init·D^u.
-    Decay { factor: f64 },
+    Decay {
+        /// D in (0, 1].
+        factor: f64,
+    },
     /// PI²-CMA / CEM: Σ ← probability-weighted covariance of the samples around the OLD mean,
     /// with its eigenvalues bounded to [λ_min, λ_max] (`boundcovar`).
-    Adaptive { bounds: EigenvalueBounds },
+    Adaptive {
+        /// [λ_min, λ_max] for Σ's eigenvalues.
+        bounds: EigenvalueBounds,
+    },
 }
 
 /// Which costs the probabilities are computed from.
@@ -31,7 +37,10 @@ pub enum Weighting {
     /// Only the total cost S_0 of each rollout (PI^BB, "black-box").
     Episodic,
     /// Algorithm 1: probabilities per time step from the cost-to-go, then temporal averaging.
-    PerTimeStep { temporal: TemporalAveraging },
+    PerTimeStep {
+        /// How the per-step updates are averaged over time.
+        temporal: TemporalAveraging,
+    },
 }
 
 /// Temporal averaging of the per-time-step updates.
@@ -55,7 +64,10 @@ pub enum CovarianceStructure {
     /// dimension): Σ is block-diagonal with one `block`×`block` covariance per DMP dimension
     /// (`block` = B, basis functions per dimension; P = dimensions × B). Each block gets line 23
     /// from its own parameters and boundcovar on its own; entries across blocks stay 0.
-    PerDimension { block: usize },
+    PerDimension {
+        /// B: parameters (basis functions) per DMP dimension.
+        block: usize,
+    },
 }
 
 /// Validated-on-use hyperparameters of one update rule.
@@ -63,20 +75,27 @@ pub enum CovarianceStructure {
 pub struct Hyperparameters {
     /// K: rollouts per update, including the noise-free evaluation rollout 0.
     pub rollouts: usize,
+    /// How costs become probabilities: PI²'s exponential or CEM's elites.
     pub mapping: CostMapping,
+    /// How Σ changes: constant, decaying or adapted (PI²-CMA, CEM).
     pub exploration: Exploration,
+    /// Per-time-step (Algorithm 1) or episodic probabilities.
     pub weighting: Weighting,
     /// Whether rollout 0 (θ_0 = θ) enters the update (the authors' 2012 code) or only serves as
     /// the evaluation (their later code).
     pub evaluation_in_update: bool,
+    /// One P×P Σ or one block per DMP dimension.
     pub covariance: CovarianceStructure,
 }
 
 impl Hyperparameters {
+    /// The first rollout that enters the update: 0 if the evaluation rollout does, 1 if not.
     pub fn first_updating_rollout(&self) -> usize {
         usize::from(!self.evaluation_in_update)
     }
 
+    /// Refuses values that cannot run (K < 2, an eliteness ≤ 0, more elites than rollouts, a
+    /// decay outside (0, 1], inverted bounds), naming the field and value.
     pub fn check(&self) -> Result<(), ParameterError> {
         // Rollout 0 is θ itself (ε_0 = 0): entering the update or not, it cannot move the
         // distribution, so one exploration rollout is the least either way.
@@ -320,6 +339,7 @@ impl UpdateRule {
         })
     }
 
+    /// The hyperparameters the rule runs with.
     pub fn hyperparameters(&self) -> &Hyperparameters {
         &self.hp
     }
@@ -355,6 +375,7 @@ impl UpdateRule {
         }
     }
 
+    /// P: the number of parameters.
     pub fn dim(&self) -> usize {
         self.dim
     }
@@ -366,6 +387,7 @@ impl UpdateRule {
         self.lowrank_stats
     }
 
+    /// N: the length of every cost trajectory.
     pub fn steps(&self) -> usize {
         self.steps
     }

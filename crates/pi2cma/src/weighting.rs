@@ -6,12 +6,20 @@ use crate::error::ParameterError;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum CostMapping {
     /// PI²: P_k ∝ exp(−h·(S_k − min S)/(max S − min S)), with eliteness h.
-    Exponential { eliteness: f64 },
+    Exponential {
+        /// h > 0: how strongly low costs are preferred (the paper uses 10 and 15).
+        eliteness: f64,
+    },
     /// CEM: the `count` lowest-cost rollouts get 1/count each, the rest 0.
-    Elites { count: usize },
+    Elites {
+        /// Rollouts that share the probability, 1 ≤ count ≤ rollouts in the update.
+        count: usize,
+    },
 }
 
 impl CostMapping {
+    /// Refuses an eliteness that is not finite and > 0, and an elite count outside
+    /// 1..=`rollouts_in_update`.
     pub fn check(&self, rollouts_in_update: usize) -> Result<(), ParameterError> {
         match *self {
             CostMapping::Exponential { eliteness } => {
