@@ -13,8 +13,8 @@ pub use config::{
     executable_file, ConfigError, CovarianceName, ExternalConfig, MemoryNeed, MemoryPart, Method,
     OptimizerSection, PipelineSection, RecordingSection, RolloutAt, RunConfig, RunSection,
     ScheduleEntry, TaskSection, TemporalName, ViaPointConfig, WeightingName, DEFAULT_CONFIG,
-    LAMBDA_RANGE, MAX_DMP_WORK, MAX_ELITENESS, MAX_EXTERNAL_SETTINGS, MAX_NONFINITE_RERUNS,
-    MAX_PARAMETERS, MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
+    LAMBDA_RANGE, MAX_DMP_WORK, MAX_EXTERNAL_SETTINGS, MAX_NONFINITE_RERUNS, MAX_PARAMETERS,
+    MAX_ROLLOUTS, MAX_STEPS, MEMORY_LIMIT_BYTES,
 };
 
 pub use start::{scheduled_at, Start, StartFileError};
