@@ -27,8 +27,9 @@ cargo build --quiet "${flags[@]}" -p pi2cma-cli --bins
 bin="$target/$profile"
 work="$(mktemp -d)"
 # Background processes too: a recorder left waiting by a failed stage held the output pipe open,
-# and a CI log piped through it never ended.
-trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$work"' EXIT
+# and a CI log piped through it never ended. (A bare `kill` with no jobs left fails, and the ERR
+# trap then reported a failure after the last line of a passing run.)
+trap 'for job in $(jobs -p); do kill "$job" 2>/dev/null || true; done; rm -rf "$work"' EXIT
 # The last line counts the checks that ran: each stage is added when it has passed, and a failing
 # command (set -e) reports the stage it was in.
 passed=()
