@@ -1,7 +1,8 @@
 //! The wire contract of the pi2cma pipeline: every message type, every service name and every
 //! service's builder settings, in one place, so that every process — including a rollout worker
 //! written in another language with iceoryx2's C, C++ or Python bindings — opens each service with
-//! the same settings.
+//! the same settings. README.md's "Wire layout" section restates it for those workers (names,
+//! type names, sizes, C declarations); tests/readme.rs fails when the two differ.
 //!
 //! **Architecture Invariant:** this crate knows nothing of the update rule, tasks or configs. It
 //! takes plain numbers ([`Limits`]) and returns iceoryx2 port factories. Nothing on the data paths
