@@ -18,16 +18,58 @@
 //! The trajectory is affine in the weights, y(t) = y_base(t) + Φ(t)·θ, and Φ does not depend on θ:
 //! [`AffineDmp`] precomputes it once, so a rollout is a few multiply-adds per step. This crate is
 //! a policy representation only; it knows nothing of costs or learning.
+//!
+//! # As a policy in your own task
+//!
+//! Build the [`Dmp`] once, take its minimum-jerk weights as the search's initial mean, and turn
+//! each θ the optimizer asks for into a trajectory with the precomputed [`AffineDmp`]. θ holds
+//! the B weights of dimension 0, then those of dimension 1, and so on; a weight moves its own
+//! dimension only, most around its basis function's centre in time:
+//!
+//! ```
+//! use dmp::{Dmp, Gains, Trajectory};
+//!
+//! // Two joints from (0.3, 1.6) rad to (1.4, 0.5) rad in 1 s on a 10 ms grid, 5 basis
+//! // functions per joint: N = 101 steps, P = 10 weights.
+//! let dmp = Dmp::new(vec![0.3, 1.6], vec![1.4, 0.5], 5, 1.0, 0.01, Gains::default())?;
+//! assert_eq!((dmp.steps(), dmp.parameters()), (101, 10));
+//! let theta = dmp.fit_min_jerk(1.0);
+//! let affine = dmp.affine();
+//! let mut reach = Trajectory::zeros(dmp.steps(), dmp.dims(), dmp.dt());
+//! affine.rollout_into(&theta, &mut reach);
+//! // Row-major N × D: joint d at step i is at i·D + d. The fitted reach starts where it
+//! // should and ends within 5 mrad of the goal.
+//! assert_eq!(&reach.pos[..2], &[0.3, 1.6]);
+//! let end = &reach.pos[100 * 2..];
+//! assert!((end[0] - 1.4).abs() < 5e-3 && (end[1] - 0.5).abs() < 5e-3, "{end:?}");
+//!
+//! // Raising joint 1's third weight (index 5 + 2; its basis function is centred at t = 0.5 s)
+//! // bends joint 1 by 18 mrad mid-reach and leaves joint 0 as it was, bit for bit.
+//! let mut bent = theta.clone();
+//! bent[5 + 2] += 50.0;
+//! let moved = affine.rollout(&bent);
+//! assert_eq!(moved.pos[50 * 2], reach.pos[50 * 2]);
+//! assert!(moved.pos[50 * 2 + 1] - reach.pos[50 * 2 + 1] > 0.01);
+//! # Ok::<(), dmp::DmpError>(())
+//! ```
+
+#![warn(missing_docs)]
 
 use nalgebra::{DMatrix, DVector};
 use thiserror::Error;
 
+/// A DMP specification [`Dmp::new`] refuses.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum DmpError {
+    /// One argument of [`Dmp::new`] is out of range; nothing was built.
     #[error("{field} = {value}: {reason}")]
     Invalid {
+        /// The argument, by the name a config gives it (`basis_functions`, `duration`, `dt`,
+        /// `goal`, `start/goal`).
         field: &'static str,
+        /// The value given, as text.
         value: String,
+        /// What the value must be.
         reason: &'static str,
     },
 }
@@ -40,11 +82,16 @@ fn invalid(field: &'static str, value: impl ToString, reason: &'static str) -> D
     }
 }
 
-/// Gains of the transformation and phase systems.
+/// Gains of the transformation and phase systems (dimensionless: time enters through τ). The
+/// default, α_z = 25, β_z = α_z/4, α_x = 4, is critically damped and is what every built-in task
+/// and the paper's results use; the weights' scale, and so λ, depend on it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Gains {
+    /// α_z: stiffness-like gain of the transformation system τ·ż = α_z·(β_z·(g − y) − z) + f.
     pub alpha_z: f64,
+    /// β_z: with α_z, the spring towards the goal; α_z/4 makes the system critically damped.
     pub beta_z: f64,
+    /// α_x: decay rate of the phase x = exp(−α_x·t/τ), which falls from 1 to e^−α_x at t = τ.
     pub alpha_x: f64,
 }
 
@@ -73,17 +120,25 @@ pub struct Dmp {
     widths: Vec<f64>,
 }
 
-/// Positions, velocities and accelerations on the time grid, row-major N × D.
+/// Positions, velocities and accelerations on the time grid, row-major N × D: the value of
+/// dimension d at step i (time i·dt) is at index i·D + d. Velocities and accelerations are per
+/// second (units of y per s and per s²), not per unit of phase.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trajectory {
+    /// D: the number of dimensions (e.g. joints); at least 1.
     pub dims: usize,
+    /// The grid's step, in seconds.
     pub dt: f64,
+    /// y: N × D positions.
     pub pos: Vec<f64>,
+    /// ẏ: N × D velocities, per second.
     pub vel: Vec<f64>,
+    /// ÿ: N × D accelerations, per second².
     pub acc: Vec<f64>,
 }
 
 impl Trajectory {
+    /// An all-zero trajectory of `steps` × `dims`: the buffer [`AffineDmp::rollout_into`] fills.
     pub fn zeros(steps: usize, dims: usize, dt: f64) -> Self {
         Self {
             dims,
@@ -94,6 +149,7 @@ impl Trajectory {
         }
     }
 
+    /// N: the number of grid points (`pos.len() / dims`).
     pub fn steps(&self) -> usize {
         self.pos.len() / self.dims
     }
@@ -122,6 +178,10 @@ pub fn min_jerk(y0: &[f64], goal: &[f64], duration: f64, dt: f64, steps: usize) 
 impl Dmp {
     /// A DMP from `y0` to `goal` over `duration` seconds, sampled every `dt` (N = duration/dt + 1
     /// steps, so both ends are on the grid), with `basis` basis functions per dimension.
+    ///
+    /// Fails with [`DmpError::Invalid`] when `y0` and `goal` differ in length or are empty or
+    /// not finite, `basis` is 0, `duration` is not finite and positive, or `dt` is not in
+    /// (0, duration] or does not divide `duration` into a whole number of steps.
     pub fn new(
         y0: Vec<f64>,
         goal: Vec<f64>,
@@ -194,10 +254,12 @@ impl Dmp {
         })
     }
 
+    /// D: the number of dimensions (the length of start and goal).
     pub fn dims(&self) -> usize {
         self.y0.len()
     }
 
+    /// B: basis functions per dimension.
     pub fn basis(&self) -> usize {
         self.basis
     }
@@ -207,18 +269,22 @@ impl Dmp {
         self.dims() * self.basis
     }
 
+    /// N = duration/dt + 1: grid points, both ends included.
     pub fn steps(&self) -> usize {
         self.steps
     }
 
+    /// The grid's step, in seconds.
     pub fn dt(&self) -> f64 {
         self.dt
     }
 
+    /// τ, in seconds: the movement's duration and the DMP's time constant.
     pub fn duration(&self) -> f64 {
         self.tau
     }
 
+    /// The phase x(t_i) = exp(−α_x·i·dt/τ) at step `i`: 1 at the start, e^−α_x at t = τ.
     pub fn phase(&self, i: usize) -> f64 {
         (-self.gains.alpha_x * i as f64 * self.dt / self.tau).exp()
     }
@@ -253,6 +319,10 @@ impl Dmp {
     }
 
     /// Integrates the DMP with weights θ (layout: B weights of dimension 0, then dimension 1, …).
+    ///
+    /// # Panics
+    ///
+    /// If `weights` does not have [`Dmp::parameters`] values.
     pub fn integrate(&self, weights: &[f64]) -> Trajectory {
         assert_eq!(weights.len(), self.parameters(), "wrong number of weights");
         let (dims, b) = (self.dims(), self.basis);
@@ -326,7 +396,8 @@ impl Dmp {
         self.fit(&target)
     }
 
-    /// Least-squares weights reproducing the positions of `target`.
+    /// Least-squares weights reproducing the positions of `target`, which must be on this DMP's
+    /// grid (N × D positions; velocities and accelerations are not used).
     pub fn fit(&self, target: &Trajectory) -> Vec<f64> {
         let aff = self.affine();
         let (n, dims, b) = (self.steps, self.dims(), self.basis);
@@ -363,22 +434,27 @@ pub struct AffineDmp {
 }
 
 impl AffineDmp {
+    /// N, as [`Dmp::steps`].
     pub fn steps(&self) -> usize {
         self.steps
     }
 
+    /// D, as [`Dmp::dims`].
     pub fn dims(&self) -> usize {
         self.dims
     }
 
+    /// B, as [`Dmp::basis`].
     pub fn basis(&self) -> usize {
         self.basis
     }
 
+    /// P = D·B: the length of the weight vector, as [`Dmp::parameters`].
     pub fn parameters(&self) -> usize {
         self.dims * self.basis
     }
 
+    /// The grid's step, in seconds.
     pub fn dt(&self) -> f64 {
         self.dt
     }
@@ -404,16 +480,20 @@ impl AffineDmp {
         );
     }
 
+    /// y_d(t_i) for weights θ (layout as in [`Dmp::integrate`]), without integrating the rest:
+    /// B multiply-adds. Panics if `i` ≥ N, `d` ≥ D or θ is too short.
     #[inline]
     pub fn position(&self, i: usize, d: usize, weights: &[f64]) -> f64 {
         self.eval(&self.base_pos, &self.phi_pos, i, d, weights)
     }
 
+    /// ẏ_d(t_i) per second, as [`AffineDmp::position`].
     #[inline]
     pub fn velocity(&self, i: usize, d: usize, weights: &[f64]) -> f64 {
         self.eval(&self.base_vel, &self.phi_vel, i, d, weights)
     }
 
+    /// ÿ_d(t_i) per second², as [`AffineDmp::position`].
     #[inline]
     pub fn acceleration(&self, i: usize, d: usize, weights: &[f64]) -> f64 {
         self.eval(&self.base_acc, &self.phi_acc, i, d, weights)
@@ -434,7 +514,8 @@ impl AffineDmp {
         self.eval_all(&self.base_acc, &self.phi_acc, d, weights, out)
     }
 
-    /// The whole trajectory for θ into `out` (no allocation).
+    /// The whole trajectory for θ into `out` (no allocation): what a task's rollout calls once
+    /// per θ. `out` must be N × D, e.g. `Trajectory::zeros(steps, dims, dt)` made once.
     pub fn rollout_into(&self, weights: &[f64], out: &mut Trajectory) {
         for i in 0..self.steps {
             for d in 0..self.dims {
@@ -446,6 +527,7 @@ impl AffineDmp {
         }
     }
 
+    /// The whole trajectory for θ, allocated: [`AffineDmp::rollout_into`] for a one-off.
     pub fn rollout(&self, weights: &[f64]) -> Trajectory {
         let mut t = Trajectory::zeros(self.steps, self.dims, self.dt);
         self.rollout_into(weights, &mut t);
