@@ -5,6 +5,136 @@
 //! [`TaskSchedule`] or a user changes while learning runs. This crate knows nothing of the update
 //! rule or of how rollouts are distributed; the T-ball task and users' own tasks implement the
 //! same trait.
+//!
+//! # Your own simulator or robot as a [`Task`]
+//!
+//! Implement the eight methods of [`Task`] (one, [`Task::basis_activations`], has a default):
+//!
+//! - the shape: [`Task::parameters`] P (the length of θ), [`Task::steps`] N (the length of a cost
+//!   trajectory; 1 for a task that only knows a total cost), and [`Task::initial_mean`];
+//! - [`Task::rollout`]: execute θ, write the N immediate costs into `per_step` (zeroed when it
+//!   comes) and return the terminal cost. Put a cost at the step where it arises (effort at
+//!   every step, a via-point miss at the via-point's step): with per-time-step weighting, the
+//!   paper's Algorithm 1, the update at step i weighs the rollouts by their cost-to-go from i,
+//!   the terminal cost plus the immediate costs of steps i…N−1. What only the end state tells
+//!   (a distance to the goal, a ball's landing point) is the terminal cost. Only costs
+//!   relative to each other matter (PI² normalises each step's costs by their range), but they
+//!   must be finite: a NaN or ±∞ fails the update (or reruns the rollout, with
+//!   `run.nonfinite_reruns`);
+//! - the settings, the task's parameters a run may change while it learns (a target, a mass):
+//!   [`Task::settings`] lists their current values by name, and [`Task::set`] changes one, or
+//!   refuses the value with a [`TaskError`] and leaves the task as it was. An executor calls
+//!   `set` between rollouts, never during one: with the config's values before the first, then
+//!   with a [`TaskSchedule`]'s or an operator's changes from the update they are due at.
+//!
+//! Then run it in a process of your own with `pipeline::worker::serve` (README, "Your own
+//! simulator or robot"; `crates/supervisor/examples/reach-worker.rs` is a complete worker), or
+//! in this thread with `session::InProcess::with_task`. In both the config declares the
+//! task's shape (`[task.external]`), and the run starts from the config's `initial_mean` and
+//! setting values, not from those your task starts with.
+//!
+//! A slider that a DMP moves from 0 to 1 m in 1 s and that should stop at `target`:
+//!
+//! ```
+//! use dmp::{AffineDmp, Dmp, Gains, Trajectory};
+//! use tasks::{check_initial_rollout, Task, TaskChange, TaskError, TaskSchedule};
+//!
+//! struct Slider {
+//!     dmp: AffineDmp,
+//!     mean: Vec<f64>,
+//!     motion: Trajectory,
+//!     target: f64,
+//! }
+//!
+//! impl Slider {
+//!     fn new() -> Result<Self, dmp::DmpError> {
+//!         let dmp = Dmp::new(vec![0.0], vec![1.0], 4, 1.0, 0.01, Gains::default())?;
+//!         Ok(Self {
+//!             mean: dmp.fit_min_jerk(1.0),
+//!             motion: Trajectory::zeros(dmp.steps(), 1, dmp.dt()),
+//!             dmp: dmp.affine(),
+//!             target: 1.0,
+//!         })
+//!     }
+//! }
+//!
+//! impl Task for Slider {
+//!     fn name(&self) -> &'static str {
+//!         "slider"
+//!     }
+//!     fn parameters(&self) -> usize {
+//!         self.dmp.parameters() // P = 4
+//!     }
+//!     fn steps(&self) -> usize {
+//!         self.dmp.steps() // N = 101
+//!     }
+//!     fn initial_mean(&self) -> Vec<f64> {
+//!         self.mean.clone()
+//!     }
+//!     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
+//!         // Your simulator or robot goes here; this slider follows the DMP exactly.
+//!         self.dmp.rollout_into(theta, &mut self.motion);
+//!         let n = per_step.len();
+//!         for (cost, acc) in per_step.iter_mut().zip(&self.motion.acc) {
+//!             *cost = acc * acc / n as f64; // effort, at the step it is spent
+//!         }
+//!         1e3 * (self.motion.pos[n - 1] - self.target).powi(2) // where it stopped
+//!     }
+//!     fn settings(&self) -> Vec<(&'static str, f64)> {
+//!         vec![("target", self.target)]
+//!     }
+//!     fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+//!         match name {
+//!             "target" if (0.0..=2.0).contains(&value) => {
+//!                 self.target = value;
+//!                 Ok(())
+//!             }
+//!             "target" => Err(TaskError::InvalidSetting {
+//!                 task: "slider",
+//!                 name: name.into(),
+//!                 value,
+//!                 reason: "the rail is 2 m long",
+//!             }),
+//!             _ => Err(TaskError::UnknownSetting {
+//!                 task: "slider",
+//!                 name: name.into(),
+//!                 known: "target".into(),
+//!             }),
+//!         }
+//!     }
+//! }
+//!
+//! let mut slider = Slider::new()?;
+//! // What a config's checks ask of a built-in task, worth a test of your own: the initial
+//! // mean's costs are finite, and every scheduled change is one the task takes.
+//! check_initial_rollout(&mut slider)?;
+//! let change = |name: &str| TaskChange { from_update: 20, name: name.into(), value: 1.2 };
+//! let schedule = TaskSchedule::new(vec![change("target")]);
+//! schedule.validate(&mut slider)?;
+//! let typo = TaskSchedule::new(vec![change("traget")]).validate(&mut slider);
+//! assert_eq!(
+//!     typo.unwrap_err().to_string(),
+//!     "task `slider` has no setting `traget` (it has: target)"
+//! );
+//! // A refused value leaves the task as it was.
+//! assert!(slider.set("target", 3.0).is_err());
+//! assert_eq!(slider.settings(), [("target", 1.0)]);
+//!
+//! // The state of any update, as an executor brings a task to it: the target moves at 20.
+//! let (initial, theta) = (slider.settings(), slider.initial_mean());
+//! let mut per_step = vec![0.0; slider.steps()];
+//! schedule.configure(&mut slider, &initial, 19)?;
+//! let terminal_19 = slider.rollout(&theta, &mut per_step);
+//! per_step.fill(0.0);
+//! schedule.configure(&mut slider, &initial, 20)?;
+//! let terminal_20 = slider.rollout(&theta, &mut per_step);
+//! // The minimum-jerk mean stops 5 mm past 1 m: a miss that costs 0.024 up to update 19,
+//! // and 38 from update 20 on, when it is 0.195 m.
+//! assert!(terminal_19 < 0.1 && terminal_20 > 30.0, "{terminal_19} {terminal_20}");
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+#![warn(missing_docs)]
 
 use std::time::Duration;
 
@@ -33,24 +163,43 @@ pub fn settings_text<N: std::fmt::Display>(settings: impl IntoIterator<Item = (N
     list.join(", ")
 }
 
+/// Why a task refused a setting or could not be built. `task` is always [`Task::name`]; a task
+/// of your own returns these from [`Task::set`] (and may from its constructor).
 #[derive(Debug, Clone, PartialEq, Error)]
 #[non_exhaustive]
 pub enum TaskError {
+    /// [`Task::set`] was given a name the task does not have.
     #[error("task `{task}` has no setting `{name}` (it has: {known})")]
     UnknownSetting {
+        /// The task's name.
         task: &'static str,
+        /// The name asked for.
         name: String,
+        /// The task's setting names, comma-separated (`none` for a task without settings).
         known: String,
     },
+    /// A value of a known setting that the task cannot run with; the task is unchanged.
     #[error("task `{task}`: {name} = {}: {reason}", value_text(*.value))]
     InvalidSetting {
+        /// The task's name.
         task: &'static str,
+        /// The setting.
         name: String,
+        /// The value refused.
         value: f64,
+        /// What the value must be.
         reason: &'static str,
     },
+    /// A specification or state the task cannot run with, explained whole in `reason`: a DMP
+    /// that cannot be built, an external task's declared shape, settings under which the
+    /// initial mean's costs are not finite ([`check_initial_rollout`]).
     #[error("task `{task}`: {reason}")]
-    Invalid { task: &'static str, reason: String },
+    Invalid {
+        /// The task's name.
+        task: &'static str,
+        /// What is wrong, naming the values.
+        reason: String,
+    },
 }
 
 /// A policy with its cost function.
@@ -59,22 +208,42 @@ pub enum TaskError {
 /// (`session::InProcess`) keep their task on the thread that built it, so a task may hold
 /// what must stay there (an `Rc`, a robot driver's handle). Code that moves a task to another
 /// thread asks for `Task + Send` itself.
+///
+/// How to implement it for a simulator or robot of your own, with an example: the
+/// [crate documentation](crate).
 pub trait Task {
+    /// The task's name in messages and errors (``task `via-point`: …``), e.g. `"reach"`.
     fn name(&self) -> &'static str;
-    /// P: the length of θ.
+    /// P: the length of θ. Constant for the task's life; a run of a task of your own checks it
+    /// against its config's `parameters`.
     fn parameters(&self) -> usize;
-    /// N: the length of a cost trajectory.
+    /// N: the length of a cost trajectory, i.e. of `per_step` in [`Task::rollout`]; 1 for a
+    /// task that only knows a total cost (returned as the terminal cost). Constant, and checked
+    /// like P.
     fn steps(&self) -> usize;
-    /// The initial mean of the search distribution (e.g. a DMP fitted to a minimum-jerk movement).
+    /// The initial mean of the search distribution (e.g. a DMP fitted to a minimum-jerk movement),
+    /// P finite values. A `[task.external]` run starts from the config's `initial_mean` instead:
+    /// copy these values there.
     fn initial_mean(&self) -> Vec<f64>;
     /// Row-major N × P basis activations, for the original PI²'s per-parameter temporal weights.
+    /// Only `optimizer.temporal_averaging = "basis-activation"` uses them; `None` (the default)
+    /// otherwise. A `[task.external]` run takes them from the config's `basis_activations`,
+    /// and refuses a task whose own differ.
     fn basis_activations(&self) -> Option<Vec<f64>> {
         None
     }
     /// Executes θ: writes the N immediate costs into `per_step`, which comes zeroed (in every
     /// executor), and returns the terminal cost.
+    ///
+    /// Every cost must be finite. A cost of a step belongs at that step (the per-time-step
+    /// update weighs step i by the cost-to-go from i); what only the end state tells is the
+    /// terminal cost. With the same θ and settings, a deterministic task (a simulator) gives the
+    /// same costs in any worker, which is what makes a run's result the same bits however
+    /// many workers ran it.
     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64;
-    /// Current values of the settings a task change may set.
+    /// Current values of the settings a task change may set, by name, in a fixed order: a run
+    /// checks the names against its config, and a `[task.external]` config lists them in
+    /// alphabetical order. Empty for a task without settings.
     fn settings(&self) -> Vec<(&'static str, f64)>;
     /// Sets one setting. A value refused (an error) must leave the task as it was: a pipeline
     /// worker tries an update's changes together, and tries a refused one again once the others
@@ -138,8 +307,11 @@ pub fn check_initial_rollout(task: &mut dyn Task) -> Result<(), TaskError> {
 /// 0–19 unchanged, "after 20 updates").
 #[derive(Debug, Clone, PartialEq)]
 pub struct TaskChange {
+    /// The first update (0-based) that runs with `value`.
     pub from_update: u64,
+    /// The setting, as [`Task::settings`] names it.
     pub name: String,
+    /// The new value, in the setting's own units.
     pub value: f64,
 }
 
@@ -151,12 +323,15 @@ pub struct TaskSchedule {
 }
 
 impl TaskSchedule {
+    /// The changes sorted by update, those of one update in the order given (which is the order
+    /// they are set in). Nothing is checked against a task here: see [`TaskSchedule::validate`].
     pub fn new(mut changes: Vec<TaskChange>) -> Self {
         // Stable: two changes of one setting at the same update apply in the order given.
         changes.sort_by_key(|c| c.from_update);
         Self { changes }
     }
 
+    /// Adds a change after those already at its update (a change made while the run goes on).
     pub fn push(&mut self, change: TaskChange) {
         let at = self
             .changes
@@ -164,6 +339,7 @@ impl TaskSchedule {
         self.changes.insert(at, change);
     }
 
+    /// Every change, sorted by `from_update`.
     pub fn changes(&self) -> &[TaskChange] {
         &self.changes
     }
@@ -173,7 +349,9 @@ impl TaskSchedule {
         self.changes.iter().filter(move |c| c.from_update == update)
     }
 
-    /// Brings `task` from its initial settings `initial` to the state of `update`.
+    /// Brings `task` from its initial settings `initial` to the state of `update`: sets every
+    /// initial value, then every change up to and including `update`. Fails with the first
+    /// value the task refuses (the task then has the values set before it).
     pub fn configure(
         &self,
         task: &mut dyn Task,
@@ -189,7 +367,10 @@ impl TaskSchedule {
         Ok(())
     }
 
-    /// Checks every change against the task's settings before a run starts.
+    /// Checks every change against the task's settings before a run starts: sets each in turn
+    /// and fails with the first one refused (an unknown name, a value out of range), then
+    /// restores the task's settings. Changes are tried in schedule order, so a value the task
+    /// only takes after an earlier change is accepted.
     pub fn validate(&self, task: &mut dyn Task) -> Result<(), TaskError> {
         let initial = task.settings();
         for c in &self.changes {
@@ -205,7 +386,9 @@ impl TaskSchedule {
 /// Makes every rollout block for a fixed time before returning, standing in for a robot or an
 /// external simulator (so that scaling over workers can be shown on a small machine).
 pub struct Delayed<T> {
+    /// The task that computes the costs, unchanged.
     pub inner: T,
+    /// The least wall-clock time of a rollout; one that takes longer is not delayed further.
     pub delay: Duration,
 }
 
@@ -258,13 +441,22 @@ pub struct ViaPoint {
 /// Parameters of the via-point task; the defaults are the paper's.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ViaPointSpec {
+    /// B: basis functions of the 1-D DMP, so P = B (2).
     pub basis_functions: usize,
+    /// The movement's duration τ, in seconds (1).
     pub duration: f64,
+    /// The time step, in seconds; must divide `duration`, N = duration/dt + 1 (0.01).
     pub dt: f64,
+    /// The DMP's start position (0).
     pub start: f64,
+    /// The DMP's goal position (1).
     pub goal: f64,
+    /// v: the position to pass through at `viapoint_time` (0.3); the task's one setting
+    /// (`viapoint`), which a schedule may change while learning.
     pub viapoint: f64,
+    /// When to pass through v, in seconds: a grid point in [0, duration] (0.5).
     pub viapoint_time: f64,
+    /// The weight of the miss |x − v| against the acceleration cost ẍ²/N (1000), finite, ≥ 0.
     pub viapoint_weight: f64,
 }
 
@@ -284,6 +476,10 @@ impl Default for ViaPointSpec {
 }
 
 impl ViaPoint {
+    /// The task with the minimum-jerk DMP from `start` to `goal` as initial mean. Fails with
+    /// [`TaskError::Invalid`] for a DMP [`Dmp::new`] refuses, and [`TaskError::InvalidSetting`]
+    /// for a `viapoint_time` off the grid or outside [0, duration], a negative or non-finite
+    /// `viapoint_weight`, or a non-finite `viapoint`.
     pub fn new(spec: &ViaPointSpec) -> Result<Self, TaskError> {
         let dmp = Dmp::new(
             vec![spec.start],
@@ -330,6 +526,7 @@ impl ViaPoint {
         Ok(task)
     }
 
+    /// The task's DMP: its grid, and [`Dmp::integrate`] for the whole trajectory of a θ.
     pub fn dmp(&self) -> &Dmp {
         &self.dmp
     }
