@@ -10,26 +10,48 @@ use pi2cma::{
 use serde::Deserialize;
 use tasks::{TaskChange, TaskSchedule, ViaPointSpec};
 
+/// Why a config was refused. Each names where it came from and what to change.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum ConfigError {
+    /// The file could not be read.
     #[error("{file}: cannot read: {reason}")]
-    Read { file: PathBuf, reason: String },
+    Read {
+        /// The config file.
+        file: PathBuf,
+        /// The system's reason.
+        reason: String,
+    },
+    /// Not TOML, or not this schema: a syntax error, a missing or unknown key, a value of the
+    /// wrong type.
     #[error("{file}: {message}")]
-    Parse { file: PathBuf, message: String },
+    Parse {
+        /// The config file (or the name given to [`RunConfig::parse`]).
+        file: PathBuf,
+        /// The parser's message, led by the key's path where it is known.
+        message: String,
+    },
+    /// A value of the right type out of range, or values that do not go together.
     #[error("{file}: {field} = {value}: {reason}")]
     Invalid {
+        /// The config file.
         file: PathBuf,
+        /// The key's path, e.g. `optimizer.lambda_min`.
         field: String,
+        /// The value given, as written.
         value: String,
+        /// What it must be, and why.
         reason: String,
     },
     /// A value given as a command-line option (`--updates 0`): the user typed it, so the error
     /// names the option, not a field of a file that does not hold it.
     #[error("{option} {value}: {reason}")]
     Option {
+        /// The option, e.g. `--updates`.
         option: String,
+        /// The value given.
         value: String,
+        /// What it must be.
         reason: String,
     },
 }
@@ -62,8 +84,11 @@ fn option_of(field: &str) -> String {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
+    /// `[run]`: name, seed, number of updates.
     pub run: RunSection,
+    /// `[optimizer]`: the method and its hyperparameters.
     pub optimizer: OptimizerSection,
+    /// `[task.…]`: which task, with its parameters.
     pub task: TaskSection,
     /// Task changes at given updates (e.g. the via-point moving from 0.3 to 0.1 after update 20).
     #[serde(default)]
@@ -84,6 +109,7 @@ pub struct RunConfig {
     pub set_by_options: Vec<String>,
 }
 
+/// `[run]`: what a run is called, its seed and length, and how it treats non-finite costs.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunSection {
@@ -111,8 +137,10 @@ pub struct RunSection {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RolloutAt {
+    /// The update (0-based); absent: every update.
     #[serde(default)]
     pub update: Option<u64>,
+    /// The rollout (0: the evaluation); absent: every rollout.
     #[serde(default)]
     pub rollout: Option<usize>,
 }
@@ -128,6 +156,7 @@ impl RunSection {
     }
 }
 
+/// `optimizer.method`: which update rule ([`RunConfig::hyperparameters`] maps it to the core's).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
@@ -141,10 +170,14 @@ pub enum Method {
     Pi2Cma,
 }
 
+/// `optimizer.weighting`: how costs become rollout probabilities ([`pi2cma::Weighting`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum WeightingName {
+    /// `"episodic"`: one probability per rollout, from its total cost.
     Episodic,
+    /// `"per-time-step"`: probabilities per step from the cost-to-go (the paper's Algorithm 1),
+    /// averaged over time as `temporal_averaging` says.
     PerTimeStep,
 }
 
@@ -160,10 +193,15 @@ pub enum CovarianceName {
     PerDimension,
 }
 
+/// `optimizer.temporal_averaging`: how per-step probabilities are averaged over time
+/// ([`pi2cma::TemporalAveraging`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum TemporalName {
+    /// `"remaining-steps"`: step i weighted by the N − i steps left (Algorithm 1; default).
     RemainingSteps,
+    /// `"basis-activation"`: parameter j at step i weighted by (N − i)·ψ_j(t_i), its basis
+    /// function's activation (the original PI²); needs the task's basis activations.
     BasisActivation,
 }
 
@@ -172,11 +210,13 @@ pub enum TemporalName {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OptimizerSection {
+    /// `pi2-cma`, `pi2`, `pi2-decay` or `cem`.
     pub method: Method,
     /// K, including the noise-free evaluation rollout 0.
     pub rollouts: usize,
     /// Whether rollout 0 enters the update (the authors' 2012 code) or only evaluates.
     pub evaluation_in_update: bool,
+    /// `episodic` or `per-time-step`.
     pub weighting: WeightingName,
     /// Only with `weighting = "per-time-step"`; default "remaining-steps" (Algorithm 1).
     pub temporal_averaging: Option<TemporalName>,
@@ -188,8 +228,10 @@ pub struct OptimizerSection {
     pub elites: Option<usize>,
     /// D, for pi2-decay.
     pub decay: Option<f64>,
-    /// Eigenvalue bounds, for pi2-cma (required) and cem (optional, default unbounded).
+    /// Eigenvalue bounds, for pi2-cma (required) and cem (optional, default unbounded): the
+    /// the lower bound on Σ's eigenvalues after an update (0: none).
     pub lambda_min: Option<f64>,
+    /// The upper bound on Σ's eigenvalues after an update (`inf`: none); with `lambda_min`.
     pub lambda_max: Option<f64>,
     /// The shape of Σ; default "full".
     #[serde(default)]
@@ -198,7 +240,9 @@ pub struct OptimizerSection {
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, rename_all = "kebab-case")]
+/// `[task.…]`: exactly one task section.
 pub enum TaskSection {
+    /// `[task.via-point]`: the via-point task of Section IV-A.
     ViaPoint(ViaPointConfig),
     /// `[task.tball]`: the T-ball task of Section IV-B (keys documented in `tball::TballConfig`).
     Tball(Box<tball::TballConfig>),
@@ -235,16 +279,25 @@ pub struct ExternalConfig {
     pub basis_activations: Option<Vec<Vec<f64>>>,
 }
 
+/// `[task.via-point]`: the fields of [`ViaPointSpec`], and a rollout delay.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ViaPointConfig {
+    /// B, as [`ViaPointSpec::basis_functions`].
     pub basis_functions: usize,
+    /// Seconds, as [`ViaPointSpec::duration`].
     pub duration: f64,
+    /// Seconds, as [`ViaPointSpec::dt`].
     pub dt: f64,
+    /// As [`ViaPointSpec::start`].
     pub start: f64,
+    /// As [`ViaPointSpec::goal`].
     pub goal: f64,
+    /// The initial value of the `viapoint` setting, as [`ViaPointSpec::viapoint`].
     pub viapoint: f64,
+    /// Seconds, as [`ViaPointSpec::viapoint_time`].
     pub viapoint_time: f64,
+    /// As [`ViaPointSpec::viapoint_weight`].
     pub viapoint_weight: f64,
     /// Each rollout blocks at least this long (a stand-in for a robot or external simulator).
     #[serde(default)]
@@ -252,6 +305,7 @@ pub struct ViaPointConfig {
 }
 
 impl ViaPointConfig {
+    /// The task's specification (everything but the delay), for [`tasks::ViaPoint::new`].
     pub fn spec(&self) -> ViaPointSpec {
         ViaPointSpec {
             basis_functions: self.basis_functions,
@@ -266,12 +320,15 @@ impl ViaPointConfig {
     }
 }
 
+/// `[[schedule]]`: one task change, `{ from_update, set, value }` ([`tasks::TaskChange`]).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScheduleEntry {
     /// The first update (0-based) that sees the new value.
     pub from_update: u64,
+    /// The setting's name, as the task lists it ([`tasks::Task::settings`]).
     pub set: String,
+    /// Its new value.
     pub value: f64,
 }
 
@@ -301,6 +358,7 @@ pub struct PipelineSection {
     pub max_workers: usize,
     /// Worker restarts allowed within `restart_window_s`; one more fails the run.
     pub restart_limit: u32,
+    /// The sliding window, in seconds, in which `restart_limit` counts restarts.
     pub restart_window_s: f64,
     /// Bound on each process's readiness handshake at start.
     pub startup_timeout_ms: u64,
@@ -392,9 +450,13 @@ struct TaskShape {
 /// The memory a run needs at its peak, by what it is for ([`RunConfig::memory_need`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MemoryNeed {
+    /// What the memory is for, part by part.
     pub parts: Vec<MemoryPart>,
+    /// K.
     pub rollouts: usize,
+    /// P.
     pub parameters: usize,
+    /// N.
     pub steps: usize,
 }
 
@@ -405,9 +467,12 @@ impl MemoryNeed {
     }
 }
 
+/// One item of a [`MemoryNeed`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct MemoryPart {
+    /// What it holds, e.g. `"P×P covariances"`.
     pub what: &'static str,
+    /// Its size in bytes, an upper estimate.
     pub bytes: f64,
     /// Which sizes it grows with, to name the field in an error.
     blame: Blame,
@@ -465,6 +530,7 @@ fn bytes(b: f64) -> String {
 pub const DEFAULT_CONFIG: &str = include_str!("default.toml");
 
 impl RunConfig {
+    /// Reads and checks the config file at `path` ([`RunConfig::parse`]); errors name `path`.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         Self::load_with_text(path).map(|(cfg, _)| cfg)
     }
@@ -478,11 +544,17 @@ impl RunConfig {
         Ok((Self::parse(&text, path)?, text))
     }
 
+    /// [`DEFAULT_CONFIG`], parsed: PI²-CMA on the paper's via-point task (run A1).
     pub fn default_config() -> Self {
         Self::parse(DEFAULT_CONFIG, Path::new("<built-in default>"))
             .expect("the built-in default config is valid")
     }
 
+    /// Parses and checks a config's TOML `text`; `origin` is the file it came from, which
+    /// errors name and relative paths (`task.external.worker`) are resolved against. Unknown
+    /// keys, values out of range, method-specific keys of another method and a run that would
+    /// need more than [`MEMORY_LIMIT_BYTES`] are refused; for a built-in task, so are settings
+    /// and scheduled changes under which the initial mean's costs are not finite.
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
         let mut cfg: RunConfig = toml::from_str(text).map_err(|e| {
             Self::task_sections_error(text, origin).unwrap_or_else(|| {
@@ -1410,6 +1482,7 @@ impl RunConfig {
         }
     }
 
+    /// The core's [`Weighting`] for `optimizer.weighting` and `temporal_averaging`.
     pub fn weighting(&self) -> Weighting {
         match self.optimizer.weighting {
             WeightingName::Episodic => Weighting::Episodic,
@@ -1464,6 +1537,7 @@ impl RunConfig {
         }
     }
 
+    /// The `[[schedule]]` entries as a [`TaskSchedule`], in update order.
     pub fn schedule(&self) -> TaskSchedule {
         TaskSchedule::new(
             self.schedule
@@ -1551,6 +1625,9 @@ impl RunConfig {
         })
     }
 
+    /// The config's task at its initial settings, without a rollout delay. For
+    /// `[task.external]`, an [`tasks::External`]: the declared shape, which cannot run
+    /// rollouts (the executors use [`crate::build_task`], which refuses it).
     pub fn build_task(&self) -> Result<Box<dyn tasks::Task>, tasks::TaskError> {
         match &self.task {
             TaskSection::ViaPoint(v) => Ok(Box::new(tasks::ViaPoint::new(&v.spec())?)),

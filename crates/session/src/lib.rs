@@ -4,6 +4,137 @@
 //! The executor owns the loop (ask, run rollouts, tell, apply task changes, stop); recording and
 //! printing are [`Observer`]s, not part of the loop. It is not the multiprocess pipeline, which
 //! drives the same core with the same builders, so both give the same result for the same seed.
+//!
+//! # Your own task, learned in this thread
+//!
+//! A config ([`RunConfig::parse`] or [`RunConfig::load`]) declares a task of your own as
+//! `[task.external]`: its shape (P, N), the initial mean the search starts from, and its
+//! settings with their initial values (README, "Your own simulator or robot").
+//! [`InProcess::with_task`] runs that config with your [`tasks::Task`] doing the rollouts in this
+//! thread, and [`InProcess::run`] reports each update to an [`Observer`]. The update side is
+//! built from the config alone, so the same config and seed give the pipeline's result
+//! (`supervisor run`, with your task in `pipeline::worker::serve`), bit for bit.
+//!
+//! A point that the policy moves from the origin to θ in N = 10 equal steps, with a target
+//! that a `[[schedule]]` moves after 20 updates:
+//!
+//! ```
+//! use session::{InProcess, Observer, RunConfig, UpdateRecord};
+//! use tasks::{Task, TaskChange, TaskError};
+//!
+//! const CONFIG: &str = r#"
+//! [run]
+//! name = "point"
+//! seed = 1
+//! updates = 40
+//!
+//! [optimizer]
+//! method = "pi2-cma"
+//! rollouts = 10
+//! evaluation_in_update = false
+//! weighting = "per-time-step"
+//! eliteness = 10.0
+//! lambda_init = 0.1
+//! lambda_min = 1e-4
+//! lambda_max = 1.0
+//!
+//! [task.external]
+//! worker = ["./point-worker"]  # what `supervisor run` would start; unused in-process
+//! parameters = 2
+//! steps = 10
+//! initial_mean = [0.0, 0.0]
+//! [task.external.settings]     # alphabetical, as Task::settings must list them
+//! target_x = 0.5
+//! target_y = 0.3
+//!
+//! [[schedule]]
+//! from_update = 20
+//! set = "target_x"
+//! value = 0.2
+//! "#;
+//!
+//! struct Point {
+//!     target: [f64; 2],
+//! }
+//!
+//! impl Task for Point {
+//!     fn name(&self) -> &'static str {
+//!         "point"
+//!     }
+//!     fn parameters(&self) -> usize {
+//!         2
+//!     }
+//!     fn steps(&self) -> usize {
+//!         10
+//!     }
+//!     fn initial_mean(&self) -> Vec<f64> {
+//!         vec![0.0, 0.0]
+//!     }
+//!     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
+//!         // Each of the N = 10 steps moves θ/10: its cost is its squared length, weighted.
+//!         let step = (theta[0].powi(2) + theta[1].powi(2)) / 100.0;
+//!         per_step.fill(0.01 * step);
+//!         // The terminal cost: where the point ended, against the target.
+//!         let miss = (theta[0] - self.target[0]).powi(2) + (theta[1] - self.target[1]).powi(2);
+//!         100.0 * miss
+//!     }
+//!     fn settings(&self) -> Vec<(&'static str, f64)> {
+//!         vec![("target_x", self.target[0]), ("target_y", self.target[1])]
+//!     }
+//!     fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+//!         let i = match name {
+//!             "target_x" => 0,
+//!             "target_y" => 1,
+//!             _ => {
+//!                 return Err(TaskError::UnknownSetting {
+//!                     task: "point",
+//!                     name: name.into(),
+//!                     known: "target_x, target_y".into(),
+//!                 })
+//!             }
+//!         };
+//!         self.target[i] = value;
+//!         Ok(())
+//!     }
+//! }
+//!
+//! /// Keeps each update's evaluation cost (rollout 0: the mean, without noise).
+//! #[derive(Default)]
+//! struct Costs {
+//!     evaluation: Vec<f64>,
+//!     changes: Vec<(u64, TaskChange)>,
+//! }
+//!
+//! impl Observer for Costs {
+//!     fn on_update(&mut self, record: &UpdateRecord<'_>) {
+//!         self.evaluation.push(record.summary.eval_cost);
+//!     }
+//!     fn on_task_change(&mut self, update: u64, change: &TaskChange) {
+//!         self.changes.push((update, change.clone()));
+//!     }
+//! }
+//!
+//! let config = RunConfig::parse(CONFIG, "point.toml".as_ref())?;
+//! // The task's own target is replaced by the config's before the first rollout.
+//! let task = Box::new(Point { target: [f64::NAN; 2] });
+//! let mut run = InProcess::with_task(&config, config.run.seed, task)?;
+//! let mut costs = Costs::default();
+//! run.run(&mut costs, &|| false)?;
+//!
+//! let e = &costs.evaluation;
+//! assert_eq!(e.len(), 40);
+//! // Update 0 evaluates the config's initial mean at the config's target: 100·(0.5² + 0.3²).
+//! assert_eq!(e[0], 34.0);
+//! // Learned in 20 updates; the schedule's change then costs 9.3, learned again by update 39.
+//! assert!(e[19] < 0.01 && e[20] > 5.0 && e[39] < 0.01, "{e:?}");
+//! assert_eq!(costs.changes.len(), 1);
+//! assert_eq!((costs.changes[0].0, costs.changes[0].1.name.as_str()), (20, "target_x"));
+//! let mean = &run.optimizer().distribution().mean;
+//! assert!((mean[0] - 0.2).abs() < 0.01 && (mean[1] - 0.3).abs() < 0.01, "{mean}");
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+#![warn(missing_docs)]
 
 mod config;
 pub mod reruns;
@@ -25,29 +156,50 @@ use pi2cma::{
 };
 use tasks::{Delayed, Task, TaskChange, TaskError};
 
+/// Why a session could not be built or stopped before its last update. A refused update leaves
+/// the optimizer at that update ([`InProcess::optimizer`] has the distribution of the updates
+/// before), so nothing already learned is lost.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SessionError {
-    /// The cost error is part of the message, not a source: chained, it would be printed twice
-    /// (`update 4: cost … is NaN: cost … is NaN`).
+    /// The core refused an update's costs: a NaN or ±∞ cost (naming rollout and step, or
+    /// terminal) with `run.nonfinite_reruns = 0`, or finite costs whose update overflows f64.
+    // The cost error is part of the message, not a source: chained, it would be printed twice
+    // (`update 4: cost … is NaN: cost … is NaN`).
     #[error("update {update}: {error}{}", reruns::without_reruns(error))]
-    Cost { update: u64, error: CostError },
+    Cost {
+        /// The update (0-based) whose costs were refused.
+        update: u64,
+        /// What the core found.
+        error: CostError,
+    },
     /// A rollout whose costs were still not finite after `reruns` reruns
     /// (`run.nonfinite_reruns`).
     #[error("update {update}: {error}{}", reruns::after_reruns(error, *reruns))]
     CostAfterReruns {
+        /// The update (0-based).
         update: u64,
+        /// The last rerun's first non-finite cost.
         error: CostError,
+        /// Reruns tried: `run.nonfinite_reruns`.
         reruns: u32,
     },
+    /// The task refused a setting (the config's initial values or a scheduled change), or the
+    /// config's task could not be built.
     #[error(transparent)]
     Task(#[from] TaskError),
+    /// The core refused the configured hyperparameters or the initial (or resumed)
+    /// distribution.
     #[error(transparent)]
     Parameter(#[from] ParameterError),
+    /// A resumed run's distribution has another number of parameters than the task.
     #[error("{origin}: its distribution has {dim} parameters, but the task has {task_dim}")]
     StartShape {
+        /// Where the state came from ([`Start::origin`]).
         origin: String,
+        /// Its distribution's number of parameters.
         dim: usize,
+        /// The task's P.
         task_dim: usize,
     },
     /// A task of your own has another shape than its config declares ([`check_task_shape`]).
@@ -212,10 +364,16 @@ pub fn build_optimizer_at(
 
 /// Everything about one finished update, for observers.
 pub struct UpdateRecord<'a> {
+    /// The distribution the rollouts were sampled from.
     pub before: &'a Distribution,
+    /// The distribution after the update: the next update samples from it.
     pub after: &'a Distribution,
+    /// The K parameter vectors run (row 0: the mean, the noise-free evaluation).
     pub samples: &'a ParameterBatch,
+    /// Their costs as the update took them: N per-step costs and a terminal cost per rollout
+    /// (of the accepted execution, for a rollout that was rerun).
     pub costs: &'a CostBatch,
+    /// What the core reports of the update: evaluation cost, λ before and after, probabilities.
     pub summary: &'a UpdateSummary,
     /// The task's settings during this update.
     pub task_settings: &'a [(&'static str, f64)],
@@ -240,16 +398,22 @@ pub trait Observer {
         _task_settings: &[(&'static str, f64)],
     ) {
     }
+    /// A scheduled change, set in the task just before update `update`'s rollouts (after
+    /// [`Observer::on_start`] for a change due at the first update).
     fn on_task_change(&mut self, _update: u64, _change: &TaskChange) {}
     /// An execution of a rollout whose costs were not finite, which is run again
     /// (`run.nonfinite_reruns`); its costs are not in the update.
     fn on_rerun(&mut self, _rerun: &Rerun<'_>) {}
+    /// An update was told and accepted: the optimizer is at the next update.
     fn on_update(&mut self, _record: &UpdateRecord<'_>) {}
+    /// The run ended without error: its last update was made or `stop` returned true. Not
+    /// called when [`InProcess::run`] fails.
     fn on_finish(&mut self, _optimizer: &Optimizer) {}
 }
 
 /// A rejected execution of a rollout that is run again ([`Observer::on_rerun`]).
 pub struct Rerun<'a> {
+    /// The update (0-based) whose rollout is run again.
     pub update: u64,
     /// The first non-finite cost of the execution ([`CostError::NonFinite`]: rollout, step or
     /// terminal, value).
@@ -333,6 +497,9 @@ fn wall_ns() -> u64 {
 }
 
 impl InProcess {
+    /// A run of `config`'s built-in task (via-point, T-ball) from the start, with session seed
+    /// `seed` (usually `config.run.seed`: the noise of every rollout is a function of it). An
+    /// external task is refused ([`build_task`]): run it with [`InProcess::with_task`].
     pub fn new(config: &RunConfig, seed: u64) -> Result<Self, SessionError> {
         Self::new_at(config, seed, None, None)
     }
@@ -402,6 +569,10 @@ impl InProcess {
         })
     }
 
+    /// The optimizer: its [`Optimizer::distribution`] is the run's current (after [`run`]:
+    /// final) search distribution, [`Optimizer::update_index`] the next update.
+    ///
+    /// [`run`]: InProcess::run
     pub fn optimizer(&self) -> &Optimizer {
         &self.optimizer
     }

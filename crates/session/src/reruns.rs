@@ -9,9 +9,15 @@ use pi2cma::CostError;
 pub enum Verdict {
     /// Run it again with the same parameters; `attempt` is the execution that was rejected
     /// (1: the first).
-    Rerun { attempt: u32 },
+    Rerun {
+        /// The execution rejected: 1 for the first.
+        attempt: u32,
+    },
     /// Fail the run: `reruns` reruns were tried (0 when reruns are off).
-    Fail { reruns: u32 },
+    Fail {
+        /// Reruns tried, all with non-finite costs.
+        reruns: u32,
+    },
 }
 
 /// The rejected executions of each rollout of the update at hand.
@@ -30,6 +36,7 @@ impl NonfiniteReruns {
         }
     }
 
+    /// The most reruns of one rollout (`run.nonfinite_reruns`).
     pub fn limit(&self) -> u32 {
         self.limit
     }

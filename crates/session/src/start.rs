@@ -55,7 +55,9 @@ pub struct Start {
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {reason}")]
 pub struct StartFileError {
+    /// The start file.
     pub file: String,
+    /// What is wrong with it.
     pub reason: String,
 }
 
