@@ -118,6 +118,8 @@
 //! below (see [`Limits`]). What the services of a run take of `/dev/shm` is
 //! [`Limits::shared_memory`].
 
+#![warn(missing_docs)]
+
 use iceoryx2::port::event_id::EventId;
 use iceoryx2::prelude::*;
 use iceoryx2::service::builder::event::{EventCreateError, EventOpenError, EventOpenOrCreateError};
@@ -160,6 +162,7 @@ pub type Service = ipc::Service;
 #[repr(C)]
 #[type_name("pi2cma.DistributionHeader.v2")]
 pub struct DistributionHeader {
+    /// The run this sample belongs to (every message starts with it).
     pub run_id: u64,
     /// The update whose rollouts are drawn from this distribution (0-based).
     pub update: u64,
@@ -175,6 +178,7 @@ pub struct DistributionHeader {
     pub flags: u32,
     /// Valid entries of `settings`.
     pub settings_len: u32,
+    /// Padding made explicit (the layout has none hidden); 0.
     pub _reserved: u32,
     /// λ of this distribution.
     pub lambda: f64,
@@ -187,6 +191,8 @@ pub struct DistributionHeader {
 }
 
 impl DistributionHeader {
+    /// In `flags`: a bounded run's last update is done. This is the final distribution, which
+    /// the recorder keeps as the run's result; no rollouts are drawn from it.
     pub const FINAL: u32 = 1;
 }
 
@@ -195,7 +201,9 @@ impl DistributionHeader {
 #[repr(C)]
 #[type_name("pi2cma.WorkHeader.v2")]
 pub struct WorkHeader {
+    /// The run this work item belongs to.
     pub run_id: u64,
+    /// The update u the rollout belongs to; echo it in [`CostHeader::update`].
     pub update: u64,
     /// Sequence number of the assignment this rollout belongs to (unique per run).
     pub chunk: u64,
@@ -203,6 +211,7 @@ pub struct WorkHeader {
     pub rollout: u32,
     /// Number of rollouts in this chunk; the worker announces [`Ready`] after that many.
     pub chunk_len: u32,
+    /// The worker slot w the item was published to (that of `work/<w>`).
     pub worker: u32,
     /// N: the length of the cost trajectory to return.
     pub steps: u32,
@@ -235,9 +244,13 @@ impl WorkHeader {
 #[repr(C)]
 #[type_name("pi2cma.CostHeader.v3")]
 pub struct CostHeader {
+    /// The run, as in the work item.
     pub run_id: u64,
+    /// [`WorkHeader::update`] of the work item: the updater keys costs by (update, rollout).
     pub update: u64,
+    /// [`WorkHeader::rollout`] of the work item, k.
     pub rollout: u32,
+    /// The sending worker's slot w.
     pub worker: u32,
     /// How long the rollout ran (a monotonic clock), for statistics.
     pub duration_ns: u64,
@@ -250,6 +263,7 @@ pub struct CostHeader {
     pub start_ns: u64,
     /// Valid entries of `settings`; 0: the rollout ran with its work item's settings.
     pub settings_len: u32,
+    /// Padding made explicit; 0.
     pub _reserved: u32,
     /// The task settings the rollout ran with, in the order of the work item's. They differ
     /// from the work item's when the task refused a change (`Task::set` failed): the worker
@@ -275,19 +289,24 @@ impl CostHeader {
 #[repr(C)]
 #[type_name("pi2cma.Ready.v2")]
 pub struct Ready {
+    /// The run.
     pub run_id: u64,
     /// The chunk just finished, or [`Ready::NO_CHUNK`] from a worker that has just started;
     /// with [`Ready::ROLLOUT_DONE`], the chunk the worker is working on.
     pub chunk: u64,
+    /// The worker's slot w: the sampler publishes its work on `work/<w>`.
     pub worker: u32,
     /// Increases with every restart of worker `worker`.
     pub incarnation: u32,
+    /// The worker's process id, for the sampler's messages.
     pub pid: u32,
     /// 0 or [`Ready::ROLLOUT_DONE`], with [`Ready::rollout_done`]'s count in bits 16–31.
     pub flags: u32,
 }
 
 impl Ready {
+    /// In `chunk`: the worker has finished no chunk yet (its first request for work after it
+    /// started; `UINT64_MAX` in C).
     pub const NO_CHUNK: u64 = u64::MAX;
     /// A rollout of `chunk` other than its last has just been sent: not a request for work,
     /// but what lets `pipeline.rollout_timeout_ms` bound one rollout rather than a whole chunk
@@ -334,6 +353,7 @@ pub const ROLLOUT_DONE_INTERVAL: std::time::Duration = std::time::Duration::from
 #[repr(C)]
 #[type_name("pi2cma.Progress.v4")]
 pub struct Progress {
+    /// The run.
     pub run_id: u64,
     /// Updates completed.
     pub updates: u64,
@@ -344,8 +364,12 @@ pub struct Progress {
     pub eval_cost: f64,
     /// λ of the current distribution.
     pub lambda: f64,
+    /// [`Progress::FINAL`], [`Progress::TASK_CHANGE`], or 0 (a periodic report).
     pub flags: u32,
+    /// Valid entries of `settings`.
     pub settings_len: u32,
+    /// The task settings the updater holds when it sends the report (runtime changes
+    /// included), in the order of the task's `settings()`.
     pub settings: [f64; MAX_SETTINGS],
     /// [`Control::seq`] of the last [`Control::SET_TASK`] the updater took (0: none yet). An
     /// echo, not a count, so that the supervisor pairs each answer with its request even if a
@@ -353,11 +377,15 @@ pub struct Progress {
     pub last_change_seq: u64,
     /// The update that change takes effect from.
     pub last_change_from: u64,
-    /// Task changes the workers' task refused so far (see [`CostHeader::settings`]), and the
-    /// last of them: its setting (index into `settings`), value and update.
+    /// Task changes the workers' task refused so far (see [`CostHeader::settings`]); the
+    /// `last_refused_*` fields describe the last of them and are meaningful only when this is
+    /// above 0.
     pub refused: u32,
+    /// The refused setting: an index into `settings`.
     pub last_refused_setting: u32,
+    /// The value the task refused.
     pub last_refused_value: f64,
+    /// The update whose rollout refused it.
     pub last_refused_update: u64,
 }
 
@@ -385,16 +413,24 @@ impl Progress {
 #[repr(C)]
 #[type_name("pi2cma.RecorderAck.v2")]
 pub struct RecorderAck {
+    /// The run.
     pub run_id: u64,
+    /// The first update not yet written and flushed: every update before it is in the file.
     pub next_update: u64,
+    /// Cost messages of updates from `next_update` on that the recorder has taken out of its
+    /// subscriber's buffer.
     pub taken: u64,
+    /// [`Control::seq`] of the newest [`Control::RECORDER_SYNC`] carried out (0: none).
     pub synced: u64,
 }
 
 /// Process roles in [`Lifecycle`].
 pub mod role {
+    /// The updater (crate `pipeline`, binary `updater`): owns the optimizer.
     pub const UPDATER: u32 = 1;
+    /// The sampler (binary `sampler`): draws the rollouts and hands them out.
     pub const SAMPLER: u32 = 2;
+    /// A rollout worker, of this workspace or of your own, in any language.
     pub const WORKER: u32 = 3;
     /// The MCAP recorder (crate `record`): the spare subscriber of the run's services, started
     /// first and stopped last by the supervisor.
@@ -406,11 +442,15 @@ pub mod role {
 #[repr(C)]
 #[type_name("pi2cma.Lifecycle.v1")]
 pub struct Lifecycle {
+    /// The run.
     pub run_id: u64,
+    /// The announcing process's id: the supervisor tells the processes it started from others.
     pub pid: u32,
     /// One of [`role`].
     pub role: u32,
+    /// For [`role::WORKER`], its slot w; 0 otherwise.
     pub worker: u32,
+    /// For [`role::WORKER`], its incarnation (as in [`Ready::incarnation`]); 0 otherwise.
     pub incarnation: u32,
 }
 
@@ -420,11 +460,13 @@ pub struct Lifecycle {
 #[repr(C)]
 #[type_name("pi2cma.RunNote.v1")]
 pub struct RunNote {
+    /// The run.
     pub run_id: u64,
     /// One of the `RunNote::` levels.
     pub level: u32,
     /// Length of `text` in bytes (UTF-8).
     pub text_len: u32,
+    /// The message, UTF-8, its first `text_len` bytes valid; read it with [`RunNote::text`].
     pub text: [u8; MAX_NOTE],
 }
 
@@ -452,7 +494,9 @@ impl Default for RunNote {
 }
 
 impl RunNote {
+    /// For the record only; logged as the supervisor's `info`.
     pub const INFO: u32 = 0;
+    /// Something went wrong that did not fail the run; logged as the supervisor's `warning`.
     pub const WARNING: u32 = 1;
     /// The run failed; `text` says why.
     pub const ERROR: u32 = 2;
@@ -470,6 +514,8 @@ impl RunNote {
         note
     }
 
+    /// The first `text_len` bytes of `text` (at most [`MAX_NOTE`]); empty if they are not
+    /// UTF-8.
     pub fn text(&self) -> &str {
         let len = (self.text_len as usize).min(MAX_NOTE);
         // Written by `new`, whole characters; anything else reads as empty.
@@ -486,14 +532,23 @@ impl RunNote {
 #[repr(C)]
 #[type_name("pi2cma.Overdue.v2")]
 pub struct Overdue {
+    /// The run.
     pub run_id: u64,
+    /// The update of the chunk held.
     pub update: u64,
+    /// [`WorkHeader::chunk`] of the chunk held.
     pub chunk: u64,
+    /// Milliseconds since the chunk was handed out.
     pub held_ms: u64,
+    /// Milliseconds since the last sign of progress (hand-out or [`Ready::ROLLOUT_DONE`]).
     pub stalled_ms: u64,
+    /// The worker's slot w.
     pub worker: u32,
+    /// The incarnation that holds the chunk: the supervisor kills only that one.
     pub incarnation: u32,
+    /// Rollouts in the chunk ([`WorkHeader::chunk_len`]).
     pub rollouts: u32,
+    /// Padding made explicit; 0.
     pub _reserved: u32,
 }
 
@@ -502,7 +557,9 @@ pub struct Overdue {
 #[repr(C)]
 #[type_name("pi2cma.Control.v4")]
 pub struct Control {
+    /// The run.
     pub run_id: u64,
+    /// What the message says: one of the `Control::` kinds ([`Control::WORKER_LOST`], …).
     pub kind: u32,
     /// For [`Control::WORKER_LOST`].
     pub worker: u32,
@@ -517,6 +574,7 @@ pub struct Control {
     /// The task setting of [`Control::SET_TASK`]; for [`Control::WORKER_LOST`], how the process
     /// ended (e.g. `signal: 9 (SIGKILL)`), cut to [`MAX_NAME`] bytes.
     pub name: [u8; MAX_NAME],
+    /// For [`Control::SET_TASK`]: the setting's new value.
     pub value: f64,
     /// For [`Control::SET_TASK`]: the sender's number for the change (from 1), echoed in
     /// [`Progress::last_change_seq`]; for [`Control::RECORDER_SYNC`], the sync's number.
@@ -535,7 +593,9 @@ pub struct Control {
 #[repr(C)]
 #[type_name("pi2cma.RerunHeader.v1")]
 pub struct RerunHeader {
+    /// The run.
     pub run_id: u64,
+    /// The update u whose rollouts the payload counts.
     pub update: u64,
 }
 
@@ -630,6 +690,8 @@ impl Control {
         self
     }
 
+    /// The first `name_len` bytes of `name` (at most [`MAX_NAME`]); empty if they are not
+    /// UTF-8.
     pub fn name(&self) -> &str {
         let len = (self.name_len as usize).min(MAX_NAME);
         std::str::from_utf8(&self.name[..len]).unwrap_or("")
@@ -817,9 +879,17 @@ pub fn wall_clock_ns() -> u64 {
 /// another by its doorbell's name. Workers are [`worker_node_name`] and
 /// [`worker_doorbell`].
 pub mod process {
+    /// The updater: doorbell `wake/updater`, rung by the workers (after their costs), the
+    /// recorder and the supervisor.
     pub const UPDATER: &str = "updater";
+    /// The sampler: doorbell `wake/sampler`, rung by the updater (a new distribution or
+    /// reruns), the workers (asking for work) and the supervisor.
     pub const SAMPLER: &str = "sampler";
+    /// The recorder: doorbell `wake/recorder`, rung by the updater (with [`crate::HOLD`] when
+    /// it is held back) and the supervisor.
     pub const RECORDER: &str = "recorder";
+    /// The supervisor: doorbell `wake/supervisor`, rung after `lifecycle`, `progress`,
+    /// `recorded` and `overdue` messages.
     pub const SUPERVISOR: &str = "supervisor";
 }
 
@@ -855,12 +925,15 @@ fn service_name(run_id: u64, tail: &str) -> Result<ServiceName, WireError> {
 #[derive(Debug, thiserror::Error)]
 #[error("iceoryx2 service `{service}`: {reason}")]
 pub struct WireError {
+    /// The full service name (`pi2cma/<run>/costs`), the node name, or `config`.
     pub service: String,
+    /// iceoryx2's error, and what to do about it where this crate knows
+    /// ([`VERSION_MISMATCH_HINT`], [`CONTRACT_MISMATCH_HINT`]).
     pub reason: String,
 }
 
 impl WireError {
-    pub fn new(service: &str, reason: impl Into<String>) -> Self {
+    pub(crate) fn new(service: &str, reason: impl Into<String>) -> Self {
         Self {
             service: service.to_string(),
             reason: reason.into(),
@@ -927,9 +1000,14 @@ pub fn node(run_id: u64, name: &str) -> Result<Node<Service>, WireError> {
         .map_err(|e| WireError::new(name, format!("cannot create node: {e:?}")))
 }
 
+/// A service whose payload is an `f64` slice with user header `H` (`distribution`, `work/<w>`,
+/// `costs`): make publishers and subscribers from it.
 pub type SliceService<H> = publish_subscribe::PortFactory<Service, [f64], H>;
+/// A service whose payload is one fixed-size message `T` without user header.
 pub type FixedService<T> = publish_subscribe::PortFactory<Service, T, ()>;
+/// A service whose payload is a `u32` slice with user header `H` (`reruns`).
 pub type CountService<H> = publish_subscribe::PortFactory<Service, [u32], H>;
+/// A doorbell: make the owner's listener or another process's notifier from it.
 pub type EventService = event::PortFactory<Service>;
 
 /// How opening or creating a service failed, as far as [`open_or_create`] treats failures

@@ -36,6 +36,7 @@ pub struct SharedMemoryNeed {
 }
 
 impl SharedMemoryNeed {
+    /// The sum of the parts: what the supervisor compares with the free space of `/dev/shm`.
     pub fn total(&self) -> u64 {
         self.distribution + self.costs + self.work + self.other
     }
