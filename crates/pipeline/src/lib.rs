@@ -7,9 +7,9 @@
 //! with [`ProcessError`]; [`run_main`], the processes' binary edge, reports it with context.
 //!
 //! **Architecture Invariant:** the processes never serialise on the data paths and do not spin:
-//! each waits on its doorbell event ([`wait_loop`]) and then drains its subscribers. The one
-//! bounded exception is a worker polling for its next work for at most
-//! `pipeline.worker_spin_us` after a chunk ([`wait_loop_spinning`]).
+//! each waits on its doorbell event (the crate-private `wait_loop`, whose comment says why not
+//! in a WaitSet) and then drains its subscribers. The one bounded exception is a worker polling
+//! for its next work for at most `pipeline.worker_spin_us` after a chunk (`Spin`).
 
 mod error;
 pub mod result;
@@ -80,7 +80,7 @@ impl Context {
         })
     }
 
-    pub fn result_path(&self) -> PathBuf {
+    pub(crate) fn result_path(&self) -> PathBuf {
         result_path(&self.run_dir)
     }
 
@@ -174,7 +174,7 @@ pub fn iox<T, E: Debug>(r: Result<T, E>, what: &str) -> Result<T, ProcessError> 
 
 /// How a [`wait_loop`] ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Exit {
+pub(crate) enum Exit {
     /// The handler returned [`Flow::Stop`].
     Done,
     /// SIGINT or SIGTERM.
@@ -182,7 +182,7 @@ pub enum Exit {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Flow {
+pub(crate) enum Flow {
     Continue,
     Stop,
 }
@@ -199,7 +199,7 @@ pub const TICK: Duration = Duration::from_millis(100);
 /// checks the flag before blocking, an epoll-based `WaitSet` does not and slept forever
 /// (measured: a 1-worker run hung after ~7000 updates). The tick is a second safety net: a
 /// lost wake-up costs at most [`TICK`], and an idle process wakes 10 times a second.
-pub fn wait_loop(
+pub(crate) fn wait_loop(
     doorbell: &Listener<Service>,
     on_wake: impl FnMut() -> anyhow::Result<Flow>,
 ) -> anyhow::Result<Exit> {
@@ -208,7 +208,7 @@ pub fn wait_loop(
 
 /// [`wait_loop`], but polling the doorbell for up to `spin`'s budget before blocking: see
 /// [`Spin`].
-pub fn wait_loop_spinning<E>(
+pub(crate) fn wait_loop_spinning<E>(
     doorbell: &Listener<Service>,
     spin: &mut Spin,
     mut on_wake: impl FnMut() -> Result<Flow, E>,
@@ -242,7 +242,7 @@ pub fn wait_loop_spinning<E>(
 /// maximum; a wait that blocked for longer halves it, so a worker waiting for slow rollouts of
 /// others, or for a paused run, soon stops polling.
 #[derive(Debug, Clone)]
-pub struct Spin {
+pub(crate) struct Spin {
     max: Duration,
     budget: Duration,
 }
@@ -251,18 +251,13 @@ impl Spin {
     /// Budgets below this are not worth a poll loop.
     const FLOOR: Duration = Duration::from_micros(10);
 
-    pub fn new(max: Duration) -> Self {
+    pub(crate) fn new(max: Duration) -> Self {
         Self { max, budget: max }
-    }
-
-    /// The current budget.
-    pub fn budget(&self) -> Duration {
-        self.budget
     }
 
     /// Polls `ready` (yielding between polls) for up to the budget, at least once unless the
     /// budget is zero; whether it became true.
-    pub fn poll(&mut self, mut ready: impl FnMut() -> bool) -> bool {
+    pub(crate) fn poll(&mut self, mut ready: impl FnMut() -> bool) -> bool {
         if self.budget.is_zero() {
             return false;
         }
@@ -280,7 +275,7 @@ impl Spin {
     }
 
     /// Adapts the budget to a wait that polling did not catch and that then blocked for `d`.
-    pub fn blocked_for(&mut self, d: Duration) {
+    pub(crate) fn blocked_for(&mut self, d: Duration) {
         self.budget = if d <= self.max {
             self.max
         } else if self.budget / 2 < Self::FLOOR {
@@ -526,11 +521,11 @@ mod tests {
     fn a_poll_that_catches_the_wake_up_restores_the_full_budget() {
         let mut spin = Spin::new(MAX);
         spin.blocked_for(Duration::from_millis(5));
-        assert_eq!(spin.budget(), MAX / 2);
+        assert_eq!(spin.budget, MAX / 2);
         // Caught at the first poll, which comes before any look at the clock: the outcome does
         // not depend on how loaded the machine is.
         assert!(spin.poll(|| true));
-        assert_eq!(spin.budget(), MAX);
+        assert_eq!(spin.budget, MAX);
     }
 
     #[test]
@@ -542,13 +537,13 @@ mod tests {
         let mut budgets = Vec::new();
         for _ in 0..6 {
             spin.blocked_for(Duration::from_millis(5));
-            budgets.push(spin.budget().as_micros());
+            budgets.push(spin.budget.as_micros());
         }
         assert_eq!(budgets, [100, 50, 25, 12, 0, 0]);
         // No budget: no polling at all, not even one call.
         assert!(!spin.poll(|| panic!("polled with a zero budget")));
         spin.blocked_for(Duration::from_micros(150));
-        assert_eq!(spin.budget(), MAX);
+        assert_eq!(spin.budget, MAX);
     }
 
     #[test]

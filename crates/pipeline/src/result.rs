@@ -66,7 +66,7 @@ pub fn bits(values: &[f64]) -> Vec<String> {
         .collect()
 }
 
-pub fn from_bits(bits: &[String]) -> anyhow::Result<Vec<f64>> {
+fn from_bits(bits: &[String]) -> anyhow::Result<Vec<f64>> {
     bits.iter()
         .map(|b| {
             u64::from_str_radix(b, 16)
@@ -83,7 +83,7 @@ impl RunResult {
             .then(|| (self.elapsed_s - self.first_update_s) / (self.updates - 1) as f64)
     }
 
-    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+    pub(crate) fn write(&self, path: &Path) -> anyhow::Result<()> {
         let text = toml::to_string(self).context("cannot encode result")?;
         let tmp = path.with_extension("tmp");
         std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
