@@ -17,7 +17,11 @@ use crate::{
     Spin,
 };
 
+// clap takes an `Args` struct's doc comment, and that of one it flattens (`ProcessArgs`), as
+// the `--help` text of a command that flattens it and has none of its own (a `serve_main`
+// worker): these structs' docs are for rustdoc only.
 #[derive(Debug, Clone, clap::Args)]
+#[command(about = None, long_about = None)]
 pub struct WorkerArgs {
     #[command(flatten)]
     pub process: ProcessArgs,
@@ -466,6 +470,21 @@ where
 mod tests {
     use super::*;
     use tasks::TaskError;
+
+    #[test]
+    fn a_worker_command_has_no_help_text_from_the_argument_structs_docs() {
+        use clap::CommandFactory as _;
+        // As `serve_main`'s parser: a command of its own without docs.
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            worker: WorkerArgs,
+        }
+        let mut command = Cli::command();
+        assert_eq!(command.get_about().map(ToString::to_string), None);
+        let help = command.render_long_help().to_string();
+        assert!(help.starts_with("Usage:"), "{help}");
+    }
 
     /// A target (x, y) that must stay within 1 of the origin, as the reach task's must stay
     /// within the arm's reach; unset (NaN) until the run's settings arrive, as a worker's own
