@@ -22,8 +22,11 @@ pub enum ProcessError {
     /// The config's task has more settings than the wire headers carry.
     #[error("task `{task}` has {settings} settings; the wire headers carry at most {max}")]
     TooManySettings {
+        /// The task's name.
         task: &'static str,
+        /// How many settings it has.
         settings: usize,
+        /// [`wire::MAX_SETTINGS`].
         max: usize,
     },
     /// One of the run's iceoryx2 services could not be opened or created; names the service
@@ -34,10 +37,20 @@ pub enum ProcessError {
     /// port or the operation (`costs publisher`, `send ready`, `notify updater`), `reason` is
     /// iceoryx2's error.
     #[error("{what}: {reason}")]
-    Port { what: String, reason: String },
+    Port {
+        /// The port or operation.
+        what: String,
+        /// iceoryx2's error, as its `Debug` text.
+        reason: String,
+    },
     /// A worker started for a slot the run has no room for.
     #[error("worker slot {worker} is beyond pipeline.max_workers = {max_workers}")]
-    SlotBeyondLimit { worker: u32, max_workers: usize },
+    SlotBeyondLimit {
+        /// The slot given (`--worker`).
+        worker: u32,
+        /// The run's `pipeline.max_workers`: slots are 0 to this less one.
+        max_workers: usize,
+    },
     /// The `make_task` given to [`crate::worker::serve`] failed; its error as it was.
     #[error(transparent)]
     MakeTask(Box<dyn std::error::Error + Send + Sync>),
@@ -58,10 +71,15 @@ pub enum ProcessError {
          {expected_len} and {expected_steps}"
     )]
     WorkItemShape {
+        /// The item's update.
         update: u64,
+        /// Length of the item's θ.
         len: usize,
+        /// The item's step count ([`wire::WorkHeader::steps`]).
         steps: u32,
+        /// The run's P.
         expected_len: usize,
+        /// The run's N.
         expected_steps: usize,
     },
     /// The task refused a setting value in force before `update` (the config's at a run's
@@ -75,9 +93,13 @@ pub enum ProcessError {
         in_force(*changed_by_update)
     )]
     SettingRefused {
+        /// The update of the work item.
         update: u64,
+        /// The setting's name.
         setting: &'static str,
+        /// The value the task refused.
         value: f64,
+        /// Why: the task's error from `Task::set`.
         reason: tasks::TaskError,
         /// `update` changes this setting, so `value` is the one the update before ran with;
         /// otherwise `value` was in force from earlier on.

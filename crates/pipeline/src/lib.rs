@@ -11,6 +11,8 @@
 //! in a WaitSet) and then drains its subscribers. The one bounded exception is a worker polling
 //! for its next work for at most `pipeline.worker_spin_us` after a chunk (`Spin`).
 
+#![warn(missing_docs)]
+
 mod error;
 pub mod result;
 pub mod sampler;
@@ -50,20 +52,31 @@ pub struct ProcessArgs {
     pub run_id: u64,
 }
 
+/// The run id of `--run-id`, hex digits (the supervisor passes 16); the error names the text.
 pub fn parse_run_id(s: &str) -> Result<u64, String> {
     u64::from_str_radix(s, 16).map_err(|e| format!("run id `{s}` is not hex: {e}"))
 }
 
 /// What a process needs from its run: the config, the limits derived from it, and its node.
 pub struct Context {
+    /// The run's config, as loaded from `--config`.
     pub config: RunConfig,
+    /// The run id: every message carries it, every service name contains it.
     pub run_id: u64,
+    /// The run directory (`--run-dir`): the result file, and the recording by default.
     pub run_dir: PathBuf,
+    /// The sizes every service of the run is opened with ([`limits`] of `config`).
     pub limits: Limits,
+    /// This process's iceoryx2 node, with the run's iceoryx2 config ([`wire::node`]).
     pub node: Node<Service>,
 }
 
 impl Context {
+    /// Loads the config and creates the node named `node_name` (a process name of
+    /// [`wire::process`], or [`wire::worker_node_name`]); installs iceoryx2's SIGINT/SIGTERM
+    /// handling ([`termination_requested`]). Fails on a config the process cannot use
+    /// ([`ProcessError::Config`], [`ProcessError::Task`], [`ProcessError::TooManySettings`]) or
+    /// a node that cannot be created ([`ProcessError::Service`]).
     pub fn new(args: &ProcessArgs, node_name: &str) -> Result<Self, ProcessError> {
         let config = RunConfig::load(&args.config)?;
         let limits = limits(&config)?;
@@ -80,6 +93,7 @@ impl Context {
         })
     }
 
+    /// [`result_path`] of this run.
     pub(crate) fn result_path(&self) -> PathBuf {
         result_path(&self.run_dir)
     }
@@ -114,6 +128,7 @@ impl Context {
     }
 }
 
+/// Where the updater writes the run's [`result::RunResult`]: `<run dir>/result.toml`.
 pub fn result_path(run_dir: &Path) -> PathBuf {
     run_dir.join("result.toml")
 }
@@ -142,7 +157,9 @@ pub fn limits(config: &RunConfig) -> Result<Limits, ProcessError> {
 /// A subscriber or a publisher with iceoryx2's default settings on one of the run's services
 /// (as `wire` opens them), named in an error: `wire::control(…)?.subscriber("control")?`.
 pub trait Ports<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> {
+    /// A subscriber; a failure is [`ProcessError::Port`] naming `"<name> subscriber"`.
     fn subscriber(&self, name: &str) -> Result<Subscriber<Service, P, H>, ProcessError>;
+    /// A publisher; a failure is [`ProcessError::Port`] naming `"<name> publisher"`.
     fn publisher(&self, name: &str) -> Result<Publisher<Service, P, H>, ProcessError>;
 }
 
@@ -181,6 +198,7 @@ pub(crate) enum Exit {
     Signal,
 }
 
+/// What a [`wait_loop`]'s handler asks for: wait for the next wake-up, or end the loop.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Flow {
     Continue,
@@ -251,6 +269,7 @@ impl Spin {
     /// Budgets below this are not worth a poll loop.
     const FLOOR: Duration = Duration::from_micros(10);
 
+    /// Polls for up to `max` (0: never).
     pub(crate) fn new(max: Duration) -> Self {
         Self { max, budget: max }
     }
@@ -353,6 +372,7 @@ pub enum Say {
     First,
     /// A worker id beyond the named ones: say that no more are named.
     Last,
+    /// Already named, or past the last warning: say nothing.
     Nothing,
 }
 
@@ -360,6 +380,7 @@ impl OncePerWorker {
     /// Worker ids named one by one; more are a flood, not a misconfigured worker or two.
     pub const NAMED: usize = 8;
 
+    /// What to say about a message of `worker` that cannot be of this run.
     pub fn say(&mut self, worker: u32) -> Say {
         if self.silent || self.named.contains(&worker) {
             Say::Nothing

@@ -134,6 +134,9 @@ struct Current {
     settings_len: u32,
 }
 
+/// The `sampler` process: opens the run's services, announces itself, and serves until the
+/// run's final distribution, SIGINT or SIGTERM. Fails on a config or service error, or on a
+/// distribution not of the run's shape.
 pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let ctx = Context::new(args, wire::process::SAMPLER)?;
     let (dim, k_total, steps) = (ctx.limits.dim, ctx.limits.rollouts, ctx.limits.steps);

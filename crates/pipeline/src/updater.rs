@@ -23,6 +23,7 @@ const PROGRESS_INTERVAL: Duration = Duration::from_millis(200);
 /// The updater's arguments: the usual process arguments and, for a resumed run, its state.
 #[derive(Debug, Clone, clap::Args)]
 pub struct UpdaterArgs {
+    /// The run's config, directory and id.
     #[command(flatten)]
     pub process: ProcessArgs,
     /// Resume from this state (the start file `supervisor run --resume` writes: TOML, values as
@@ -31,6 +32,10 @@ pub struct UpdaterArgs {
     pub start: Option<std::path::PathBuf>,
 }
 
+/// The `updater` process: owns the optimizer, publishes each update's distribution once the
+/// supervisor sends START, takes in the costs, and writes `result.toml` ([`crate::result`])
+/// when the run completes or is stopped. Fails on a config or service error, a cost that is
+/// not finite (beyond `run.nonfinite_reruns`), or a task change the updater's own task refuses.
 pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let ctx = Context::new(&args.process, wire::process::UPDATER)?;
     let cfg = &ctx.config;

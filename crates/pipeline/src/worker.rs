@@ -17,12 +17,16 @@ use crate::{
     Spin,
 };
 
+/// The arguments the supervisor passes to a worker (`--config`, `--run-dir`, `--run-id`,
+/// `--worker`, `--incarnation`): flatten them into your binary's own `clap` parser
+/// (`#[command(flatten)]`) and pass them to [`serve`], or let [`serve_main`] parse them.
 // clap takes an `Args` struct's doc comment, and that of one it flattens (`ProcessArgs`), as
 // the `--help` text of a command that flattens it and has none of its own (a `serve_main`
 // worker): these structs' docs are for rustdoc only.
 #[derive(Debug, Clone, clap::Args)]
 #[command(about = None, long_about = None)]
 pub struct WorkerArgs {
+    /// The run's config, directory and id.
     #[command(flatten)]
     pub process: ProcessArgs,
     /// This worker's slot (its inbox is `work/<worker>`).
