@@ -248,10 +248,13 @@ pub(crate) fn stream(
     file.rewind().map_err(|e| RecordError::io(path, e))?;
     // A chunk is checked against the CRC its writer computed before any of its messages is
     // handed over: damage is reported, never read as other numbers.
-    // A damaged record length must fail as damage, not ask for that much memory. Chunks
-    // decompress to more than they take in the file; 64× leaves room for any our writer makes.
+    // A damaged record length must fail as damage, not ask for that much memory.
     let len = file.metadata().map_err(|e| RecordError::io(path, e))?.len();
-    let limit = usize::try_from(len.saturating_mul(64).max(64 << 20)).unwrap_or(usize::MAX);
+    let limit = record_length_limit(len);
+    // Bytes of the file not yet read. A record outside a chunk is read into memory whole, so a
+    // damaged length within `limit` would still have its buffer filled: reads ask for no more
+    // than the file has left (past that, 64 KiB at a time: a file still being written grows).
+    let mut left = len;
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_prevalidate_chunk_crcs(true)
@@ -261,12 +264,24 @@ pub(crate) fn stream(
     while let Some(event) = reader.next_event() {
         let event = match event {
             Ok(event) => event,
+            Err(
+                e @ (mcap::McapError::ChunkTooLarge(_) | mcap::McapError::RecordTooLarge { .. }),
+            ) => {
+                return Ok(Some(format!(
+                    "records end early: {e} (the limit, {limit} bytes, is the most this file's \
+                     chunks can decompress to, or all of a chunk a reader here holds in memory)"
+                )))
+            }
             Err(e) => return Ok(Some(format!("records end early: {e}"))),
         };
         match event {
             LinearReadEvent::ReadRequest(wanted) => {
-                let buf = reader.insert(wanted.max(1 << 16));
-                let read = file.read(buf).map_err(|e| RecordError::io(path, e))?;
+                let n = wanted.max(1 << 16);
+                let n = usize::try_from(left).map_or(n, |left| n.min(left.max(1 << 16)));
+                let read = file
+                    .read(reader.insert(n))
+                    .map_err(|e| RecordError::io(path, e))?;
+                left = left.saturating_sub(read as u64);
                 reader.notify_read(read);
             }
             LinearReadEvent::Record { opcode, .. } if opcode == crate::recover::OP_RESERVED => {
@@ -293,6 +308,24 @@ pub(crate) fn stream(
     }
     Ok(None)
 }
+
+/// The longest record, or chunk decompressed, that [`stream`] takes from a file of `len` bytes:
+/// a longer length is damage. No chunk decompresses to more than zstd's densest expansion of
+/// the whole file ([`crate::recover::MAX_EXPANSION`]; lz4 and uncompressed chunks expand less).
+/// A bound below that, 64 times the file, refused other programs' chunks that compress better
+/// (zeroed buffers, one-colour images) as damage. mcap's reader fills as much memory as a
+/// chunk's header says it decompresses to before it checks the chunk's CRC, so a damaged size
+/// takes up to this limit: hence also [`MAX_CHUNK`], whatever the size of the file.
+pub(crate) fn record_length_limit(len: u64) -> usize {
+    usize::try_from(len)
+        .unwrap_or(usize::MAX)
+        .saturating_mul(crate::recover::MAX_EXPANSION)
+        .min(MAX_CHUNK)
+}
+
+/// The most of a chunk, decompressed, that [`stream`] holds in memory: 1 GiB, against our
+/// writer's chunks of about 8 MiB and other writers' default of 1 MiB.
+pub(crate) const MAX_CHUNK: usize = 1 << 30;
 
 /// Whether `head`, the first bytes of a file (up to the MCAP magic's length), is how an MCAP
 /// file begins, or as much of it as a writer killed right after creating the file leaves.
@@ -989,6 +1022,81 @@ mod tests {
                     "{e}"
                 );
             }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Another program's MCAP whose chunks compress well (images of one colour, zeroed buffers)
+    /// read as cut short: the readers refused chunks that decompress to more than 64 times the
+    /// file ("records end early: chunk (de)compressed length exceeds limit"), so `info` added
+    /// that to "not a pi2cma recording". Such chunks read whole; a damaged length past what the
+    /// file can hold (a chunk's decompressed size, a record's length) is still refused.
+    #[test]
+    fn chunks_that_compress_well_read_whole_and_damaged_lengths_are_refused() {
+        let dir = std::env::temp_dir().join(format!("reader-zeros-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("zeros.mcap");
+        let mut w = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .create(std::io::BufWriter::new(
+                std::fs::File::create(&path).unwrap(),
+            ))
+            .unwrap();
+        let channel = w.add_channel(0, "/blob", "", &BTreeMap::new()).unwrap();
+        // 80 MiB of zeros in one chunk: a few kB in the file.
+        let message = vec![0u8; 80 << 20];
+        for t in 0..2 {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: t,
+                log_time: t.into(),
+                publish_time: t.into(),
+            };
+            w.write_to_known_channel(&header, &message).unwrap();
+        }
+        w.finish().unwrap();
+        drop(w);
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(bytes.len() < 64 << 10, "{} bytes", bytes.len());
+        let mut sizes = Vec::new();
+        let stopped = stream(&path, |item| {
+            if let Item::Message { topic, data, .. } = item {
+                sizes.push((topic.to_string(), data.len()));
+            }
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(stopped, None);
+        assert_eq!(sizes, vec![("/blob".to_string(), 80 << 20); 2]);
+        let e = read_recording_slim(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("no /run message") && !e.contains("end early"),
+            "{e}"
+        );
+
+        // Damaged lengths: the first chunk's decompressed size (a 1 in its top byte, then all
+        // of it), and the length of the record after it, read as up to 2^64 bytes.
+        let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+        let chunk = summary.chunk_indexes[0].chunk_start_offset as usize;
+        let next = (chunk + 9)
+            + u64::from_le_bytes(bytes[chunk + 1..chunk + 9].try_into().unwrap()) as usize;
+        // opcode, record length, start and end time: then the uncompressed size.
+        let size = chunk + 9 + 16;
+        let damaged = dir.join("damaged.mcap");
+        for (at, value) in [
+            (size + 7, vec![0x01]),
+            (size, vec![0xff; 8]),
+            (next + 1, vec![0xff; 8]),
+            (next + 1, (1u64 << 30).to_le_bytes().to_vec()),
+        ] {
+            let mut b = bytes.clone();
+            b[at..at + value.len()].copy_from_slice(&value);
+            std::fs::write(&damaged, &b).unwrap();
+            let stopped = stream(&damaged, |_| Ok(())).unwrap();
+            assert!(
+                stopped.as_deref().unwrap_or("").contains("end early"),
+                "{value:?} at {at}: {stopped:?}"
+            );
         }
         std::fs::remove_dir_all(&dir).unwrap();
     }

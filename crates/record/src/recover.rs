@@ -330,6 +330,10 @@ fn next_chunk(file: &File, from: u64, len: u64) -> std::io::Result<Option<u64>> 
     Ok(None)
 }
 
+/// The most a chunk's records can take decompressed, per byte of the chunk: zstd's densest
+/// block is RLE, 4 bytes for 128 KiB; lz4 expands less.
+pub(crate) const MAX_EXPANSION: usize = (128 << 10) / 4;
+
 const OP_CHUNK: u8 = 0x06;
 pub(crate) const OP_RESERVED: u8 = 0x00;
 
@@ -375,8 +379,6 @@ fn chunk_reads_whole(file: &File, at: u64, len: u64) -> std::io::Result<bool> {
 /// files, aborted ("memory allocation of 4611686018427387913 bytes failed") or panicked
 /// ("capacity overflow").
 fn chunk_records(body: &[u8]) -> Result<Vec<Record<'static>>, mcap::McapError> {
-    // zstd's densest block is RLE: 4 bytes for 128 KiB; lz4 expands less.
-    const MAX_EXPANSION: usize = (128 << 10) / 4;
     let mut input = Vec::with_capacity(9 + body.len());
     input.push(OP_CHUNK);
     input.extend_from_slice(&(body.len() as u64).to_le_bytes());
