@@ -15,14 +15,16 @@
 //!   unchecked (and undocumented).
 //!
 //! What it is not: a test of the protocol (the end-to-end tests run it), nor of
-//! tools/pi2cma_worker.py's own ctypes declarations, which that file asserts the sizes of.
+//! tools/pi2cma_worker.py's ctypes declarations (tests/python_worker.rs checks those).
+
+mod structs;
 
 use std::collections::BTreeSet;
-use std::mem::{align_of, offset_of, size_of};
 
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe;
 use iceoryx2::service::static_config::message_type_details::{TypeDetail, TypeVariant};
+use structs::rust_structs;
 
 const README: &str = include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../README.md"));
 const LIB: &str = include_str!("../src/lib.rs");
@@ -30,60 +32,6 @@ const SECTION: &str = "### Wire layout (for workers in other languages)";
 
 /// The worker slot the table's `<w>` stands for here.
 const W: u32 = 3;
-
-/// A `#[repr(C)]` type of the contract as Rust lays it out.
-struct RustStruct {
-    name: &'static str,
-    type_name: String,
-    size: usize,
-    align: usize,
-    fields: Vec<(&'static str, usize)>,
-}
-
-/// Each struct with all its fields: one the crate no longer has is a compile error, one it has
-/// more of fails `every_repr_c_struct_of_the_crate_is_checked`.
-macro_rules! rust_structs {
-    ($($t:ident { $($f:ident),* $(,)? })*) => {
-        vec![$(RustStruct {
-            name: stringify!($t),
-            type_name: TypeDetail::new::<wire::$t>(TypeVariant::FixedSize).type_name().to_string(),
-            size: size_of::<wire::$t>(),
-            align: align_of::<wire::$t>(),
-            fields: vec![$((stringify!($f), offset_of!(wire::$t, $f))),*],
-        }),*]
-    };
-}
-
-fn rust_structs() -> Vec<RustStruct> {
-    rust_structs! {
-        DistributionHeader {
-            run_id, update, seed, dim, rollouts, steps, flags, settings_len, _reserved, lambda,
-            settings, previous_settings,
-        }
-        WorkHeader {
-            run_id, update, chunk, rollout, chunk_len, worker, steps, settings_len, flags,
-            settings, previous_settings,
-        }
-        CostHeader {
-            run_id, update, rollout, worker, duration_ns, terminal, start_ns, settings_len,
-            _reserved, settings,
-        }
-        Ready { run_id, chunk, worker, incarnation, pid, flags }
-        Overdue {
-            run_id, update, chunk, held_ms, stalled_ms, worker, incarnation, rollouts, _reserved,
-        }
-        Progress {
-            run_id, updates, elapsed_ns, eval_cost, lambda, flags, settings_len, settings,
-            last_change_seq, last_change_from, refused, last_refused_setting,
-            last_refused_value, last_refused_update,
-        }
-        RecorderAck { run_id, next_update, taken, synced }
-        Lifecycle { run_id, pid, role, worker, incarnation }
-        Control { run_id, kind, worker, incarnation, reason, name_len, pid, name, value, seq, sent }
-        RerunHeader { run_id, update }
-        RunNote { run_id, level, text_len, text }
-    }
-}
 
 /// The README section, up to the next heading.
 fn section() -> &'static str {
@@ -483,7 +431,7 @@ fn the_readme_declares_every_struct_with_the_rust_layout() {
                 cs.size, cs.align, r.size, r.align
             ));
         }
-        for (field, rust_offset) in &r.fields {
+        for (field, rust_offset, _) in &r.fields {
             match cs.fields.iter().find(|f| f.0 == c_name(field)) {
                 None => problems.push(format!(
                     "{name}.{field}: missing from README's C declaration (Rust offset \
@@ -496,7 +444,7 @@ fn the_readme_declares_every_struct_with_the_rust_layout() {
             }
         }
         for (field, offset, padding) in &cs.fields {
-            if !r.fields.iter().any(|(f, _)| c_name(f) == field) {
+            if !r.fields.iter().any(|(f, _, _)| c_name(f) == field) {
                 problems.push(format!(
                     "{name}.{field}: in README's C declaration (offset {offset}), not in Rust's"
                 ));
