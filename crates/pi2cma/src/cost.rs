@@ -22,9 +22,9 @@ impl CostTrajectory {
         }
     }
 
-    /// S_{0}: the total cost of the rollout.
+    /// S_{0}: the total cost of the rollout ([`total_cost`]).
     pub fn total(&self) -> f64 {
-        self.terminal + self.per_step.iter().sum::<f64>()
+        total_cost(&self.per_step, self.terminal)
     }
 
     /// Checks that every value is finite; a NaN or infinite cost would silently poison the weights.
@@ -132,9 +132,9 @@ impl CostBatch {
         self.terminal[k]
     }
 
-    /// Rollout `k`'s total cost S_0 (terminal plus every step).
+    /// Rollout `k`'s total cost S_0 (terminal plus every step, [`total_cost`]).
     pub fn total(&self, k: usize) -> f64 {
-        self.terminal[k] + sum(self.per_step(k))
+        total_cost(self.per_step(k), self.terminal[k])
     }
 
     /// Rollout `k`'s costs as an owned [`CostTrajectory`].
@@ -148,7 +148,7 @@ impl CostBatch {
     /// Writes every rollout's total cost S_0 into `out` (K values).
     pub fn totals_into(&self, out: &mut [f64]) {
         for (k, o) in out.iter_mut().enumerate() {
-            *o = self.terminal[k] + sum(self.per_step(k));
+            *o = total_cost(self.per_step(k), self.terminal[k]);
         }
     }
 
@@ -199,6 +199,13 @@ pub fn check_finite(rollout: usize, per_step: &[f64], terminal: f64) -> Result<(
         }),
         None => Ok(()),
     }
+}
+
+/// S_0 of a rollout: `terminal` plus the step costs summed in the update's order. Every total
+/// (the weights', the eval cost, what a recording and its CSV export show) is this one, to the
+/// bit; a plain left-to-right sum differs in the last digits.
+pub fn total_cost(per_step: &[f64], terminal: f64) -> f64 {
+    terminal + sum(per_step)
 }
 
 /// Σ v with four accumulators, so the additions pipeline instead of forming one long chain
@@ -269,5 +276,32 @@ mod tests {
         ));
         assert_eq!(b.missing().collect::<Vec<_>>(), vec![1]);
         assert_eq!(b.total(0), 6.0);
+    }
+
+    /// S_0 has one value, whoever computes it: the update's (the batch's totals, the eval cost
+    /// recorded), a trajectory's and the CSV export's. Costs whose sum depends on the order of
+    /// the additions tell a second summation apart.
+    #[test]
+    fn a_trajectorys_total_is_the_batchs() {
+        let t = CostTrajectory {
+            per_step: vec![1.0, 1e16, -1e16, 1.0, 0.5],
+            terminal: 0.25,
+        };
+        let mut b = CostBatch::new(1, 5);
+        b.insert_trajectory(0, &t).unwrap();
+        let mut totals = [0.0];
+        b.totals_into(&mut totals);
+        assert_eq!(
+            t.total().to_bits(),
+            b.total(0).to_bits(),
+            "{} {}",
+            t.total(),
+            b.total(0)
+        );
+        assert_eq!(totals[0].to_bits(), b.total(0).to_bits());
+        assert_eq!(
+            total_cost(&t.per_step, t.terminal).to_bits(),
+            b.total(0).to_bits()
+        );
     }
 }

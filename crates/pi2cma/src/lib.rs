@@ -118,7 +118,7 @@ mod update;
 mod weighting;
 
 pub use boundcovar::{boundcovar, EigenvalueBounds};
-pub use cost::{check_finite, CostBatch, CostTrajectory};
+pub use cost::{check_finite, total_cost, CostBatch, CostTrajectory};
 pub use distribution::{Distribution, NoiseKey, Sampler};
 pub use error::{CostError, ParameterError};
 pub use optimizer::{Optimizer, ParameterBatch, UpdateSummary};

@@ -260,7 +260,7 @@ fn update_rows(u: &proto::Update, upd: &mut Csv, rol: &mut Csv) {
             u.update.to_string(),
             r.to_string(),
             f(u.weights.get(r).copied().unwrap_or(f64::NAN)),
-            f(terminal + step.iter().sum::<f64>()),
+            f(pi2cma::total_cost(step, terminal)),
             f(terminal),
         ];
         row.extend(
@@ -285,5 +285,37 @@ mod tests {
         assert_eq!(csv_field("say \"x\""), "\"say \"\"x\"\"\"");
         let v = 0.1 + 0.2;
         assert_eq!(f(v).parse::<f64>().unwrap().to_bits(), v.to_bits());
+    }
+
+    /// `total_cost` is S_0 as the update used it (the eval cost of rollout 0, `/rollout`'s
+    /// total): the CSV summed the step costs in an order of its own, and 507 of the 600 rows of
+    /// a recorded A1 run differed from `rollout.csv` in the last digits.
+    #[test]
+    fn update_rollouts_total_cost_is_the_updates() {
+        let (steps, terminal) = ([1.0, 1e16, -1e16, 1.0, 0.5], 0.25);
+        let mut batch = pi2cma::CostBatch::new(1, steps.len());
+        batch.insert(0, &steps, terminal).unwrap();
+        let u = proto::Update {
+            rollouts: 1,
+            dim: 1,
+            steps: steps.len() as u32,
+            samples: vec![0.0],
+            cost_per_step: steps.to_vec(),
+            cost_terminal: vec![terminal],
+            weights: vec![1.0],
+            ..Default::default()
+        };
+        let dir = std::env::temp_dir().join(format!("csv-total-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (mut upd, mut rol) = (
+            Csv::new(&dir, "update.csv", &[]).unwrap(),
+            Csv::new(&dir, "update_rollouts.csv", &[]).unwrap(),
+        );
+        update_rows(&u, &mut upd, &mut rol);
+        let path = rol.write().unwrap();
+        let text = std::fs::read_to_string(path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let total = text.lines().nth(1).unwrap().split(',').nth(3).unwrap();
+        assert_eq!(total, f(batch.total(0)), "{text}");
     }
 }
