@@ -502,17 +502,29 @@ impl WriterState {
         // ended with, so that a change taking effect there (a scheduled one the stopped run did
         // not reach) is recorded, as the in-process runner records it. Without them only that
         // marker is lost.
-        if let Some(settings) = start.as_ref().map(|s| &s.settings) {
-            let by_name: Vec<f64> = names
-                .iter()
-                .map(|n| {
-                    settings
-                        .iter()
-                        .find(|(s, _)| s == n)
-                        .map_or(f64::NAN, |(_, v)| *v)
-                })
-                .collect();
-            assembler.continue_from(by_name);
+        // A new run's first update is compared with the task's configured settings: a change
+        // taking effect at update 0 (a schedule's `from_update = 0`, a `supervisor set` before
+        // the first update) is then recorded at 0, as the in-process runner records it; the
+        // updater publishes update 0 with itself as the update before.
+        let ran_before: Option<Vec<f64>> = match (start.as_ref(), &resumed_from) {
+            (Some(start), _) => Some(
+                names
+                    .iter()
+                    .map(|n| {
+                        start
+                            .settings
+                            .iter()
+                            .find(|(s, _)| s == n)
+                            .map_or(f64::NAN, |(_, v)| *v)
+                    })
+                    .collect(),
+            ),
+            (None, None) => Some(task.settings().iter().map(|(_, v)| *v).collect()),
+            // A resumed run whose resume point was not found: no settings to compare with.
+            (None, Some(_)) => None,
+        };
+        if let Some(settings) = ran_before {
+            assembler.continue_from(settings);
         }
         Ok(Self {
             writer,
@@ -616,9 +628,12 @@ impl WriterState {
                 let previous = wire::unpack_settings(&h.previous_settings, h.settings_len);
                 if !self.started {
                     self.started = true;
-                    if self.restart.is_some() {
-                        // What the update before ran with: a change taking effect at the first
-                        // update of this part is recorded as one.
+                    // What the update before ran with: a change taking effect at the first
+                    // update of this part (or of a run joined under way) is recorded as one.
+                    // A new run's update 0 is compared with the configured settings instead
+                    // (`WriterState::new`), a resumed run's with its recording's.
+                    let joined = self.resumed_from.is_none() && h.update > 0;
+                    if self.restart.is_some() || joined {
                         self.assembler.continue_from(previous.to_vec());
                     }
                     let initial = pi2cma::Distribution {

@@ -6080,3 +6080,41 @@ fn a_lost_workers_finished_rollouts_do_not_run_again() {
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
 }
+
+/// A change that takes effect at update 0 (a schedule's `from_update = 0`, or a `supervisor
+/// set` before the first update) is recorded as a `/task_change` at 0, as the in-process
+/// runner records it: the pipeline's recorder compared the first update with nothing, so the
+/// same run analysed without a change marker and its config's value in view (found comparing
+/// `analyze` of both recordings).
+#[test]
+fn a_change_at_update_0_is_recorded_as_in_process() {
+    let scratch = Scratch::new("change-at-0");
+    let text = config(&[
+        ("updates = 40", "updates = 3"),
+        ("from_update = 20", "from_update = 0"),
+    ]);
+    let cfg_path = write_config(&scratch, "at0.toml", &text);
+    let in_process = scratch.path("in-process.mcap");
+    let cfg = RunConfig::parse(&text, &cfg_path).unwrap();
+    let mut rec = record::McapRecorder::create(&in_process).unwrap();
+    session::run_session(&cfg, cfg.run.seed, &mut rec).unwrap();
+    rec.finish().unwrap();
+    let mut run = Run::start(&scratch, 6000, &[cfg_path.to_str().unwrap(), "--quiet"]);
+    run.wait_exit(Duration::from_secs(60), 0);
+    let changes = |p: &Path| -> Vec<(u64, String, f64)> {
+        record::read_recording(p)
+            .unwrap()
+            .task_changes
+            .iter()
+            .map(|c| (c.update, c.name.clone(), c.value))
+            .collect()
+    };
+    let expected = vec![(0, "viapoint".to_string(), 0.1)];
+    assert_eq!(changes(&in_process), expected);
+    assert_eq!(
+        changes(&scratch.recording("A1", 6000)),
+        expected,
+        "{}",
+        run.text()
+    );
+}
