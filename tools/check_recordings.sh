@@ -100,22 +100,37 @@ begin "the update rule of every variant, recomputed by an independent NumPy impl
 # verify` (our code recomputing itself) cannot. Each variant is a config of config/ changed by
 # sed; together they reach every kernel of the update (P = 2 closed form, 3 ≤ P ≤ m dense,
 # P > m low rank; episodic, per time step, basis activation; CEM, PI² constant and decaying).
-variant() { # name, base config, sed script
-  sed -e "s/^name = .*/name = \"$1\"/" -e "$3" "config/$2.toml" > "$work/$1.toml"
-  "$bin/pi2cma" run "$work/$1.toml" --out "$work/$1" --quiet > /dev/null
-  checked+=("$work/$1/run.mcap")
+variant() { # name, base config, sed expressions (each one must change the config)
+  local name="$1" base="config/$2.toml" edits=(-e "s/^name = .*/name = \"$1\"/")
+  shift 2
+  # An expression that matches no line left the variant its base config: the kernel it was
+  # for went unchecked, and the stage passed all the same.
+  for e in "$@"; do
+    if sed -e "$e" "$base" | cmp -s - "$base"; then
+      echo "FAIL: variant $name: \`$e\` changes nothing in $base" >&2
+      failed
+      exit 1
+    fi
+    edits+=(-e "$e")
+  done
+  sed "${edits[@]}" "$base" > "$work/$name.toml"
+  "$bin/pi2cma" run "$work/$name.toml" --out "$work/$name" --quiet > /dev/null
+  checked+=("$work/$name/run.mcap")
 }
 checked=("$work/in-process.mcap" "$work/pipeline.mcap" "$work/killed.mcap")
-variant A1 A1 ''
-variant A1-p5-per-step A1 's/^weighting = .*/weighting = "per-time-step"/; s/^basis_functions = 2/basis_functions = 5/'
-variant A1-p20-basis A1 's/^weighting = .*/weighting = "per-time-step"\ntemporal_averaging = "basis-activation"/; s/^basis_functions = 2/basis_functions = 20/'
-variant CEM-per-step A1 's/^method = .*/method = "cem"/; s/^weighting = .*/weighting = "per-time-step"/; s/^eliteness = .*/elites = 5/'
-variant C2 C2 ''
+variant A1 A1
+variant A1-p5-per-step A1 's/^weighting = .*/weighting = "per-time-step"/' 's/^basis_functions = 2/basis_functions = 5/'
+variant A1-p20-basis A1 's/^weighting = .*/weighting = "per-time-step"\ntemporal_averaging = "basis-activation"/' \
+  's/^basis_functions = 2/basis_functions = 20/'
+variant CEM-per-step A1 's/^method = .*/method = "cem"/' 's/^weighting = .*/weighting = "per-time-step"/' \
+  's/^eliteness = .*/elites = 5/'
+variant C2 C2
 variant D-per-step D 's/^weighting = .*/weighting = "per-time-step"/'
-variant tball tball ''
+variant tball tball
 # One B×B covariance per joint (optimizer.covariance): 7 blocks of 3, episodic and per time step.
 variant tball-per-dimension tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "per-dimension"/'
-variant tball-per-dimension-per-step tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "per-dimension"/; s/^weighting = .*/weighting = "per-time-step"/'
+variant tball-per-dimension-per-step tball 's/^\[optimizer\]$/[optimizer]\ncovariance = "per-dimension"/' \
+  's/^weighting = .*/weighting = "per-time-step"/'
 "$bin/mcap-tool" verify "$work/tball-per-dimension-per-step/run.mcap"
 python3 tools/check_update.py "${checked[@]}"
 done_stage
