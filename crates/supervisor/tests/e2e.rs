@@ -398,12 +398,7 @@ fn assert_nothing_left(run: &Run) {
 
 /// The A1 config with changes applied by text replacement (checked to apply).
 fn config(edits: &[(&str, &str)]) -> String {
-    let mut text = session::DEFAULT_CONFIG.to_string();
-    for (from, to) in edits {
-        assert!(text.contains(from), "`{from}` not in the default config");
-        text = text.replacen(from, to, 1);
-    }
-    text
+    pipeline_checks::edited(session::DEFAULT_CONFIG, edits)
 }
 
 fn write_config(scratch: &Scratch, name: &str, text: &str) -> PathBuf {

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use pipeline_checks::{assert_recorded, assert_recovered, signal, KillOnDrop};
+use pipeline_checks::{assert_recorded, assert_recovered, edited, signal, KillOnDrop};
 use record::read_recording;
 use record::recover::recover;
 
@@ -42,12 +42,16 @@ fn setup(name: &str, updates: u64, delay_ms: f64) -> Run {
 /// [`setup`], with the lines `run_lines` added to the `[run]` section.
 fn setup_with(name: &str, updates: u64, delay_ms: f64, run_lines: &str) -> Run {
     let dir = scratch::scratch(&format!("pipeline-{name}"));
-    let text = session::DEFAULT_CONFIG
-        .replace("updates = 40", &format!("updates = {updates}\n{run_lines}"))
-        .replace(
-            "viapoint_weight = 1000.0",
-            &format!("viapoint_weight = 1000.0\nrollout_delay_ms = {delay_ms}"),
-        );
+    let text = edited(
+        session::DEFAULT_CONFIG,
+        &[
+            ("updates = 40", &format!("updates = {updates}\n{run_lines}")),
+            (
+                "viapoint_weight = 1000.0",
+                &format!("viapoint_weight = 1000.0\nrollout_delay_ms = {delay_ms}"),
+            ),
+        ],
+    );
     let config = dir.join("config.toml");
     std::fs::write(&config, text).unwrap();
     let salt = match name {
@@ -307,9 +311,15 @@ fn a_stopped_recorder_loses_nothing_of_a_run_that_reruns_every_rollout() {
 #[test]
 fn a_stopped_recorder_loses_nothing_when_reruns_would_overfill_its_buffer() {
     rerun_every_rollout_with_the_recorder_stopped("stop-reruns-one-worker", 300, |text| {
-        text.replace("dt = 0.01", "dt = 0.0002").replace(
-            "workers = 3\nmax_workers = 16",
-            "workers = 1\nmax_workers = 1",
+        edited(
+            &text,
+            &[
+                ("dt = 0.01", "dt = 0.0002"),
+                (
+                    "workers = 3\nmax_workers = 16",
+                    "workers = 1\nmax_workers = 1",
+                ),
+            ],
         )
     });
 }
