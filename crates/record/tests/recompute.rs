@@ -125,14 +125,22 @@ fn recompute_covers_every_update_rule() {
         ),
     ];
     for (name, a, b, c, d) in variants {
-        let mut text = session::DEFAULT_CONFIG
-            .replace(a, b)
-            .replace("updates = 40", "updates = 6");
-        if !c.is_empty() {
-            text = text.replace(c, d);
-        }
-        if name == "pi2" {
-            text = text.replace("lambda_max = inf", "");
+        let pi2 = if name == "pi2" {
+            "lambda_max = inf"
+        } else {
+            ""
+        };
+        let mut text = session::DEFAULT_CONFIG.to_string();
+        // Each edit must apply: one that did not left the variant the default (episodic
+        // PI²-CMA), and its update rule went unchecked.
+        for (from, to) in [(a, b), ("updates = 40", "updates = 6"), (c, d), (pi2, "")] {
+            if !from.is_empty() {
+                assert!(
+                    text.contains(from),
+                    "{name}: `{from}` not in the default config"
+                );
+                text = text.replacen(from, to, 1);
+            }
         }
         let cfg = RunConfig::parse(&text, std::path::Path::new(name)).unwrap();
         let path = record(&cfg, 3, &format!("{name}.mcap"));
