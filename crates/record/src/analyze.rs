@@ -21,15 +21,12 @@ mod test_support;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-pub use crate::digest::{TimelineBar, TIMELINE_UPDATES};
 use crate::recompute::read_and_verify;
 use crate::{join_resumed, read_recording_slim, RecordError, Recording};
 pub use csv::export_csv;
 pub use experiment::{experiment, reconvergence, ExperimentReport, Segment};
-pub use figures::{
-    plot, timeline, CURVE_BUCKETS, CURVE_POINTS, MIN_CHANGE_ELLIPSE_PIXELS, NOTHING_TO_PLOT,
-};
-pub use info::{info, info_for, missing_before_restart, update_times, UpdateTimes};
+pub use figures::{plot, NOTHING_TO_PLOT};
+pub use info::{info, info_for, missing_before_restart};
 use info::{missing_updates, why_missing};
 use runs::drop_copies;
 pub use runs::join_runs;

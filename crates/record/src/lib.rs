@@ -16,9 +16,9 @@
 //! "Recording (MCAP) and analysis".
 
 pub mod analyze;
-pub mod assemble;
+mod assemble;
 mod convert;
-pub mod digest;
+mod digest;
 mod error;
 pub mod pipeline_recorder;
 mod reader;
@@ -46,20 +46,22 @@ pub mod proto {
     pub use self::pi2cma::record::*;
 }
 
-pub use convert::{
-    config_to_toml, distribution_from_proto, hyperparameters_from_proto, ConvertError,
-};
-pub use digest::{Digest, UpdatePoint};
+pub(crate) use convert::hyperparameters_from_proto;
+pub use convert::{config_to_toml, distribution_from_proto, ConvertError};
+
+pub(crate) use digest::{Digest, UpdatePoint};
 pub use error::RecordError;
 pub use reader::{
-    join_resumed, read_ends, read_recording, read_recording_slim, read_recording_slim_with,
-    read_run_metadata, Decoded, Ends, Recording,
+    join_resumed, read_ends, read_recording, read_recording_slim, read_run_metadata, Ends,
+    Recording,
 };
+pub(crate) use reader::{read_recording_slim_with, Decoded};
 pub use recorder::McapRecorder;
 pub use split::{
     analyze_command, describe_parts, file_name_part, first_part, last_part, part_number, part_path,
-    part_path_or_first, program_name, recording_parts, refuse_overwrite, resumed_chain, RunFiles,
+    program_name, recording_parts, refuse_overwrite, resumed_chain,
 };
+pub(crate) use split::{part_path_or_first, RunFiles};
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};
 
 /// Whether a writer ([`RunWriter::create`]: a running recorder, `pi2cma run`) holds `path`
@@ -72,20 +74,20 @@ pub fn being_written(path: &std::path::Path) -> bool {
 
 /// The FileDescriptorSet of every schema (with `google/protobuf/timestamp.proto`), stored as the
 /// schema data of each channel.
-pub const DESCRIPTORS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/descriptors.bin"));
+pub(crate) const DESCRIPTORS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/descriptors.bin"));
 
 /// Topic names and the fully qualified protobuf message name of each.
 pub mod topics {
-    pub const RUN: &str = "/run";
-    pub const UPDATE: &str = "/update";
-    pub const SUMMARY: &str = "/summary";
-    pub const ROLLOUT: &str = "/rollout";
-    pub const TASK_CHANGE: &str = "/task_change";
-    pub const LOG: &str = "/log";
-    pub const UNFINISHED_UPDATE: &str = "/unfinished_update";
+    pub(crate) const RUN: &str = "/run";
+    pub(crate) const UPDATE: &str = "/update";
+    pub(crate) const SUMMARY: &str = "/summary";
+    pub(crate) const ROLLOUT: &str = "/rollout";
+    pub(crate) const TASK_CHANGE: &str = "/task_change";
+    pub(crate) const LOG: &str = "/log";
+    pub(crate) const UNFINISHED_UPDATE: &str = "/unfinished_update";
 
     /// (topic, schema name) of every channel a recording has, in the order they are created.
-    pub const ALL: [(&str, &str); 7] = [
+    pub(crate) const ALL: [(&str, &str); 7] = [
         (RUN, "pi2cma.record.RunInfo"),
         (UPDATE, "pi2cma.record.Update"),
         (SUMMARY, "pi2cma.record.UpdateSummary"),

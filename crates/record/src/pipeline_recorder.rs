@@ -38,7 +38,7 @@ use session::reruns::{after_reruns, rerun_message, NonfiniteReruns, Verdict};
 use wire::{Control, CostHeader, DistributionHeader, Lifecycle, RunNote};
 
 /// The `lifecycle` role this process announces.
-pub const ROLE_RECORDER: u32 = wire::role::RECORDER;
+pub(crate) const ROLE_RECORDER: u32 = wire::role::RECORDER;
 
 /// The recorder's arguments: the usual process arguments and where to write.
 #[derive(Debug, Clone, clap::Args)]

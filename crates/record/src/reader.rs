@@ -58,7 +58,7 @@ impl Recording {
     }
 
     /// A value of the MCAP metadata record `pi2cma.run`.
-    pub fn run_metadata(&self, key: &str) -> Option<&str> {
+    pub(crate) fn run_metadata(&self, key: &str) -> Option<&str> {
         self.metadata
             .get(topics::METADATA)
             .and_then(|m| m.get(key))
@@ -89,7 +89,7 @@ impl Recording {
 
     /// Calls `f` with every update, bulk included, in order: from memory, or for a recording
     /// read slim, streamed from its files one update at a time.
-    pub fn for_each_update(
+    pub(crate) fn for_each_update(
         &self,
         f: impl FnMut(&proto::Update) -> Result<(), RecordError>,
     ) -> Result<(), RecordError> {
@@ -99,7 +99,7 @@ impl Recording {
     /// Calls `f` with every `/update`, `/summary`, `/rollout` and `/log` message: from memory
     /// (topic by topic), or for a recording read slim, streamed from its files in one pass (in
     /// file order). Each topic's messages come in their order either way.
-    pub fn for_each_message(
+    pub(crate) fn for_each_message(
         &self,
         mut f: impl FnMut(Decoded<'_>) -> Result<(), RecordError>,
     ) -> Result<(), RecordError> {
@@ -520,7 +520,7 @@ impl Recording {
     /// (`--resume`): same seed, task shape and hyperparameters, its first update is the one
     /// after this recording's last, drawn from this recording's last new distribution, bit for
     /// bit. Judged by content, not by file name, so renamed or moved files still join.
-    pub fn is_continued_by(&self, next: &Recording) -> bool {
+    pub(crate) fn is_continued_by(&self, next: &Recording) -> bool {
         let (Some(last), Some(first)) = (self.updates.last(), next.updates.first()) else {
             return false;
         };
@@ -538,7 +538,7 @@ impl Recording {
     /// join), the same seed, task shape and hyperparameters, and a later first update. The
     /// updates between them, which the dead recorder had not written, are missing from the
     /// joined run (the info summary lists them).
-    pub fn is_continued_after_restart_by(&self, next: &Recording) -> bool {
+    pub(crate) fn is_continued_after_restart_by(&self, next: &Recording) -> bool {
         let meta = Recording::run_metadata;
         let previous_is_mine = meta(next, "previous_part")
             .and_then(|p| Path::new(p).file_name())

@@ -85,7 +85,7 @@ pub(crate) fn same_bits(a: &[f64], b: &[f64]) -> bool {
 
 /// Whether the recomputed update equals the recorded one bit for bit (distribution after and
 /// per-rollout weights).
-pub fn matches_recorded(u: &proto::Update, r: &Recomputed) -> bool {
+pub(crate) fn matches_recorded(u: &proto::Update, r: &Recomputed) -> bool {
     let Some(after) = u.after.as_ref() else {
         return false;
     };

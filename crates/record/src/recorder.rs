@@ -21,7 +21,7 @@ use crate::RunFiles;
 use crate::{config_to_toml, RecordError};
 
 /// Worker name of every rollout of the in-process runner.
-pub const IN_PROCESS: &str = session::IN_PROCESS;
+pub(crate) const IN_PROCESS: &str = session::IN_PROCESS;
 
 struct StartJob {
     name: String,
@@ -257,10 +257,6 @@ impl McapRecorder {
             .zip(start.ran_with_values(&names, &in_force))
             .collect();
         self
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 
     /// Updates confirmed flushed so far.

@@ -16,7 +16,7 @@ use plotters::coord::ranged1d::{KeyPointHint, NoDefaultFormatting, Ranged, Value
 
 /// The tick labels' font size in pixels as plotters sizes its default label font (12; the SVG
 /// backend draws it smaller, so the estimate errs on the wide side).
-pub const FONT_PX: f64 = 12.0;
+pub(crate) const FONT_PX: f64 = 12.0;
 
 /// Width of a character of a tick label as a fraction of the font size (digits, '.', '-' in a
 /// sans-serif font are narrower).
@@ -299,7 +299,7 @@ pub fn equal_scale(x: (f64, f64), y: (f64, f64), w: f64, h: f64) -> ((f64, f64),
 /// Whether a cost axis should be logarithmic: every value plotted is positive and they span
 /// more than two decades (a run whose cost falls from 80 to 0.05 is a flat line after its
 /// second update on a linear axis).
-pub fn wants_log(values: impl IntoIterator<Item = f64>) -> bool {
+pub(crate) fn wants_log(values: impl IntoIterator<Item = f64>) -> bool {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for v in values.into_iter().filter(|v| v.is_finite()) {
         if v <= 0.0 {

@@ -105,7 +105,7 @@ pub enum Event {
 }
 
 impl Event {
-    pub fn as_str(self) -> &'static str {
+    pub(crate) fn as_str(self) -> &'static str {
         match self {
             Event::Start => "start",
             Event::Exit => "exit",
@@ -240,12 +240,8 @@ impl<W: Write + Seek> RunWriter<W> {
         })
     }
 
-    pub fn file(&self) -> &Path {
-        &self.file
-    }
-
     /// Bytes of messages written so far, before compression (what `recording.split_mb` bounds).
-    pub fn bytes_written(&self) -> u64 {
+    pub(crate) fn bytes_written(&self) -> u64 {
         self.bytes
     }
 
@@ -461,7 +457,7 @@ impl<W: Write + Seek> RunWriter<W> {
     }
 
     /// `/task_change`: setting `name` became `value` before update `update`.
-    pub fn write_task_change(
+    pub(crate) fn write_task_change(
         &mut self,
         update: u64,
         name: &str,
@@ -479,7 +475,7 @@ impl<W: Write + Seek> RunWriter<W> {
 
     /// `/unfinished_update`: the settings update `update` was to run with, its distribution
     /// published but the update not complete when the run stopped.
-    pub fn write_unfinished_update(
+    pub(crate) fn write_unfinished_update(
         &mut self,
         update: u64,
         task_settings: &[(&str, f64)],

@@ -16,11 +16,8 @@ use super::io;
 use crate::digest::TIMELINE_UPDATES;
 use crate::{RecordError, Recording, UpdatePoint};
 pub(super) use curves::{draw_curves, Curve, Values};
-pub use curves::{CURVE_BUCKETS, CURVE_POINTS};
 use distribution::plot_ellipses;
-pub use distribution::MIN_CHANGE_ELLIPSE_PIXELS;
-pub use workers::timeline;
-use workers::{plot_worker_time, plot_worker_timeline};
+use workers::{plot_worker_time, plot_worker_timeline, timeline};
 
 /// matplotlib's tab10.
 const PALETTE: [RGBColor; 10] = [
