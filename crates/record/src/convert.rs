@@ -23,14 +23,22 @@ pub enum ConvertError {
         dim * dim
     )]
     DistributionShape {
+        /// The dimension P the message states.
         dim: usize,
+        /// How many mean values it holds (should be P).
         mean: usize,
+        /// How many covariance values it holds (should be P × P).
         covariance: usize,
     },
     /// An enum field of the hyperparameters holding a value this build does not know (a
     /// recording from a newer build, or damage).
     #[error("hyperparameters.{field} = {value}: unknown")]
-    UnknownValue { field: &'static str, value: i32 },
+    UnknownValue {
+        /// The hyperparameters field (e.g. `weighting`).
+        field: &'static str,
+        /// The value it holds.
+        value: i32,
+    },
 }
 
 pub(crate) fn distribution_to_proto(d: &Distribution) -> proto::Distribution {

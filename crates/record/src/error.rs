@@ -6,36 +6,61 @@
 
 use std::path::PathBuf;
 
+/// Why reading, writing, recovering or analysing a recording failed.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum RecordError {
+    /// Opening, reading, writing or creating a file failed.
     #[error("{file}: {error}")]
     Io {
+        /// The file (or directory) concerned.
         file: PathBuf,
+        /// What the operating system said.
         error: std::io::Error,
     },
+    /// The file is not valid MCAP, or the MCAP library failed to write it.
     #[error("{file}: MCAP: {}", mcap_message(error))]
     Mcap {
+        /// The recording.
         file: PathBuf,
+        /// What the MCAP library said.
         error: mcap::McapError,
     },
+    /// A message's bytes are not the protobuf message its topic's schema names.
     #[error("{file}: topic {topic}, message {index}: cannot decode as {schema}: {error}")]
     Decode {
+        /// The recording.
         file: PathBuf,
+        /// The message's topic (e.g. `/update`).
         topic: String,
+        /// The message's position among its topic's messages, from 0.
         index: u64,
+        /// The protobuf message it should be (e.g. `pi2cma.record.Update`).
         schema: &'static str,
+        /// What prost said.
         error: prost::DecodeError,
     },
     /// A run config that cannot be read or is not valid (its message names file and field).
     #[error("{0}")]
     Config(session::ConfigError),
+    /// The file is not what the operation needs: not a pi2cma recording, one that cannot be
+    /// resumed or joined as asked, a file another writer holds (`what` says which).
     #[error("{file}: {what}")]
-    Invalid { file: PathBuf, what: String },
+    Invalid {
+        /// The file concerned.
+        file: PathBuf,
+        /// What is wrong with it.
+        what: String,
+    },
+    /// One recorded update is inconsistent (a distribution of the wrong shape, an unknown
+    /// hyperparameter value, inputs the core refuses when recomputing it).
     #[error("{file}: update {update}: {what}")]
     Update {
+        /// The recording.
         file: PathBuf,
+        /// The update's number.
         update: u64,
+        /// What is wrong with it.
         what: String,
     },
     /// A recording whose writer failed mid-run (a full disk): `cause` names the file and the
@@ -44,17 +69,27 @@ pub enum RecordError {
     /// finished, if one is not (the last).
     #[error("{cause}; the recording stopped there: {}", stopped_note(self))]
     Stopped {
+        /// The recording (its first part, when split).
         file: PathBuf,
+        /// The write error that stopped it, with the file it was writing.
         cause: String,
+        /// The first update the recording holds.
         first: u64,
+        /// How many updates it holds.
         updates: u64,
+        /// How many files it has (1 unless split).
         parts: usize,
+        /// The part left unfinished (to `recover`), if any.
         unfinished: Option<PathBuf>,
     },
+    /// Drawing a figure failed.
     #[error("{file}: figure {figure}: {what}")]
     Plot {
+        /// The SVG file being drawn.
         file: PathBuf,
+        /// Which figure (e.g. `worker_timeline`).
         figure: String,
+        /// What the plotting library said.
         what: String,
     },
 }

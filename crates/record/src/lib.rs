@@ -14,6 +14,7 @@
 //! iceoryx2 services and writes through [`RunWriter`]. Only [`pipeline_recorder`] knows of
 //! processes and shared memory; the rest reads and writes files. Topic names and schemas are documented in the repository README, section
 //! "Recording (MCAP) and analysis".
+#![warn(missing_docs)]
 
 pub mod analyze;
 mod assemble;
@@ -32,13 +33,22 @@ mod split;
 pub mod ticks;
 mod writer;
 
-/// Generated protobuf types (prost) of `proto/`.
+/// The messages a recording holds, as prost generates them from `crates/record/proto/`
+/// (`pi2cma/record.proto`, `foxglove/Log.proto`): one type per message, one field per protobuf
+/// field, with the comments of the `.proto` files.
+// The generated code carries the .proto comments where there are some; the .proto files and
+// the README's "File format" section (under "Recording (MCAP) and analysis") document every
+// message and field, so the generated items are not documented again here.
+#[allow(missing_docs)]
 pub mod proto {
+    /// Package `pi2cma`.
     pub mod pi2cma {
+        /// Package `pi2cma.record`: the run's own messages.
         pub mod record {
             include!(concat!(env!("OUT_DIR"), "/pi2cma.record.rs"));
         }
     }
+    /// Package `foxglove`: `Log`, the health events on `/log`.
     pub mod foxglove {
         include!(concat!(env!("OUT_DIR"), "/foxglove.rs"));
     }
@@ -76,7 +86,8 @@ pub fn being_written(path: &std::path::Path) -> bool {
 /// schema data of each channel.
 pub(crate) const DESCRIPTORS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/descriptors.bin"));
 
-/// Topic names and the fully qualified protobuf message name of each.
+/// Topic names and the fully qualified protobuf message name of each (the names are
+/// crate-private; the README's "File format" section lists them).
 pub mod topics {
     pub(crate) const RUN: &str = "/run";
     pub(crate) const UPDATE: &str = "/update";

@@ -7,7 +7,7 @@
 //! on its own doorbell, `wake/recorder`, which the updater rings after a distribution when the
 //! recorder may be asleep. Because those services keep no history, it must be subscribed before
 //! the updater publishes the distribution of update 0: start it first and wait for its
-//! `lifecycle` message (role [`ROLE_RECORDER`]) before sending START.
+//! `lifecycle` message (role [`wire::role::RECORDER`]) before sending START.
 //!
 //! Delivery is lossless by back-pressure, not by buffer size: it acknowledges each update it
 //! has written and flushed on `recorded` ([`wire::RecorderAck`], with the cost messages of
@@ -43,6 +43,7 @@ pub(crate) const ROLE_RECORDER: u32 = wire::role::RECORDER;
 /// The recorder's arguments: the usual process arguments and where to write.
 #[derive(Debug, Clone, clap::Args)]
 pub struct RecorderArgs {
+    /// Run directory, run id, process name: what the supervisor passes every process.
     #[command(flatten)]
     pub process: pipeline::ProcessArgs,
     /// Where to write the recording; default `<run dir>/run.mcap`.

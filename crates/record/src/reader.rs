@@ -20,7 +20,9 @@ use crate::{proto, topics, Digest, RecordError};
 /// A decoded recording.
 #[derive(Debug, Clone, Default)]
 pub struct Recording {
+    /// The file read (the first, for a joined run).
     pub path: PathBuf,
+    /// Its size in bytes (the sum of the files, for a joined run).
     pub file_bytes: u64,
     /// Whether the file has a summary section (i.e. was finished or recovered).
     pub indexed: bool,
@@ -28,22 +30,24 @@ pub struct Recording {
     pub truncated: Option<String>,
     /// MCAP metadata records by name.
     pub metadata: BTreeMap<String, BTreeMap<String, String>>,
+    /// The `/run` messages: one per start or resume of the run in this file.
     pub run: Vec<proto::RunInfo>,
     /// Every update, read whole; read slim, only the first and the last of each file, without
     /// their bulk (what joining files into runs compares): `digest` has every update's scalars.
     pub updates: Vec<proto::Update>,
-    /// Empty when read slim (streamed by [`Recording::for_each_message`]).
+    /// Empty when read slim.
     pub summaries: Vec<proto::UpdateSummary>,
-    /// Empty when read slim (streamed by [`Recording::for_each_message`]).
+    /// Empty when read slim.
     pub rollouts: Vec<proto::Rollout>,
+    /// The `/task_change` messages, in file order.
     pub task_changes: Vec<proto::TaskChange>,
-    /// Empty when read slim (streamed by [`Recording::for_each_message`]).
+    /// Empty when read slim.
     pub logs: Vec<proto::Log>,
     /// What analysis keeps of the messages, either way read.
-    pub digest: Digest,
+    pub(crate) digest: Digest,
     /// Message counts per topic, including topics this reader does not know.
     pub topic_counts: BTreeMap<String, u64>,
-    /// log_time of the first and last message.
+    /// log_time (wall-clock ns since the Unix epoch) of the first and last message.
     pub time_range: Option<(u64, u64)>,
     /// The files read, in order (more than one for a joined run, [`Recording::join`]).
     pub files: Vec<PathBuf>,
@@ -400,7 +404,9 @@ fn damaged(path: &Path, why: &str) -> RecordError {
 /// The first `/run` message and the last complete `/update` of a recording.
 #[derive(Debug, Clone, Default)]
 pub struct Ends {
+    /// The first `/run` message, if the file has one.
     pub run: Option<proto::RunInfo>,
+    /// The last complete `/update` message, if any.
     pub last_update: Option<proto::Update>,
     /// How many `/update` messages the file holds.
     pub updates: u64,
@@ -559,7 +565,7 @@ impl Recording {
             && theirs.hyperparameters == mine.hyperparameters
     }
 
-    /// This recording followed by `next` ([`Recording::is_continued_by`]), as one run: the
+    /// This recording followed by `next`, which resumes it (see [`join_resumed`]), as one run: the
     /// messages of both in order, each `/run` kept (the second says where the run resumed),
     /// the metadata of the first, and the damage of the second (the first's end was resumed
     /// from, so nothing of it is missing).
@@ -601,9 +607,11 @@ impl Recording {
 }
 
 /// Recordings grouped into runs: each run is a recording followed by those that resume it
-/// ([`Recording::is_continued_by`]) or that a restarted recorder went on with
-/// ([`Recording::is_continued_after_restart_by`]), in any order given; runs are in the order of their first
-/// file. Returns each run with the files it was joined from.
+/// (same seed, task shape and hyperparameters, first update the one after its last, drawn from
+/// its last new distribution bit for bit; judged by content, not file name) or that a
+/// restarted pipeline recorder went on with (metadata `recorder_restart`, the same `run_id`,
+/// `previous_part` naming its last file), in any order given; runs are in the order of their
+/// first file. Returns each run with the files it was joined from.
 pub fn join_resumed(recs: Vec<Recording>) -> Vec<(Recording, Vec<PathBuf>)> {
     let n = recs.len();
     // The predecessor of each recording, if another one given ends where it starts.
@@ -661,8 +669,8 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
 
 /// Reads and decodes a recording, each `/update` without its bulk: `samples`, `cost_per_step`,
 /// `cost_terminal` and `weights` are left empty ([`Recording::slim`]); everything else, the
-/// distributions before and after included, is read. [`Recording::for_each_update`] gives the
-/// whole updates.
+/// distributions before and after included, is read. [`read_recording`] reads the whole
+/// updates.
 pub fn read_recording_slim(path: &Path) -> Result<Recording, RecordError> {
     read(path, true, &mut |_, _| {})
 }

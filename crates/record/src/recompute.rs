@@ -12,14 +12,19 @@ use crate::{
 /// One update recomputed: the core's new distribution and weights.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recomputed {
+    /// The update's number.
     pub update: u64,
+    /// The distribution the core computes from the recorded inputs (compare with the
+    /// recorded `after`).
     pub after: Distribution,
+    /// The K rollout weights it computes, in rollout order.
     pub weights: Vec<f64>,
 }
 
 /// The outcome of recomputing a whole recording.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct VerifyReport {
+    /// How many updates were recomputed.
     pub updates: usize,
     /// Updates whose recomputed distribution or weights differ from the recorded ones (bitwise).
     pub mismatches: Vec<u64>,

@@ -33,12 +33,17 @@ pub struct Damage {
 /// What `recover` kept and dropped.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct RecoverReport {
+    /// The damaged file read.
     pub input: PathBuf,
+    /// The complete file written.
     pub output: PathBuf,
     /// The input's length.
     pub input_bytes: u64,
+    /// Messages copied to the output.
     pub messages: u64,
+    /// Metadata records copied.
     pub metadata: u64,
+    /// Attachments copied.
     pub attachments: u64,
     /// Bytes of the input that could not be read: the total of [`Self::damage`].
     pub dropped_bytes: u64,

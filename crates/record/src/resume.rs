@@ -45,9 +45,13 @@ pub fn run_config(
 pub struct ResumePoint {
     /// The state to resume from: the update after the last recorded one.
     pub start: Start,
+    /// The run's seed (samples are a function of seed, update and rollout index).
     pub seed: u64,
+    /// The hyperparameters of the last recorded update.
     pub hyperparameters: Hyperparameters,
+    /// The number of policy parameters P.
     pub dim: usize,
+    /// Time steps per rollout.
     pub steps: usize,
     /// The policy's basis activations as recorded in `/run` (row-major N × P; empty if none).
     pub basis_activations: Vec<f64>,

@@ -29,7 +29,7 @@ const GAP_PX: f64 = 8.0;
 /// short labels packed as closely as they fit crowd the axis.
 const MIN_SPACING_PX: [f64; 2] = [50.0, 30.0];
 
-/// The estimated width in pixels of a label `text` at [`FONT_PX`].
+/// The estimated width in pixels of a label `text` at the figures' font size.
 pub fn label_width(text: &str) -> f64 {
     text.chars().count() as f64 * CHAR_EM * FONT_PX
 }
@@ -38,14 +38,18 @@ pub fn label_width(text: &str) -> f64 {
 /// count), along a vertical one they are stacked (their height counts).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Along {
+    /// An x axis.
     Horizontal,
+    /// A y axis.
     Vertical,
 }
 
 /// The ticks of one axis: their values, ascending, and their labels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ticks {
+    /// Where the ticks are, in data units.
     pub values: Vec<f64>,
+    /// What each tick is labelled (one per value).
     pub labels: Vec<String>,
 }
 

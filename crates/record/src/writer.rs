@@ -32,20 +32,28 @@ fn timestamp(ns: u64) -> prost_types::Timestamp {
 /// Who ran one rollout and when (wall-clock ns; 0 = not timed).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RolloutTiming {
+    /// The worker's name (e.g. `worker-0`, or `in-process`).
     pub worker: String,
+    /// When the rollout started.
     pub start_ns: u64,
+    /// When it ended.
     pub end_ns: u64,
 }
 
 /// What a run records once, at its start.
 #[derive(Debug, Clone)]
 pub struct RunStart<'a> {
+    /// The run's name (`[run] name`).
     pub name: &'a str,
+    /// The run's seed.
     pub seed: u64,
     /// The update the run starts (or resumes) at.
     pub update: u64,
+    /// Time steps per rollout.
     pub steps: usize,
+    /// The hyperparameters the run starts with.
     pub hyperparameters: &'a Hyperparameters,
+    /// The distribution update `update` samples from.
     pub initial: &'a Distribution,
     /// Row-major N × P, if the task has basis activations.
     pub basis_activations: Option<&'a [f64]>,
@@ -59,7 +67,7 @@ pub struct RunStart<'a> {
     pub previous_task_settings: &'a [(&'a str, f64)],
     /// The recording a resumed run continues (metadata `resumed_from`).
     pub resumed_from: Option<&'a str>,
-    /// For a part after the first of a split recording ([`crate::RunFiles`]): its number (2, 3,
+    /// For a part after the first of a split recording (`recording.split_mb`): its number (2, 3,
     /// …) and the file of the part before it (metadata `part`, `previous_part`).
     pub part: Option<(u32, &'a str)>,
     /// The pipeline run's id (metadata `run_id`, hex): what ties the parts of a recording whose
@@ -73,30 +81,46 @@ pub struct RunStart<'a> {
 /// Everything about one finished update.
 #[derive(Debug, Clone)]
 pub struct UpdateData<'a> {
+    /// The hyperparameters the update ran with.
     pub hyperparameters: &'a Hyperparameters,
+    /// The distribution the update sampled from.
     pub before: &'a Distribution,
+    /// The distribution it computed.
     pub after: &'a Distribution,
+    /// The K parameter samples (K × P).
     pub samples: &'a ParameterBatch,
+    /// The K cost trajectories (K × steps).
     pub costs: &'a CostBatch,
+    /// The core's summary of the update (eval cost, exploration costs, λ).
     pub summary: &'a UpdateSummary,
+    /// The task settings the update's rollouts ran with (setting, value).
     pub task_settings: &'a [(&'a str, f64)],
-    /// Wall-clock interval of the update as seen by the caller.
+    /// Wall-clock interval of the update as seen by the caller (ns since the Unix epoch):
+    /// start.
     pub batch_start_ns: u64,
+    /// End of that interval.
     pub batch_end_ns: u64,
     /// One per rollout, in rollout order; if shorter (e.g. empty), the missing rollouts are
     /// recorded with worker `default_worker` and no timing.
     pub rollouts: &'a [RolloutTiming],
+    /// The worker named for rollouts `rollouts` does not cover.
     pub default_worker: &'a str,
 }
 
 /// A health event, recorded as a `foxglove.Log` message on `/log`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Event {
+    /// A process (or the run) started.
     Start,
+    /// A process ended as asked (the run finished or stopped).
     Exit,
+    /// A process died unexpectedly (a panic, a signal, a failed run).
     Crash,
+    /// A process was started again after a crash.
     Restart,
+    /// Workers were added or removed (a scale-down stops one).
     Scale,
+    /// Anything else worth knowing (e.g. a recorder catching up).
     Info,
     /// Something went wrong that is not a process crash (e.g. lost messages, a failed run).
     Error,

@@ -23,6 +23,7 @@ pub struct Segment {
     pub start: u64,
     /// One past the last update of the segment.
     pub end: u64,
+    /// The highest eval cost within the segment (after the task change, the jump).
     pub peak: f64,
     /// Final level: the lowest eval cost within the segment.
     pub level: f64,
@@ -33,6 +34,7 @@ pub struct Segment {
 }
 
 impl Segment {
+    /// Updates from the segment's start until it converged (`converged_at − start`), if it did.
     pub fn updates_to_converge(&self) -> Option<u64> {
         self.converged_at.map(|u| u - self.start)
     }
@@ -100,6 +102,7 @@ pub fn reconvergence(rec: &Recording, tolerance: f64) -> Vec<Segment> {
 pub struct ExperimentReport {
     /// Markdown: mean curves summary and the re-convergence table.
     pub table: String,
+    /// The files written (CSV, SVG, Markdown), when given an output directory.
     pub files: Vec<PathBuf>,
 }
 
