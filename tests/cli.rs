@@ -18,6 +18,8 @@ fn repo() -> PathBuf {
 
 #[path = "scratch.rs"]
 mod common;
+#[path = "config_edit.rs"]
+mod config_edit;
 
 fn scratch(name: &str) -> PathBuf {
     common::scratch(&format!("cli-{name}"))
@@ -102,7 +104,10 @@ fn a_run_survives_a_closed_stdout_and_stops_cleanly_on_sigint() {
 #[test]
 fn an_experiment_stops_cleanly_on_sigint() {
     let d = scratch("experiment-sigint");
-    let text = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 100000000");
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[("updates = 40", "updates = 100000000")],
+    );
     std::fs::write(d.join("long.toml"), text).expect("config");
     let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
         .args([
@@ -178,9 +183,14 @@ fn a_recording_given_by_out_is_not_overwritten() {
 fn an_experiment_refuses_before_its_first_session() {
     let d = scratch("experiment-refuses");
     let cfg = |name: &str| {
-        let text = session::DEFAULT_CONFIG
-            .replace("name = \"A1\"", &format!("name = \"{name}\""))
-            .replace("updates = 40", "updates = 2");
+        let name_line = format!("name = \"{name}\"");
+        let text = config_edit::edited(
+            session::DEFAULT_CONFIG,
+            &[
+                ("name = \"A1\"", &name_line),
+                ("updates = 40", "updates = 2"),
+            ],
+        );
         let path = d.join(format!("{name}.toml"));
         std::fs::write(&path, text).expect("config");
         path.to_string_lossy().into_owned()
@@ -256,7 +266,10 @@ fn every_paper_config_is_valid() {
 #[test]
 fn bad_config_names_file_field_and_value() {
     let d = scratch("bad");
-    let text = session::DEFAULT_CONFIG.replace("lambda_min = 2.0", "lambda_min = -3.0");
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[("lambda_min = 2.0", "lambda_min = -3.0")],
+    );
     std::fs::write(d.join("bad.toml"), text).expect("write");
     let out = pi2cma(&["run", "bad.toml"], &d);
     assert!(!out.status.success());
@@ -266,7 +279,7 @@ fn bad_config_names_file_field_and_value() {
         "{err}"
     );
 
-    let text = session::DEFAULT_CONFIG.replace("[run]", "[run]\nsedd = 4");
+    let text = config_edit::edited(session::DEFAULT_CONFIG, &[("[run]", "[run]\nsedd = 4")]);
     std::fs::write(d.join("typo.toml"), text).expect("write");
     let out = pi2cma(&["run", "typo.toml"], &d);
     assert!(!out.status.success());
@@ -384,7 +397,7 @@ fn final_lines(out: &Output) -> Vec<String> {
 #[test]
 fn a_run_resumed_from_its_recording_ends_as_the_uninterrupted_one() {
     let d = scratch("resume");
-    let short = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 20");
+    let short = config_edit::edited(session::DEFAULT_CONFIG, &[("updates = 40", "updates = 20")]);
     std::fs::write(d.join("a20.toml"), short).expect("config");
     let whole = final_lines(&pi2cma(&["run", "--quiet", "--out", "whole"], &d));
     final_lines(&pi2cma(
@@ -595,7 +608,10 @@ fn an_unbounded_config_is_refused_naming_updates() {
 #[test]
 fn a_run_abbreviates_a_long_final_mean() {
     let d = scratch("long-mean");
-    let text = session::DEFAULT_CONFIG.replace("basis_functions = 2", "basis_functions = 10");
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[("basis_functions = 2", "basis_functions = 10")],
+    );
     std::fs::write(d.join("long.toml"), text).expect("write config");
     let check = |args: &[&str], out: &str| {
         let lines = final_lines(&pi2cma(&[args, &["--quiet", "--out", out]].concat(), &d));
@@ -665,7 +681,10 @@ fn a_length_or_seed_given_as_an_option_is_named_as_the_option() {
 #[test]
 fn a_large_policy_run_ends_and_says_its_reference_search_stopped_at_its_budget() {
     let d = scratch("large-policy-summary");
-    let text = session::DEFAULT_CONFIG.replace("basis_functions = 2", "basis_functions = 400");
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[("basis_functions = 2", "basis_functions = 400")],
+    );
     std::fs::write(d.join("large.toml"), text).expect("write config");
     let args = [
         "run",
@@ -719,13 +738,17 @@ fn a_large_policy_run_ends_and_says_its_reference_search_stopped_at_its_budget()
 #[test]
 fn a_run_with_slow_rollouts_summarises_without_waiting_for_them_again() {
     let d = scratch("slow-rollouts-summary");
-    let text = session::DEFAULT_CONFIG
-        .replace("rollouts = 15", "rollouts = 4")
-        .replace("from_update = 20", "from_update = 1")
-        .replace(
-            "viapoint_weight = 1000.0",
-            "viapoint_weight = 1000.0\nrollout_delay_ms = 200",
-        );
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[
+            ("rollouts = 15", "rollouts = 4"),
+            ("from_update = 20", "from_update = 1"),
+            (
+                "viapoint_weight = 1000.0",
+                "viapoint_weight = 1000.0\nrollout_delay_ms = 200",
+            ),
+        ],
+    );
     std::fs::write(d.join("slow.toml"), text).expect("write config");
     let mut child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
         .args([
@@ -770,9 +793,12 @@ fn a_run_with_slow_rollouts_summarises_without_waiting_for_them_again() {
 #[test]
 fn a_second_sigint_stops_a_run_at_once() {
     let d = scratch("second-sigint");
-    let text = session::DEFAULT_CONFIG.replace(
-        "viapoint_weight = 1000.0",
-        "viapoint_weight = 1000.0\nrollout_delay_ms = 1000",
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[(
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 1000",
+        )],
     );
     std::fs::write(d.join("slow.toml"), text).expect("write config");
     let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
@@ -1065,9 +1091,13 @@ fn a_run_whose_recording_fails_stops_and_says_what_the_file_holds() {
 #[test]
 fn an_experiment_records_a_run_name_with_a_slash_into_its_mcap_directory() {
     let d = scratch("experiment-name-slash");
-    let text = session::DEFAULT_CONFIG
-        .replace("name = \"A1\"", "name = \"day 1/A1\"")
-        .replace("updates = 40", "updates = 2");
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[
+            ("name = \"A1\"", "name = \"day 1/A1\""),
+            ("updates = 40", "updates = 2"),
+        ],
+    );
     std::fs::write(d.join("c.toml"), text).expect("config");
     let out = pi2cma(
         &[

@@ -28,17 +28,6 @@ impl Drop for KillOnDrop {
     }
 }
 
-/// `text` (a config) with each edit's first `from` replaced by its `to`. A `from` that is not
-/// there fails the test: replaced silently, the run would be another one than the test names.
-pub fn edited(text: &str, edits: &[(&str, &str)]) -> String {
-    let mut text = text.to_string();
-    for (from, to) in edits {
-        assert!(text.contains(from), "`{from}` not in the config:\n{text}");
-        text = text.replacen(from, to, 1);
-    }
-    text
-}
-
 /// The indices of a recording's updates, in the order recorded.
 pub fn update_indices(rec: &Recording) -> Vec<u64> {
     rec.updates.iter().map(|u| u.update).collect()

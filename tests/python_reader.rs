@@ -8,6 +8,8 @@ use std::process::Command;
 
 #[path = "scratch.rs"]
 mod common;
+#[path = "config_edit.rs"]
+mod config_edit;
 
 /// An empty scratch directory `name`.
 fn scratch(name: &str) -> PathBuf {
@@ -100,7 +102,10 @@ fn python_reader_joins_the_parts_of_a_split_recording() {
     let dir = scratch("python-join");
     let config = format!(
         "{}\n[recording]\nsplit_mb = 1\n",
-        session::DEFAULT_CONFIG.replace("updates = 40", "updates = 200")
+        config_edit::edited(
+            session::DEFAULT_CONFIG,
+            &[("updates = 40", "updates = 200")]
+        )
     );
     std::fs::write(dir.join("split.toml"), config).expect("config");
     pi2cma_run(&dir, &["split.toml", "--quiet", "--out", "out"]);

@@ -3,6 +3,8 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/config_edit.rs"]
+mod config_edit;
 #[path = "../../../tests/scratch.rs"]
 mod scratch;
 
@@ -166,7 +168,8 @@ fn record_names_every_part_of_a_split_recording_and_its_analyze_command_reads_th
     // About 1 MB takes 76 via-point updates: 150 make two parts.
     std::fs::write(
         &config,
-        a1.replace("updates = 40", "updates = 150") + "\n[recording]\nsplit_mb = 1\n",
+        config_edit::edited(&a1, &[("updates = 40", "updates = 150")])
+            + "\n[recording]\nsplit_mb = 1\n",
     )
     .unwrap();
     let out = dir.join("split.mcap");

@@ -3,6 +3,8 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/config_edit.rs"]
+mod config_edit;
 #[path = "../../../tests/scratch.rs"]
 mod scratch;
 
@@ -400,8 +402,10 @@ fn a_split_recording_that_fails_names_its_parts_as_they_are() {
     for p in record::recording_parts(&out) {
         let _ = std::fs::remove_file(&p);
     }
-    let text = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 200")
-        + "\n[recording]\nsplit_mb = 1\n";
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[("updates = 40", "updates = 200")],
+    ) + "\n[recording]\nsplit_mb = 1\n";
     let cfg = session::RunConfig::parse(&text, Path::new("split-fails.toml")).unwrap();
     let mut rec = record::McapRecorder::create(&out).unwrap();
     // After the recorder removed the stale parts: part 3 cannot be created.

@@ -3,11 +3,14 @@
 
 #![allow(clippy::unwrap_used)] // test helpers; a failed unwrap is a failed test
 
+#[path = "../../../tests/config_edit.rs"]
+mod config_edit;
 #[path = "../../../tests/scratch.rs"]
 mod scratch;
 
 use std::path::PathBuf;
 
+use config_edit::edited;
 use record::recompute::{recompute_update, verify};
 use record::{read_recording, McapRecorder};
 use session::{run_session, RunConfig};
@@ -130,18 +133,13 @@ fn recompute_covers_every_update_rule() {
         } else {
             ""
         };
-        let mut text = session::DEFAULT_CONFIG.to_string();
         // Each edit must apply: one that did not left the variant the default (episodic
         // PI²-CMA), and its update rule went unchecked.
-        for (from, to) in [(a, b), ("updates = 40", "updates = 6"), (c, d), (pi2, "")] {
-            if !from.is_empty() {
-                assert!(
-                    text.contains(from),
-                    "{name}: `{from}` not in the default config"
-                );
-                text = text.replacen(from, to, 1);
-            }
-        }
+        let edits: Vec<(&str, &str)> = [(a, b), ("updates = 40", "updates = 6"), (c, d), (pi2, "")]
+            .into_iter()
+            .filter(|(from, _)| !from.is_empty())
+            .collect();
+        let text = edited(session::DEFAULT_CONFIG, &edits);
         let cfg = RunConfig::parse(&text, std::path::Path::new(name)).unwrap();
         let path = record(&cfg, 3, &format!("{name}.mcap"));
         let rec = read_recording(&path).unwrap();

@@ -18,6 +18,9 @@ use std::time::{Duration, Instant};
 use pipeline::result::RunResult;
 use session::RunConfig;
 
+#[path = "../../../tests/config_edit.rs"]
+mod config_edit;
+
 #[path = "../../../tests/pipeline_checks.rs"]
 mod pipeline_checks;
 use pipeline_checks::{
@@ -398,7 +401,7 @@ fn assert_nothing_left(run: &Run) {
 
 /// The A1 config with changes applied by text replacement (checked to apply).
 fn config(edits: &[(&str, &str)]) -> String {
-    pipeline_checks::edited(session::DEFAULT_CONFIG, edits)
+    config_edit::edited(session::DEFAULT_CONFIG, edits)
 }
 
 fn write_config(scratch: &Scratch, name: &str, text: &str) -> PathBuf {
@@ -1226,7 +1229,10 @@ fn an_unsupervised_worker_stopped_in_its_chunk_loses_its_rollouts_to_the_others(
     let slow = write_config(
         &scratch,
         "slow.toml",
-        &text.replace("rollout_delay_ms = 2.0", "rollout_delay_ms = 500.0"),
+        &config_edit::edited(
+            &text,
+            &[("rollout_delay_ms = 2.0", "rollout_delay_ms = 500.0")],
+        ),
     );
     let result = scratch.path("result.toml");
     let mut run = start_traced(&scratch, 270, &cfg, &result);
@@ -1267,9 +1273,12 @@ fn a_hung_unsupervised_worker_loses_its_rollouts_to_the_others() {
     let hanging = write_config(
         &scratch,
         "hanging.toml",
-        &text.replace(
-            "rollout_timeout_ms = 100",
-            "rollout_timeout_ms = 100\nfault_hang_at_update = 0",
+        &config_edit::edited(
+            &text,
+            &[(
+                "rollout_timeout_ms = 100",
+                "rollout_timeout_ms = 100\nfault_hang_at_update = 0",
+            )],
         ),
     );
     let result = scratch.path("result.toml");
@@ -4121,7 +4130,10 @@ fn a_worker_whose_task_does_not_match_the_config_or_is_missing_is_named() {
         &["restart 1 of"],
     );
     // A worker program that does not exist: refused before anything starts.
-    let text = external_config(&[]).replacen("worker = [\"/", "worker = [\"/nonexistent/", 1);
+    let text = config_edit::edited(
+        &external_config(&[]),
+        &[("worker = [\"/", "worker = [\"/nonexistent/")],
+    );
     assert_run_fails_saying(
         &scratch,
         811,

@@ -11,6 +11,9 @@
 #[path = "../../../tests/scratch.rs"]
 mod scratch;
 
+#[path = "../../../tests/config_edit.rs"]
+mod config_edit;
+
 #[path = "../../../tests/pipeline_checks.rs"]
 mod pipeline_checks;
 
@@ -18,7 +21,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use pipeline_checks::{assert_recorded, assert_recovered, edited, signal, KillOnDrop};
+use config_edit::edited;
+use pipeline_checks::{assert_recorded, assert_recovered, signal, KillOnDrop};
 use record::read_recording;
 use record::recover::recover;
 
