@@ -17,36 +17,38 @@
 //! The hand reaches from the wrist to the grip; the bat continues from the grip along the hand's
 //! axis (a straight extension of the hand), so the bat end-point is the tip of that segment.
 
+/// A point or a vector in the task frame (x forward, y to the robot's left, z up): metres for
+/// positions, m/s for velocities.
 pub type Vec3 = [f64; 3];
 
 #[inline]
-pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+pub(crate) fn sub(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
 #[inline]
-pub fn add(a: Vec3, b: Vec3) -> Vec3 {
+pub(crate) fn add(a: Vec3, b: Vec3) -> Vec3 {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 
 #[inline]
-pub fn scale(a: Vec3, s: f64) -> Vec3 {
+pub(crate) fn scale(a: Vec3, s: f64) -> Vec3 {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 
 #[inline]
-pub fn dot(a: Vec3, b: Vec3) -> f64 {
+pub(crate) fn dot(a: Vec3, b: Vec3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 #[inline]
-pub fn norm(a: Vec3) -> f64 {
+pub(crate) fn norm(a: Vec3) -> f64 {
     dot(a, a).sqrt()
 }
 
 /// a + s·(b − a).
 #[inline]
-pub fn lerp(a: Vec3, b: Vec3, s: f64) -> Vec3 {
+pub(crate) fn lerp(a: Vec3, b: Vec3, s: f64) -> Vec3 {
     add(a, scale(sub(b, a), s))
 }
 
@@ -92,28 +94,28 @@ const AXES: [usize; 7] = [2, 1, 0, 1, 2, 1, 0];
 
 /// Link lengths and the fixed shoulder position.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Arm {
-    pub shoulder: Vec3,
-    pub upper_arm: f64,
-    pub forearm: f64,
+pub(crate) struct Arm {
+    pub(crate) shoulder: Vec3,
+    pub(crate) upper_arm: f64,
+    pub(crate) forearm: f64,
     /// Wrist to grip.
-    pub hand: f64,
-    pub bat_length: f64,
+    pub(crate) hand: f64,
+    pub(crate) bat_length: f64,
 }
 
 /// Where the arm and the bat are for one joint configuration.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ArmPose {
-    pub elbow: Vec3,
-    pub wrist: Vec3,
+pub(crate) struct ArmPose {
+    pub(crate) elbow: Vec3,
+    pub(crate) wrist: Vec3,
     /// Start of the bat's axis (the hand end).
-    pub grip: Vec3,
+    pub(crate) grip: Vec3,
     /// End-point of the bat.
-    pub tip: Vec3,
+    pub(crate) tip: Vec3,
 }
 
 impl Arm {
-    pub fn pose(&self, q: &[f64; 7]) -> ArmPose {
+    pub(crate) fn pose(&self, q: &[f64; 7]) -> ArmPose {
         let mut r = Rot::IDENTITY;
         for j in 0..3 {
             r = r.then(&Rot::about(AXES[j], q[j]));

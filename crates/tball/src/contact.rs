@@ -22,17 +22,17 @@ use crate::arm::{add, dot, lerp, norm, scale, sub, Vec3};
 
 /// Material and mass parameters of the impact.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ContactModel {
-    pub restitution: f64,
-    pub friction: f64,
-    pub tee_restitution: f64,
-    pub ball_mass: f64,
-    pub bat_effective_mass: f64,
+pub(crate) struct ContactModel {
+    pub(crate) restitution: f64,
+    pub(crate) friction: f64,
+    pub(crate) tee_restitution: f64,
+    pub(crate) ball_mass: f64,
+    pub(crate) bat_effective_mass: f64,
 }
 
 /// Closest point to `c` on the segment a–b: (parameter u in [0, 1], distance).
 #[inline]
-pub fn closest_on_segment(a: Vec3, b: Vec3, c: Vec3) -> (f64, f64) {
+pub(crate) fn closest_on_segment(a: Vec3, b: Vec3, c: Vec3) -> (f64, f64) {
     let ab = sub(b, a);
     let len2 = dot(ab, ab);
     let u = if len2 > 0.0 {
@@ -45,12 +45,12 @@ pub fn closest_on_segment(a: Vec3, b: Vec3, c: Vec3) -> (f64, f64) {
 
 /// The bat segment at two consecutive time steps.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BatStep {
-    pub grip0: Vec3,
-    pub tip0: Vec3,
-    pub grip1: Vec3,
-    pub tip1: Vec3,
-    pub dt: f64,
+pub(crate) struct BatStep {
+    pub(crate) grip0: Vec3,
+    pub(crate) tip0: Vec3,
+    pub(crate) grip1: Vec3,
+    pub(crate) tip1: Vec3,
+    pub(crate) dt: f64,
 }
 
 /// Where and how the bat touched the ball.
@@ -71,7 +71,7 @@ pub struct Impact {
 /// Finds the moment within one step where the bat's surface reaches the ball's surface, given
 /// that it was apart at the start of the step and touching or overlapping at its end. Between
 /// steps both ends of the bat move linearly, so its material points move with constant velocity.
-pub fn touch_within(step: &BatStep, ball: Vec3, reach: f64) -> (f64, f64) {
+pub(crate) fn touch_within(step: &BatStep, ball: Vec3, reach: f64) -> (f64, f64) {
     let dist = |s: f64| {
         closest_on_segment(
             lerp(step.grip0, step.grip1, s),
@@ -95,7 +95,13 @@ pub fn touch_within(step: &BatStep, ball: Vec3, reach: f64) -> (f64, f64) {
 impl ContactModel {
     /// The impact of the bat on a ball at `ball` when they touch at fraction `s` of `step`, or
     /// None if the bat's surface is not approaching the ball there.
-    pub fn impact(&self, step: &BatStep, ball: Vec3, s: f64, along_bat: f64) -> Option<Impact> {
+    pub(crate) fn impact(
+        &self,
+        step: &BatStep,
+        ball: Vec3,
+        s: f64,
+        along_bat: f64,
+    ) -> Option<Impact> {
         let axis_point = lerp(
             lerp(step.grip0, step.grip1, s),
             lerp(step.tip0, step.tip1, s),
@@ -138,14 +144,14 @@ impl ContactModel {
 
 /// Drag-free flight from `start` with velocity `v` under gravity `g` until the ball's lowest
 /// point touches the ground: (time of flight, landing position of the centre).
-pub fn flight(start: Vec3, v: Vec3, g: f64, radius: f64) -> (f64, Vec3) {
+pub(crate) fn flight(start: Vec3, v: Vec3, g: f64, radius: f64) -> (f64, Vec3) {
     let drop = (start[2] - radius).max(0.0);
     let t = (v[2] + (v[2] * v[2] + 2.0 * g * drop).sqrt()) / g;
     (t, ball_at(start, v, g, t))
 }
 
 /// The ball's centre `t` seconds into a flight.
-pub fn ball_at(start: Vec3, v: Vec3, g: f64, t: f64) -> Vec3 {
+pub(crate) fn ball_at(start: Vec3, v: Vec3, g: f64, t: f64) -> Vec3 {
     [
         start[0] + v[0] * t,
         start[1] + v[1] * t,

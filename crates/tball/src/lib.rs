@@ -23,10 +23,12 @@
 //! metres; a swing that misses the ball costs `miss_cost + miss_gap_weight·gap`, with `gap` the
 //! smallest distance between bat and ball surfaces, so a near miss is cheaper than a wild one.
 
-pub mod arm;
+mod arm;
 mod config;
-pub mod contact;
+mod contact;
 mod task;
 
+pub use arm::Vec3;
 pub use config::TballConfig;
+pub use contact::Impact;
 pub use task::{Hit, Outcome, Tball, Trace};

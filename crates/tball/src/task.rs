@@ -212,14 +212,6 @@ impl Tball {
         &self.config
     }
 
-    pub fn dmp(&self) -> &Dmp {
-        &self.dmp
-    }
-
-    pub fn arm(&self) -> &Arm {
-        &self.arm
-    }
-
     /// The ball's centre while it rests on the tee.
     pub fn resting_ball(&self) -> Vec3 {
         [
@@ -465,7 +457,7 @@ mod tests {
         let theta = t.initial_mean();
         let mut q = vec![0.0; t.steps()];
         t.rollout(&theta, &mut q);
-        let traj = t.dmp().integrate(&theta);
+        let traj = t.dmp.integrate(&theta);
         let n = t.steps() as f64;
         for i in [0, 1, 500, 1000] {
             let expected: f64 = (0..7).map(|d| traj.acc[i * 7 + d].powi(2)).sum::<f64>() * 0.01 / n;
@@ -531,10 +523,10 @@ mod tests {
         let t = task();
         let trace = t.trace(&t.initial_mean());
         assert_eq!(trace.bat_tip.len(), t.steps());
-        let p = t.arm().pose(&trace.joints[300]);
+        let p = t.arm.pose(&trace.joints[300]);
         assert_eq!(p.tip, trace.bat_tip[300]);
-        let reach = t.arm().upper_arm + t.arm().forearm + t.arm().hand + t.arm().bat_length;
-        assert!(norm(sub(trace.bat_tip[0], t.arm().shoulder)) <= reach + 1e-9);
+        let reach = t.arm.upper_arm + t.arm.forearm + t.arm.hand + t.arm.bat_length;
+        assert!(norm(sub(trace.bat_tip[0], t.arm.shoulder)) <= reach + 1e-9);
     }
 
     #[test]
