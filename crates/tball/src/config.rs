@@ -8,48 +8,71 @@ use serde::Deserialize;
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TballConfig {
-    /// Movement duration (s) and DMP time step (s); N = duration/dt + 1.
+    /// Movement duration (s); the paper's swing lasts 1 s. N = duration/dt + 1 time steps.
     pub duration: f64,
+    /// DMP integration and simulation time step (s); bat–ball contact is found to sub-step
+    /// precision within it.
     pub dt: f64,
-    /// Basis functions per joint (the paper: 3).
+    /// Basis functions per joint (the paper: 3), so the policy has 7·basis_functions parameters.
     pub basis_functions: usize,
-    /// Joint angles at the start and at the end of the minimum-jerk swing the DMP is fitted to
-    /// (order: shoulder yaw, pitch, roll, elbow, forearm rotation, wrist pitch, wrist roll).
+    /// Joint angles (rad) at the start of the minimum-jerk swing the DMP is fitted to. Order and
+    /// axes: shoulder yaw (z), shoulder pitch (y), shoulder roll (x), elbow (y), forearm rotation
+    /// (z), wrist pitch (y), wrist roll (x); all zero is the arm hanging straight down.
     pub start_pose: [f64; 7],
+    /// Joint angles (rad) at the end of that swing, in the order of `start_pose`. The paper shows
+    /// its start and end poses only in a figure; these are chosen for this arm.
     pub end_pose: [f64; 7],
-    /// Fixed position of the right shoulder (the torso does not move).
+    /// Fixed position of the right shoulder (m; the torso does not move).
     pub shoulder: [f64; 3],
+    /// Shoulder to elbow (m).
     pub upper_arm: f64,
+    /// Elbow to wrist (m).
     pub forearm: f64,
-    /// Wrist to grip.
+    /// Wrist to grip (m).
     pub hand: f64,
+    /// Length of the bat's axis from the grip to its end-point (m); the bat continues the hand's
+    /// axis.
     pub bat_length: f64,
+    /// Radius of the capsule around the bat's axis (m).
     pub bat_radius: f64,
-    /// Mass the bat presents at the contact (the arm is kinematic; this only scales the impulse).
+    /// Mass the bat presents at the contact (kg; the arm is kinematic, this only scales the
+    /// impulse by M/(M + m)).
     pub bat_effective_mass: f64,
+    /// Radius of the ball (m).
     pub ball_radius: f64,
+    /// Mass of the ball (kg).
     pub ball_mass: f64,
-    /// Bat–ball (and tee) coefficient of restitution, and bat–ball Coulomb friction.
+    /// Bat–ball coefficient of restitution, in [0, 1]: the fraction of the normal approach speed
+    /// returned.
     pub restitution: f64,
+    /// Bat–ball Coulomb friction coefficient μ: the tangential impulse is at most μ times the
+    /// normal one.
     pub friction: f64,
     /// Restitution of the tee's support when a hit above the ball's centre drives it downward
     /// (0: a soft tee absorbs the downward velocity; 1: a rigid tee reflects it).
     pub tee_restitution: f64,
-    /// Position of the ball's centre while it rests on the tee. `ball_height` is also a setting
-    /// a schedule may change (the paper lowers it by 5 cm after 20 updates).
+    /// x of the ball's centre while it rests on the tee (m); a setting a schedule may change.
     pub tee_x: f64,
+    /// y of the ball's centre while it rests on the tee (m); a setting a schedule may change.
     pub tee_y: f64,
+    /// Height of the ball's centre above the ground while it rests on the tee (m). A setting a
+    /// schedule may change: the paper lowers the ball by 5 cm after 20 updates.
     pub ball_height: f64,
+    /// Gravitational acceleration of the ball's flight (m/s², acting along −z).
     pub gravity: f64,
-    /// The target area: a strip of ground with y in [target_y_min, target_y_max] (the paper gives
-    /// only its y extent, −1 to −1.5 m).
+    /// Lower y bound of the target area, a strip of ground over all x (m; the paper gives only
+    /// its y extent, −1 to −1.5 m).
     pub target_y_min: f64,
+    /// Upper y bound of the target area (m); must exceed `target_y_min`.
     pub target_y_max: f64,
     /// Weight of the acceleration term of Eq. 4 (the paper: 0.01).
     pub acceleration_weight: f64,
     /// Terminal cost of a swing that misses the ball:
-    /// miss_cost + miss_gap_weight · (closest gap between bat and ball surfaces, m).
+    /// miss_cost + miss_gap_weight · (closest gap between bat and ball surfaces, m). Eq. 5 does
+    /// not cover a miss; this penalty is this implementation's.
     pub miss_cost: f64,
+    /// Cost per metre of the closest bat–ball gap of a miss (see `miss_cost`), so a near miss
+    /// costs less than a wild one.
     pub miss_gap_weight: f64,
     /// Each rollout blocks at least this long (a stand-in for a robot or external simulator).
     #[serde(default)]

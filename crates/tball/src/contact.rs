@@ -62,9 +62,9 @@ pub struct Impact {
     pub along_bat: f64,
     /// Unit normal from the bat's axis to the ball's centre.
     pub normal: Vec3,
-    /// Velocity of the bat's material point at the contact.
+    /// Velocity of the bat's material point at the contact (m/s).
     pub bat_velocity: Vec3,
-    /// The ball's velocity right after the impact.
+    /// The ball's velocity right after the impact (m/s).
     pub ball_velocity: Vec3,
 }
 

@@ -23,6 +23,8 @@
 //! metres; a swing that misses the ball costs `miss_cost + miss_gap_weight·gap`, with `gap` the
 //! smallest distance between bat and ball surfaces, so a near miss is cheaper than a wild one.
 
+#![warn(missing_docs)]
+
 mod arm;
 mod config;
 mod contact;

@@ -18,7 +18,9 @@ pub struct Hit {
     pub time: f64,
     /// The ball's centre at the impact (still on the tee).
     pub ball: Vec3,
+    /// Where on the bat the contact was and the velocities it exchanged.
     pub impact: Impact,
+    /// Time from the impact until the ball touches the ground (s).
     pub flight_time: f64,
     /// The ball's centre when it touches the ground.
     pub landing: Vec3,
@@ -27,6 +29,7 @@ pub struct Hit {
 /// What one swing did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Outcome {
+    /// The first impact of the bat on the ball and the flight it started; None for a miss.
     pub hit: Option<Hit>,
     /// Smallest distance between the bat's and the ball's surfaces before any impact (m; 0 if hit).
     pub closest_gap: f64,
@@ -44,11 +47,13 @@ impl Outcome {
 /// A swing with everything needed to draw it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trace {
+    /// What the swing did, as [`Tball::simulate`] returns it.
     pub outcome: Outcome,
     /// Time of every step (s).
     pub time: Vec<f64>,
     /// Bat end-point at every step.
     pub bat_tip: Vec<Vec3>,
+    /// Start of the bat's axis (the hand end) at every step; with `bat_tip` the bat's segment.
     pub grip: Vec<Vec3>,
     /// Joint angles at every step.
     pub joints: Vec<[f64; 7]>,
@@ -108,6 +113,9 @@ fn invalid(name: &str, value: f64, reason: &'static str) -> TaskError {
 }
 
 impl Tball {
+    /// The task for `config`: checks every length, mass and coefficient (an invalid one is a
+    /// [`TaskError`] naming the key) and fits the DMP to the minimum-jerk swing from
+    /// `start_pose` to `end_pose`, whose parameters are the initial mean.
     pub fn new(config: &TballConfig) -> Result<Self, TaskError> {
         let c = config;
         let positive = [
@@ -208,6 +216,7 @@ impl Tball {
         Ok(task)
     }
 
+    /// The configuration, with the settings (`ball_height`, `tee_x`, `tee_y`) as last set.
     pub fn config(&self) -> &TballConfig {
         &self.config
     }
