@@ -16,6 +16,8 @@
 //! lifecycle, progress, overdue and recorder acknowledgement messages, and sends control
 //! messages and run notes (see the `wire` crate).
 
+#![warn(missing_docs)]
+
 mod control;
 mod run;
 mod shm;
