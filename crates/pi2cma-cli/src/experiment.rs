@@ -142,15 +142,15 @@ pub fn total_cost(task: &mut dyn Task, theta: &[f64]) -> f64 {
 
 /// What a compass search found.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Minimum {
-    pub cost: f64,
+pub(crate) struct Minimum {
+    pub(crate) cost: f64,
     /// False: it stopped at [`COMPASS_BUDGET`] evaluations before its step shrank to 1e-9.
-    pub converged: bool,
+    pub(crate) converged: bool,
 }
 
 /// Deterministic compass search: enough to locate the optimum of a low-dimensional task (the
 /// via-point has P = 2), used only as a reference level, never inside learning.
-pub fn minimize_total_cost(task: &mut dyn Task, start: &[f64]) -> Minimum {
+pub(crate) fn minimize_total_cost(task: &mut dyn Task, start: &[f64]) -> Minimum {
     let mut x = start.to_vec();
     let mut best = total_cost(task, &x);
     let mut step = x.iter().map(|v| v.abs()).fold(1.0, f64::max);
@@ -249,7 +249,7 @@ impl ConfigResult {
     }
 }
 
-pub fn weighting_label(w: Weighting) -> &'static str {
+pub(crate) fn weighting_label(w: Weighting) -> &'static str {
     match w {
         Weighting::Episodic => "episodic",
         Weighting::PerTimeStep {
