@@ -9,11 +9,16 @@ use pi2cma::{
 };
 use session::{build_optimizer, build_task, RunConfig, WeightingName};
 
+/// One benchmark's result: the time per call of the measured work.
 pub struct Measurement {
+    /// What was measured and with which settings, as `pi2cma bench` prints it.
     pub label: String,
+    /// Median over the timed groups of the time per call.
     pub median: Duration,
     /// The fastest group: less disturbed by other load on the machine than the median.
     pub min: Duration,
+    /// Calls timed in all (groups × calls per group); the warm-up calls before them are not
+    /// counted.
     pub samples: usize,
 }
 

@@ -12,7 +12,10 @@ use tasks::Task;
 /// One session's trajectory through the updates.
 #[derive(Debug, Clone)]
 pub struct SessionResult {
+    /// The seed the session ran with.
     pub seed: u64,
+    /// One summary per finished update, in order (index u); fewer than `run.updates` when the
+    /// session was stopped early.
     pub summaries: Vec<UpdateSummary>,
     /// The distribution each update sampled from (index u), plus the final one at the end.
     pub distributions: Vec<(DVector<f64>, DMatrix<f64>)>,
@@ -21,9 +24,14 @@ pub struct SessionResult {
 /// All sessions of one config.
 #[derive(Debug, Clone)]
 pub struct ConfigResult {
+    /// The config's `run.name`.
     pub name: String,
+    /// The cost weighting the config learned with (episodic or per time step).
     pub weighting: Weighting,
+    /// `from_update` of the config's last scheduled task change (None without a schedule):
+    /// re-convergence is counted from this update.
     pub change_at: Option<u64>,
+    /// Every session that ran, in the order they ran.
     pub sessions: Vec<SessionResult>,
     /// Lowest total cost reachable on the task as it is after the last change (found by a
     /// deterministic compass search from the final means); the reference for re-convergence.
@@ -202,6 +210,8 @@ fn mean_over_sessions(r: &ConfigResult, f: impl Fn(&UpdateSummary) -> f64) -> Ve
 }
 
 impl ConfigResult {
+    /// Mean over sessions of the evaluation rollout's total cost at each update (the learning
+    /// curve), as long as the shortest session.
     pub fn mean_eval_cost(&self) -> Vec<f64> {
         mean_over_sessions(self, |s| s.eval_cost)
     }

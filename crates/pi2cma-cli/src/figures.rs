@@ -10,10 +10,13 @@ use record::ticks::{self, Along, Ticks};
 
 use crate::experiment::{weighting_label, ConfigResult};
 
+/// A figure could not be drawn or written.
 #[derive(Debug, thiserror::Error)]
 #[error("cannot draw {path}: {reason}")]
 pub struct FigureError {
+    /// The SVG file being drawn.
     pub path: String,
+    /// What the drawing library reported.
     pub reason: String,
 }
 
