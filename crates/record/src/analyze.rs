@@ -346,6 +346,15 @@ mod tests {
         assert!(out.join("reconvergence.md").is_file());
         run(&args(false), "mcap-tool").unwrap();
         assert!(out.join("mean_curves.csv").is_file() && out.join("reconvergence.csv").is_file());
+        // Without --no-csv, every directory searched above holds CSVs: the check above would
+        // pass vacuously if the runs' files went elsewhere.
+        let written = csv_files();
+        for d in [out.clone(), out.join("s1"), out.join("s2")] {
+            assert!(
+                written.iter().any(|f| f.parent() == Some(d.as_path())),
+                "no CSV in {d:?}: {written:?}"
+            );
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
