@@ -8,7 +8,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::{draw_legend, PALETTE};
-use crate::digest::{TimeBucket, TimelineBar, WorkerTimes, TIMELINE_UPDATES};
+use crate::digest::{TimeBucket, TimelineBar, WorkerSummary, WorkerTimes, TIMELINE_UPDATES};
 use crate::ticks::{self, Along, Ticks};
 use crate::Recording;
 
@@ -125,6 +125,37 @@ pub(super) fn plot_worker_timeline(
     Ok(())
 }
 
+/// A time in ms with 3 significant digits, in the unit that keeps them whole-ish (ns, µs, ms
+/// or s): each worker's own, so a worker of microseconds beside one of seconds does not read
+/// "0.001 ms".
+fn format_time(ms: f64) -> String {
+    let (v, unit) = match ms.abs() {
+        t if t >= 1e3 => (ms / 1e3, "s"),
+        t if t >= 1.0 || t == 0.0 => (ms, "ms"),
+        t if t >= 1e-3 => (ms * 1e3, "µs"),
+        _ => (ms * 1e6, "ns"),
+    };
+    let digits = if v == 0.0 {
+        0
+    } else {
+        (2 - v.abs().log10().floor() as i32).max(0) as usize
+    };
+    format!("{v:.digits$} {unit}")
+}
+
+/// A worker's entry in the legend: how many rollouts, their median (the times are skewed:
+/// a few slow rollouts pull the mean up) and mean.
+fn legend_label(s: &WorkerSummary) -> String {
+    format!(
+        "{}: {} rollouts, median {}{}, mean {}",
+        s.worker,
+        s.count,
+        if s.median_exact { "" } else { "≈ " },
+        format_time(s.median),
+        format_time(s.mean)
+    )
+}
+
 pub(super) fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Debug| format!("{x:?}");
     // Rollouts without their own timing (the in-process runner) have the update's wall time
@@ -181,11 +212,11 @@ pub(super) fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), Strin
         .y_desc(format!("rollout time [{unit}]"))
         .draw()
         .map_err(|x| e(&x))?;
+    let labels: Vec<String> = times.summaries().iter().map(legend_label).collect();
     match times {
         WorkerTimes::Each(m) => {
-            for (i, (worker, pts)) in m.iter().enumerate() {
+            for (i, pts) in m.values().enumerate() {
                 let color = PALETTE[i % PALETTE.len()];
-                let mean = scale * pts.iter().map(|p| p.1).sum::<f64>() / pts.len().max(1) as f64;
                 chart
                     .draw_series(
                         pts.iter().map(|(u, ms)| {
@@ -193,21 +224,16 @@ pub(super) fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), Strin
                         }),
                     )
                     .map_err(|x| e(&x))?
-                    .label(format!(
-                        "{worker}: {} rollouts, mean {mean:.3} {unit}",
-                        pts.len()
-                    ))
+                    .label(&labels[i])
                     .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
             }
         }
-        WorkerTimes::Buckets { width, per_worker } => {
+        WorkerTimes::Buckets {
+            width, per_worker, ..
+        } => {
             let w = *width as f64;
-            for (i, (worker, buckets)) in per_worker.iter().enumerate() {
+            for (i, buckets) in per_worker.values().enumerate() {
                 let color = PALETTE[i % PALETTE.len()];
-                let (count, sum) = buckets
-                    .values()
-                    .fold((0, 0.0), |(n, s), b| (n + b.count, s + b.sum));
-                let mean = scale * sum / count.max(1) as f64;
                 let middle = |i: u64| (i as f64 + 0.5) * w;
                 chart
                     .draw_series(buckets.iter().map(|(i, b)| {
@@ -226,7 +252,7 @@ pub(super) fn plot_worker_time(rec: &Recording, path: &Path) -> Result<(), Strin
                         )
                     }))
                     .map_err(|x| e(&x))?
-                    .label(format!("{worker}: {count} rollouts, mean {mean:.3} {unit}"))
+                    .label(&labels[i])
                     .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
             }
         }
@@ -324,5 +350,47 @@ mod tests {
             .collect();
         assert_eq!(widths.len(), 150, "{svg}");
         assert!(widths.iter().all(|w| *w >= 1), "bars 0 px wide: {widths:?}");
+    }
+
+    /// A worker of microseconds beside one of tens of milliseconds (a pipelined via-point run
+    /// with a slow worker): each legend entry keeps 3 significant digits in its own unit, and
+    /// gives the median beside the mean of skewed times.
+    #[test]
+    fn the_worker_time_legend_gives_each_worker_median_and_mean_in_its_own_unit() {
+        let mut r = Recording::default();
+        // ns: fast gets 1 µs, 1 µs, 1.3 µs (median 1.00, mean 1.10); slow 20, 20, 50 ms.
+        for (k, (fast, slow)) in [
+            (1_000u64, 20_000_000u64),
+            (1_000, 20_000_000),
+            (1_300, 50_000_000),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for (worker, ns) in [("fast", fast), ("slow", slow)] {
+                r.digest.add_rollout(&proto::Rollout {
+                    update: k as u64,
+                    worker: worker.into(),
+                    start_ns: 1_000,
+                    end_ns: 1_000 + ns,
+                    ..Default::default()
+                });
+            }
+        }
+        let dir = std::env::temp_dir().join(format!("pi2cma-worker-time-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("worker_time.svg");
+        plot_worker_time(&r, &path).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        for label in [
+            "fast: 3 rollouts, median 1.00 µs, mean 1.10 µs",
+            "slow: 3 rollouts, median 20.0 ms, mean 30.0 ms",
+        ] {
+            assert!(svg.contains(label), "no {label:?} in {svg}");
+        }
+        assert_eq!(format_time(1234.5), "1.23 s");
+        assert_eq!(format_time(0.000_5), "500 ns");
+        assert_eq!(format_time(0.0), "0 ms");
     }
 }
