@@ -112,6 +112,23 @@ fn missing_before(path: &Path, meta: &BTreeMap<String, String>, begins: u64) -> 
     ))
 }
 
+/// The task settings the recording's first update ran with, and that update: from `/run`
+/// (a resumed run's or a later part's: those in force at its first update), else (a `/run`
+/// without them) from the first `/update` held. The task changes listed after them say how
+/// they changed; without these a reader saw the changes but not what they changed from.
+fn start_settings(rec: &Recording) -> Option<(u64, &[proto::Setting])> {
+    let from_run = rec
+        .run_info()
+        .filter(|r| !r.task_settings.is_empty())
+        .map(|r| (r.update, r.task_settings.as_slice()));
+    from_run.or_else(|| {
+        rec.updates
+            .first()
+            .filter(|u| !u.task_settings.is_empty())
+            .map(|u| (u.update, u.task_settings.as_slice()))
+    })
+}
+
 /// [`info_for`] as `mcap-tool` prints it.
 pub fn info(rec: &Recording) -> String {
     info_for(rec, "mcap-tool")
@@ -154,6 +171,13 @@ pub fn info_for(rec: &Recording, program: &str) -> String {
             r.steps,
             hp.rollouts,
             describe_hp(&hp)
+        );
+    }
+    if let Some((update, settings)) = start_settings(rec) {
+        let _ = writeln!(
+            s,
+            "  task settings at the start (update {update}): {}",
+            tasks::settings_text(settings.iter().map(|x| (&x.name, x.value)))
         );
     }
     let points = &rec.digest.points;
@@ -448,6 +472,29 @@ mod tests {
         assert_eq!(gaps_within([], Some(7), Some(8)), "7");
     }
 
+    /// The summary gives the task settings the run started with, not only the changes after
+    /// (a run's first file, and a later part from what its `/run` says).
+    #[test]
+    fn the_summary_gives_the_task_settings_at_the_start() {
+        let dir =
+            std::env::temp_dir().join(format!("analyze-start-settings-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(22);
+        let mut rec = crate::McapRecorder::create(&path).unwrap();
+        session::run_session(&cfg, 1, &mut rec).unwrap();
+        rec.finish().unwrap();
+        let said = info(&crate::read_recording(&path).unwrap());
+        std::fs::remove_dir_all(&dir).unwrap();
+        for line in [
+            "  task settings at the start (update 0): viapoint = 0.3",
+            "  task change before update 20: viapoint = 0.1",
+        ] {
+            assert!(said.contains(line), "no {line:?} in\n{said}");
+        }
+    }
+
     /// A recorder restarted just before the run stopped leaves a part without updates: the
     /// joined run's updates end where the part before ends, and those up to where the last part
     /// begins were not named as missing (nothing came after them). `info` of the part names
@@ -506,6 +553,10 @@ mod tests {
             first.display()
         );
         assert!(said.contains(&expected), "{said}");
+        assert!(
+            said.contains("  task settings at the start (update 13): viapoint = 0.3\n"),
+            "{said}"
+        );
         std::fs::remove_file(&first).unwrap();
         let said = info(&b);
         assert!(
