@@ -145,17 +145,19 @@ impl ProcessError {
     /// (`.context("opening the arm")`) keeps that context in its message, and a refusal stays
     /// one. Taking the inner error out would drop the context: anyhow's downcast sees through it.
     fn from_anyhow(a: anyhow::Error) -> Self {
-        let in_context = a
+        let bare = a
             .chain()
             .next()
-            .is_some_and(|outer| !outer.is::<ProcessError>());
-        match a.downcast_ref::<ProcessError>() {
-            Some(p) if in_context && p.refuses_config() => Self::ConfigRefused(a.into()),
-            Some(_) if !in_context => match a.downcast() {
-                Ok(p) => p,
-                Err(a) => Self::MakeTask(a.into()),
-            },
-            _ => Self::MakeTask(a.into()),
+            .is_some_and(|outer| outer.is::<ProcessError>());
+        if bare {
+            return a.downcast().unwrap_or_else(|a| Self::MakeTask(a.into()));
+        }
+        if a.downcast_ref::<ProcessError>()
+            .is_some_and(ProcessError::refuses_config)
+        {
+            Self::ConfigRefused(a.into())
+        } else {
+            Self::MakeTask(a.into())
         }
     }
 }
