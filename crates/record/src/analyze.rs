@@ -316,9 +316,7 @@ mod tests {
         cfg.run.updates = Some(3);
         for seed in 1..=2 {
             let f = dir.join(format!("s{seed}.mcap"));
-            let mut rec = crate::McapRecorder::create(&f).unwrap();
-            session::run_session(&cfg, seed, &mut rec).unwrap();
-            rec.finish().unwrap();
+            crate::testing::record_session(&cfg, seed, &f);
             files.push(f);
         }
         let out = dir.join("analysis");
@@ -368,9 +366,7 @@ mod tests {
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(3);
         let file = dir.join("run.mcap");
-        let mut rec = crate::McapRecorder::create(&file).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &file);
         let args = AnalyzeArgs {
             files: vec![file],
             out: Some(dir.join("analysis")),

@@ -30,6 +30,8 @@ mod reserve;
 pub mod resume;
 mod seek_buffer;
 mod split;
+#[cfg(test)]
+mod testing;
 pub mod ticks;
 mod writer;
 

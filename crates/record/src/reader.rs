@@ -867,9 +867,7 @@ mod tests {
         let path = dir.join("a.mcap");
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(25);
-        let mut rec = crate::McapRecorder::create(&path).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &path);
         let bytes = std::fs::read(&path).unwrap();
         let cut = dir.join("cut.mcap");
         let mut checked = 0;
@@ -1011,9 +1009,7 @@ mod tests {
         let path = dir.join("a.mcap");
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(2);
-        let mut rec = crate::McapRecorder::create(&path).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &path);
         let bytes = std::fs::read(&path).unwrap();
         let mut other = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
         other.finish().unwrap();

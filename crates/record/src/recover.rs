@@ -711,9 +711,7 @@ mod tests {
         let (input, other) = (dir.join("a.mcap"), dir.join("b.mcap"));
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(3);
-        let mut rec = crate::McapRecorder::create(&input).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &input);
         std::fs::write(&other, b"another recording").unwrap();
         let args = |out: &Path| RecoverArgs {
             file: input.clone(),

@@ -511,9 +511,7 @@ mod tests {
             ),
         ];
         let cfg = config(&by_basis);
-        let mut rec = McapRecorder::create(&path).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &path);
         let mut point = resume_point(&path).unwrap();
         assert_eq!(point.basis_activations.len(), 101 * 2);
         let more = config(&[by_basis[1]]);
@@ -647,9 +645,7 @@ mod tests {
         // Older recordings: a run of updates 0..=11 (viapoint 0.3 until the schedule's 0.1 at
         // 20), then a part, and a resumed run's file, beginning at 12 without the settings.
         let twelve = config(&[("updates = 40", "updates = 12")]);
-        let mut rec = McapRecorder::create(&dir.join("run.mcap")).unwrap();
-        session::run_session(&twelve, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&twelve, 1, &dir.join("run.mcap"));
         std::fs::copy(dir.join("run.mcap"), dir.join("day1.mcap")).unwrap();
         let part = write("run.part-2.mcap", 12, &[], None, &text);
         assert_eq!(resume_point(&part).unwrap().start.ran_with, viapoint(0.3));
@@ -675,9 +671,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("a.mcap");
         let cfg = config(&[("updates = 40", "updates = 25")]);
-        let mut rec = McapRecorder::create(&path).unwrap();
-        let (_, after) = session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        let after = crate::testing::record_session(&cfg, 1, &path);
 
         let point = resume_point(&path).unwrap();
         assert_eq!(point.start.update, 25);

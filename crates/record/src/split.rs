@@ -642,7 +642,7 @@ impl RunFiles {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{join_resumed, read_recording, recompute::verify, McapRecorder, Recording};
+    use crate::{join_resumed, read_recording, recompute::verify, Recording};
 
     #[test]
     fn a_recording_goes_on_only_in_a_new_part_after_the_first() {
@@ -751,10 +751,7 @@ mod tests {
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(updates);
         cfg.recording = Some(session::RecordingSection { split_mb });
-        let mut rec = McapRecorder::create(path).unwrap();
-        let (_, last) = session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
-        last
+        crate::testing::record_session(&cfg, 1, path)
     }
 
     /// 200 A1 updates of ~14 kB in parts of 1 MB: three finished parts, each a recording that
@@ -905,9 +902,7 @@ mod tests {
         cfg.run.updates = Some(100);
         cfg.recording = Some(session::RecordingSection { split_mb: Some(1) });
         cfg.schedule[0].from_update = boundary;
-        let mut rec = McapRecorder::create(&path).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &path);
         let parts: Vec<Recording> = recording_parts(&path)
             .iter()
             .map(|p| read_recording(p).unwrap())

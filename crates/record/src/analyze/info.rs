@@ -482,9 +482,7 @@ mod tests {
         let path = dir.join("a.mcap");
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(22);
-        let mut rec = crate::McapRecorder::create(&path).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &path);
         let said = info(&crate::read_recording(&path).unwrap());
         std::fs::remove_dir_all(&dir).unwrap();
         for line in [
@@ -506,9 +504,7 @@ mod tests {
         let first = dir.join("a.mcap");
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(10);
-        let mut rec = crate::McapRecorder::create(&first).unwrap();
-        session::run_session(&cfg, 1, &mut rec).unwrap();
-        rec.finish().unwrap();
+        crate::testing::record_session(&cfg, 1, &first);
         let part = dir.join("a.part-2.mcap");
         let hp = cfg.hyperparameters();
         let initial = pi2cma::Distribution {
