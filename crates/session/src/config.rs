@@ -500,6 +500,52 @@ pub fn resolve_program(program: &Path) -> Option<PathBuf> {
         .find(|p| executable_file(p))
 }
 
+/// What is wrong with `program`, a path [`resolve_program`] did not take: a user who forgot
+/// `chmod +x` on a script was told only "not an executable file", as for a typo in its name.
+fn missing_program(program: &Path) -> String {
+    match program.metadata() {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "there is no such file".into(),
+        Err(e) => format!("cannot read it ({e})"),
+        Ok(m) if m.is_dir() => "a directory".into(),
+        Ok(m) if m.is_file() => format!(
+            "it has no execute permission (`chmod +x {}`)",
+            program.display()
+        ),
+        Ok(_) => "not a regular file".into(),
+    }
+}
+
+/// Why an executable file is not a program the supervisor can start: a script without a `#!`
+/// line (or an empty file) is handed to /bin/sh by `execvp`, so a Python worker without one
+/// died of `Syntax error: word unexpected` from the shell, was restarted up to the restart
+/// limit, and nothing named the missing line. `None` for an ELF binary or a `#!` script (and
+/// for a file that cannot be read, which the start then reports).
+fn unstartable(program: &Path) -> Option<String> {
+    use std::io::Read as _;
+    let mut head = Vec::with_capacity(64);
+    std::fs::File::open(program)
+        .ok()?
+        .take(64)
+        .read_to_end(&mut head)
+        .ok()?;
+    if head.starts_with(b"#!") || head.starts_with(b"\x7fELF") {
+        return None;
+    }
+    let text = String::from_utf8_lossy(&head);
+    let first = text.lines().next().unwrap_or("").trim();
+    let cut = if text.contains('\n') { "" } else { "…" };
+    let begins = if head.is_empty() {
+        "it is empty".to_string()
+    } else {
+        format!("it begins `{first}{cut}`")
+    };
+    Some(format!(
+        "neither a binary nor a script with a `#!` line ({begins}), which the system would run \
+         with /bin/sh: begin the script with its interpreter, e.g. `#!/usr/bin/env python3` \
+         (`#!/bin/sh` for a shell script)"
+    ))
+}
+
 /// Whether `p` is a file that may be executed (some execute bit set).
 pub fn executable_file(p: &Path) -> bool {
     use std::os::unix::fs::PermissionsExt as _;
@@ -1456,18 +1502,24 @@ impl RunConfig {
         let Some((program, args)) = self.external_worker() else {
             return Ok(None);
         };
-        match resolve_program(&program) {
-            Some(resolved) => Ok(Some((resolved, args))),
-            None => Err(self.invalid(
+        let refused = |reason: &str| {
+            Err(self.invalid(
                 "task.external.worker",
                 format!("\"{}\"", program.display()),
-                if program.components().count() > 1 {
-                    "not an executable file (a path with a `/` is relative to the config file's \
-                     directory)"
-                } else {
-                    "not an executable file in PATH"
-                },
+                reason,
+            ))
+        };
+        match resolve_program(&program) {
+            Some(resolved) => match unstartable(&resolved) {
+                Some(why) => refused(&why),
+                None => Ok(Some((resolved, args))),
+            },
+            None if program.components().count() > 1 => refused(&format!(
+                "not an executable file: {} (a path with a `/` is relative to the config file's \
+                 directory)",
+                missing_program(&program)
             )),
+            None => refused("not an executable file in PATH"),
         }
     }
 
@@ -1732,9 +1784,71 @@ mod tests {
         let elsewhere = RunConfig::parse(&text, Path::new("/nonexistent/c.toml")).unwrap();
         let e = elsewhere.external_worker_program().unwrap_err().to_string();
         assert!(
-            e.starts_with("/nonexistent/c.toml: task.external.worker = \"/nonexistent/./worker\": not an executable file"),
+            e.starts_with("/nonexistent/c.toml: task.external.worker = \"/nonexistent/./worker\": not an executable file: there is no such file"),
             "{e}"
         );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// What a user's worker file lacks is named: a forgotten `chmod +x`, a directory, and a
+    /// script without a `#!` line, which `execvp` would hand to /bin/sh (a Python worker then
+    /// died of the shell's `Syntax error`, restarted up to the restart limit).
+    #[test]
+    fn a_worker_file_that_cannot_be_started_is_refused_saying_why() {
+        use std::os::unix::fs::PermissionsExt as _;
+        let dir = std::env::temp_dir().join(format!("p2c-unstartable-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        let text = format!(
+            "{}\n[task.external]\nworker = [\"./w\"]\nparameters = 2\nsteps = 3\ninitial_mean = [0.0, 0.0]\n",
+            DEFAULT_CONFIG
+                .split("[task.via-point]")
+                .next()
+                .unwrap()
+                .replace("[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n", "")
+        );
+        let refusal = |program: &str| {
+            let cfg = RunConfig::parse(&text.replace("./w", program), &dir.join("c.toml")).unwrap();
+            match cfg.external_worker_program() {
+                Ok(p) => panic!("{program}: taken as {p:?}"),
+                Err(e) => e.to_string(),
+            }
+        };
+        let write = |name: &str, content: &str, mode: u32| {
+            std::fs::write(dir.join(name), content).unwrap();
+            std::fs::set_permissions(dir.join(name), std::fs::Permissions::from_mode(mode))
+                .unwrap();
+        };
+        write("plain.py", "#!/usr/bin/env python3\nprint()\n", 0o644);
+        let e = refusal("./plain.py");
+        let chmod = format!(
+            "it has no execute permission (`chmod +x {}`)",
+            dir.join("./plain.py").display()
+        );
+        assert!(e.contains(&chmod), "{e}");
+        assert!(refusal("./sub").contains("not an executable file: a directory"));
+        write("noshebang.py", "import math\nprint(math.pi)\n", 0o755);
+        let e = refusal("./noshebang.py");
+        assert!(
+            e.contains("/noshebang.py\"")
+                && e.contains(
+                    "neither a binary nor a script with a `#!` line (it begins `import math`)"
+                )
+                && e.contains("#!/usr/bin/env python3"),
+            "{e}"
+        );
+        write("empty", "", 0o755);
+        assert!(refusal("./empty").contains("(it is empty)"));
+        // A script with its `#!` line and a binary are taken.
+        write("ok.py", "#!/usr/bin/env python3\n", 0o755);
+        let cfg = RunConfig::parse(&text.replace("./w", "./ok.py"), &dir.join("c.toml")).unwrap();
+        assert!(cfg.external_worker_program().is_ok());
+        let sh = resolve_program(Path::new("sh")).unwrap();
+        let cfg = RunConfig::parse(
+            &text.replace("./w", &sh.display().to_string()),
+            &dir.join("c.toml"),
+        )
+        .unwrap();
+        assert!(cfg.external_worker_program().is_ok(), "{}", sh.display());
         let _ = std::fs::remove_dir_all(&dir);
     }
 
