@@ -123,11 +123,11 @@ impl Supervisor {
             format!("  {} workers", self.worker_count())
         };
         format!(
-            "update {}/{of}  eval cost {}  λ now {}  {:.0} updates/s{workers}",
+            "update {}/{of}  eval cost {}  λ now {}  {}{workers}",
             p.updates,
             reading(p.eval_cost),
             reading(p.lambda),
-            self.rate,
+            rate_text(self.rate),
         )
     }
 
@@ -238,13 +238,13 @@ impl Supervisor {
                 // "updates: 15" read as a contradiction.
                 let updates = p.updates.max(self.recorder_sync.written.unwrap_or(0));
                 s += &format!(
-                    "updates: {} of {}, {:.1} updates/s, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n{refused}",
+                    "updates: {} of {}, {}, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n{refused}",
                     updates,
                     self.cfg
                         .run
                         .updates
                         .map_or("unbounded".to_string(), |n| n.to_string()),
-                    self.rate,
+                    rate_text(self.rate),
                     self.last_update_at
                         .map_or(0.0, |t| t.elapsed().as_secs_f64()),
                     reading(p.eval_cost),
@@ -276,6 +276,26 @@ pub(super) fn reading(v: f64) -> String {
     } else {
         format!("{v:.4}")
     }
+}
+
+/// An update rate as the progress lines, `status` and the summary show it: whole updates per
+/// second from 10 on, else two significant digits. Rollouts of seconds (a robot's, a slow
+/// simulator's) make updates of tens of seconds, which `{:.0}` printed as `0 updates/s`.
+pub(super) fn rate_text(per_s: f64) -> String {
+    let digits = |r: f64| {
+        if r >= 10.0 || r <= 0.0 || !r.is_finite() {
+            0
+        } else {
+            // 2 significant digits: 1 decimal from 1 on, 2 from 0.1 on, ...
+            (1.0 - r.log10().floor()).max(1.0) as usize
+        }
+    };
+    // Counted again on the rounded value: 0.0998 rounds to 0.100, which is 0.10.
+    let d = digits(per_s);
+    let d = format!("{per_s:.d$}")
+        .parse()
+        .map_or(d, |r| digits(r).min(d));
+    format!("{per_s:.d$} updates/s")
 }
 
 /// A time between updates as the stall warning shows it: in seconds, in milliseconds below
@@ -328,6 +348,19 @@ mod tests {
         assert_eq!(reading(-3.5e15), "-3.5000e15");
         assert_eq!(reading(f64::NAN), "NaN");
         assert_eq!(reading(f64::INFINITY), "inf");
+    }
+
+    #[test]
+    fn a_slow_runs_update_rate_is_shown_with_two_significant_digits() {
+        assert_eq!(rate_text(1191.4), "1191 updates/s");
+        assert_eq!(rate_text(12.4), "12 updates/s");
+        assert_eq!(rate_text(9.74), "9.7 updates/s");
+        assert_eq!(rate_text(1.0), "1.0 updates/s");
+        // 2 s rollouts, 5 per worker: an update every 10 s.
+        assert_eq!(rate_text(0.0998), "0.10 updates/s");
+        // A robot's episode of minutes.
+        assert_eq!(rate_text(0.00123), "0.0012 updates/s");
+        assert_eq!(rate_text(0.0), "0 updates/s");
     }
 
     #[test]

@@ -10,7 +10,7 @@ use session::executable_file;
 
 use super::cleanup::remove_run;
 use super::event_loop::Outcome;
-use super::status::{interval_text, plural, reading};
+use super::status::{interval_text, plural, rate_text, reading};
 use super::{say, Supervisor};
 
 impl Supervisor {
@@ -41,13 +41,14 @@ impl Supervisor {
                 format!(" (resumed at update {first} from {})", s.origin)
             });
             say(&format!(
-                "summary: run {} ({}): {} updates of {of}{resumed} in {} ({:.0} updates/s), {} worker{} targeted at the end, {} restart{}",
+                "summary: run {} ({}): {} update{} of {of}{resumed} in {} ({}), {} worker{} targeted at the end, {} restart{}",
                 wire::run_id_hex(self.run_id),
                 r.name,
                 r.updates,
+                plural(r.updates),
                 // The quick start's 40 updates take ~5 ms: "0.00 s" said nothing.
                 interval_text(r.elapsed_s),
-                ran as f64 / r.elapsed_s.max(1e-9),
+                rate_text(ran as f64 / r.elapsed_s.max(1e-9)),
                 self.target_workers,
                 plural(self.target_workers as u64),
                 self.total_restarts,
