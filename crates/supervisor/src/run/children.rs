@@ -41,7 +41,8 @@ pub(super) struct Proc {
     /// A worker asked to stop whose SIGTERM waits for the recorder to connect to its ports:
     /// the RECORDER_SYNC it waits for, and until when (see [`Supervisor::stop_worker`]).
     pub(super) term_wait: Option<(u64, Instant)>,
-    last_line: Arc<Mutex<String>>,
+    /// Its last error line, else its last line, and when it was printed.
+    last_line: Arc<Mutex<(String, Option<Instant>)>>,
 }
 
 /// How long a reaped child's pid is still taken as the supervisor's own when an announcement
@@ -152,7 +153,7 @@ impl Supervisor {
             .with_context(|| format!("cannot start {} ({})", role.name(), exe.display()))?;
         drop(cmd); // closes our copies of the pipe's write end
         let pid = child.id();
-        let last_line = Arc::new(Mutex::new(String::new()));
+        let last_line = Arc::new(Mutex::new((String::new(), None)));
         let name = role.name();
         let last = last_line.clone();
         let printer = std::thread::Builder::new()
@@ -167,7 +168,7 @@ impl Supervisor {
                     let error = line.trim_start().to_ascii_lowercase().starts_with("error");
                     if error || !seen_error {
                         if let Ok(mut l) = last.lock() {
-                            *l = line;
+                            *l = (line, Some(Instant::now()));
                         }
                     }
                     seen_error |= error;
@@ -212,23 +213,23 @@ impl Supervisor {
             return;
         };
         // Processes read the copy of the config in the run directory; the user knows theirs.
-        let last = p
+        let (last, printed) = p
             .last_line
             .lock()
             .map(|l| {
-                l.replace(
+                let text = l.0.replace(
                     &self.config_file.display().to_string(),
                     &self.cfg.origin.display().to_string(),
-                )
+                );
+                (text, l.1)
             })
             .unwrap_or_default();
-        let cause = match (&p.hung, last.is_empty()) {
-            (Some(_), _) => format!("{status}, killed after it hung"),
-            (None, true) => status.to_string(),
-            // The last line may be an error or only news ("recording continues in …"): label it,
-            // so it does not read as the cause.
-            (None, false) => format!("{status}; its last output: {last}"),
-        };
+        let cause = death_cause(
+            status,
+            p.hung.is_some(),
+            &last,
+            printed.map(|t| t.elapsed()),
+        );
         let cause = match sigbus_hint(
             status,
             shm::space(Path::new(SHM_DIR)).map(|s| (s.free, s.total)),
@@ -393,8 +394,55 @@ impl Supervisor {
     }
 }
 
+/// Why a child ended, as the restart and failure messages give it: its exit status and its
+/// last output. The last line may be an error or only news ("recording continues in …"), so it
+/// is labelled, not given as the cause; one printed long before the death (a refused `set`
+/// 50 updates before a worker was SIGKILLed) says how long before, so that it does not read as
+/// what killed it.
+fn death_cause(status: ExitStatus, hung: bool, last: &str, age: Option<Duration>) -> String {
+    if hung {
+        return format!("{status}, killed after it hung");
+    }
+    if last.is_empty() {
+        return status.to_string();
+    }
+    match age {
+        Some(age) if age >= Duration::from_secs(2) => format!(
+            "{status}; its last output, {:.0} s before: {last}",
+            age.as_secs_f64()
+        ),
+        _ => format!("{status}; its last output: {last}"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_death_names_how_long_before_it_the_last_output_came_when_that_was_long() {
+        use super::death_cause;
+        use std::os::unix::process::ExitStatusExt as _;
+        use std::process::ExitStatus;
+        use std::time::Duration;
+        let killed = ExitStatus::from_raw(9);
+        let refused = "update 38: the task's set('effort', -1.0) raised ValueError";
+        assert_eq!(
+            death_cause(killed, false, refused, Some(Duration::from_millis(53_400))),
+            format!("signal: 9 (SIGKILL); its last output, 53 s before: {refused}")
+        );
+        // Its dying words: no age.
+        let failed = ExitStatus::from_raw(1 << 8);
+        let error = "error: my_worker.py failed: RuntimeError: simulator license not found";
+        assert_eq!(
+            death_cause(failed, false, error, Some(Duration::from_millis(30))),
+            format!("exit status: 1; its last output: {error}")
+        );
+        assert_eq!(death_cause(killed, false, "", None), "signal: 9 (SIGKILL)");
+        assert_eq!(
+            death_cause(killed, true, refused, Some(Duration::from_secs(60))),
+            "signal: 9 (SIGKILL), killed after it hung"
+        );
+    }
+
     #[test]
     fn spawned_pids_are_forgotten_a_while_after_they_were_reaped() {
         use super::{Spawned, LATE_ANNOUNCEMENT};
