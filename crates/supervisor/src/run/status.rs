@@ -94,6 +94,16 @@ impl Supervisor {
                 "the recorder has written only through update {last} ({n} behind the updater, \
                  which it holds back): is it stopped, or is its disk slow?"
             ),
+            // Before the first update there is no usual time to compare with, and rollouts of
+            // seconds (a robot's, a slow simulator's) reach 10 s in the first update alone: a
+            // run of 2 s rollouts was warned of a hanging worker at its first update.
+            _ if self.progress.is_none() => format!(
+                "a worker may hang, or the first update's {} rollouts take that long on {} \
+                 worker{} ({timeout})",
+                self.cfg.optimizer.rollouts,
+                self.worker_count(),
+                plural(self.worker_count() as u64)
+            ),
             _ => format!("a worker may hang ({timeout})"),
         };
         let text = format!(
