@@ -259,6 +259,7 @@ pub struct ExternalConfig {
     /// The command that runs one rollout worker: program, then arguments. The supervisor appends
     /// `--config FILE --run-dir DIR --run-id HEX --worker W --incarnation I`. A program path
     /// with a `/` is relative to this config file's directory; a bare name is looked up in PATH.
+    #[serde(deserialize_with = "worker_command")]
     pub worker: Vec<String>,
     /// P: the length of θ.
     pub parameters: usize,
@@ -277,6 +278,32 @@ pub struct ExternalConfig {
     /// elsewhere; in the config, so that the recorded config reruns the run.
     #[serde(default)]
     pub basis_activations: Option<Vec<Vec<f64>>>,
+}
+
+/// `task.external.worker`, a list of strings, whose error for anything else shows the form:
+/// `worker = "./my_worker.py"` was refused with only `expected a sequence`.
+fn worker_command<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D::Error> {
+    struct Command;
+    impl<'de> serde::de::Visitor<'de> for Command {
+        type Value = Vec<String>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str(
+                "a list of strings, the program then its arguments, as in \
+                 worker = [\"./my_worker.py\"]",
+            )
+        }
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(
+            self,
+            mut seq: A,
+        ) -> Result<Self::Value, A::Error> {
+            let mut words = Vec::new();
+            while let Some(word) = seq.next_element()? {
+                words.push(word);
+            }
+            Ok(words)
+        }
+    }
+    d.deserialize_seq(Command)
 }
 
 /// `[task.via-point]`: the fields of [`ViaPointSpec`], and a rollout delay.
@@ -1754,6 +1781,18 @@ fn key_path_at(text: &str, offset: usize) -> Option<String> {
 mod tests {
     use super::*;
 
+    /// The default config with an external task of P = 2, N = 3 run by `worker` (TOML).
+    fn external_config(worker: &str) -> String {
+        format!(
+            "{}\n[task.external]\nworker = {worker}\nparameters = 2\nsteps = 3\ninitial_mean = [0.0, 0.0]\n",
+            DEFAULT_CONFIG
+                .split("[task.via-point]")
+                .next()
+                .unwrap()
+                .replace("[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n", "")
+        )
+    }
+
     #[test]
     fn a_worker_program_is_an_executable_path_or_found_in_path() {
         let sh = resolve_program(Path::new("sh")).expect("sh in PATH");
@@ -1770,14 +1809,7 @@ mod tests {
         assert_eq!(resolve_program(&file), Some(file.clone()));
         assert_eq!(resolve_program(&dir), None, "a directory is not a program");
         // Through the config: relative to its file, and named in the error.
-        let text = format!(
-            "{}\n[task.external]\nworker = [\"./worker\"]\nparameters = 2\nsteps = 3\ninitial_mean = [0.0, 0.0]\n",
-            DEFAULT_CONFIG
-                .split("[task.via-point]")
-                .next()
-                .unwrap()
-                .replace("[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n", "")
-        );
+        let text = external_config("[\"./worker\"]");
         let cfg = RunConfig::parse(&text, &dir.join("c.toml")).unwrap();
         let (program, _) = cfg.external_worker_program().unwrap().unwrap();
         assert_eq!(program, file);
@@ -1798,14 +1830,7 @@ mod tests {
         use std::os::unix::fs::PermissionsExt as _;
         let dir = std::env::temp_dir().join(format!("p2c-unstartable-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("sub")).unwrap();
-        let text = format!(
-            "{}\n[task.external]\nworker = [\"./w\"]\nparameters = 2\nsteps = 3\ninitial_mean = [0.0, 0.0]\n",
-            DEFAULT_CONFIG
-                .split("[task.via-point]")
-                .next()
-                .unwrap()
-                .replace("[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n", "")
-        );
+        let text = external_config("[\"./w\"]");
         let refusal = |program: &str| {
             let cfg = RunConfig::parse(&text.replace("./w", program), &dir.join("c.toml")).unwrap();
             match cfg.external_worker_program() {
@@ -1854,6 +1879,28 @@ mod tests {
 
     fn parse(text: &str) -> Result<RunConfig, ConfigError> {
         RunConfig::parse(text, Path::new("test.toml"))
+    }
+
+    /// A worker given as one string, not a list, is refused showing the form to write.
+    #[test]
+    fn a_worker_command_that_is_not_a_list_shows_the_form() {
+        let text = external_config;
+        let e = parse(&text("\"./my_worker.py\"")).unwrap_err().to_string();
+        assert!(
+            e.contains("task.external.worker")
+                && e.contains("invalid type: string \"./my_worker.py\", expected a list of strings, the program then its arguments, as in worker = [\"./my_worker.py\"]"),
+            "{e}"
+        );
+        let e = parse(&text("[\"python3\", 3]")).unwrap_err().to_string();
+        assert!(
+            e.contains("invalid type: integer `3`, expected a string"),
+            "{e}"
+        );
+        let cfg = parse(&text("[\"python3\", \"w.py\"]")).unwrap();
+        let TaskSection::External(x) = &cfg.task else {
+            panic!("{:?}", cfg.task)
+        };
+        assert_eq!(x.worker, ["python3", "w.py"]);
     }
 
     /// A continual run's recording is split even without `recording.split_mb`: one file's index
