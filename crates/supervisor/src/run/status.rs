@@ -229,7 +229,7 @@ impl Supervisor {
             Some(p) => {
                 // Named once: it builds the task for its setting names.
                 let named = self.reported_settings(p);
-                let settings = tasks::settings_text(named.iter().map(|(n, v)| (n, *v)));
+                let settings = task_text(&named);
                 let refused = match p.refused {
                     0 => String::new(),
                     n => format!(
@@ -266,6 +266,15 @@ impl Supervisor {
         }
         s
     }
+}
+
+/// The status's `task:` line: the settings in force, or that the task has none (a task of your
+/// own may have none: the line was left blank).
+fn task_text(settings: &[(String, f64)]) -> String {
+    if settings.is_empty() {
+        return "no settings".into();
+    }
+    tasks::settings_text(settings.iter().map(|(n, v)| (n, *v)))
 }
 
 /// The plural ending of a noun counted `n`: `1 worker`, `2 workers`.
@@ -371,6 +380,13 @@ mod tests {
         // A robot's episode of minutes.
         assert_eq!(rate_text(0.00123), "0.0012 updates/s");
         assert_eq!(rate_text(0.0), "0 updates/s");
+    }
+
+    #[test]
+    fn the_task_line_names_the_settings_or_says_there_are_none() {
+        assert_eq!(task_text(&[]), "no settings");
+        let two = [("goal_x".to_string(), 0.5), ("effort".to_string(), 1.0)];
+        assert_eq!(task_text(&two), "goal_x = 0.5, effort = 1");
     }
 
     #[test]
