@@ -5897,19 +5897,26 @@ fn a_scaled_down_worker_that_does_not_stop_is_killed_after_the_shutdown_timeout(
     assert_nothing_left(&run);
 }
 
+/// A1 with 20 ms rollouts (about 4 s), started quiet with a result file and waited for until
+/// it has made an update: (config text, config file, result file, run).
+fn a_slow_run_going_on(scratch: &Scratch, id: u64) -> (String, PathBuf, PathBuf, Run) {
+    let text = config(&[(
+        "viapoint_weight = 1000.0",
+        "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+    )]);
+    let cfg = write_config(scratch, "slow.toml", &text);
+    let result = scratch.path("result.toml");
+    let run = Run::start_quiet(scratch, id, &cfg, &result);
+    run.wait_status("1 update", |s| updates_in(s) >= 1);
+    (text, cfg, result, run)
+}
+
 /// A second run with a live run's id is refused as that: the directory belongs to a run going
 /// on (the message said "is active or was killed (remove the directory)", which would break it).
 #[test]
 fn a_second_run_with_a_live_runs_id_is_refused_without_harming_it() {
     let scratch = Scratch::new("same-id");
-    let text = config(&[(
-        "viapoint_weight = 1000.0",
-        "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
-    )]);
-    let cfg = write_config(&scratch, "same-id.toml", &text);
-    let result = scratch.path("result.toml");
-    let mut run = Run::start_quiet(&scratch, 884, &cfg, &result);
-    run.wait_status("1 update", |s| updates_in(s) >= 1);
+    let (text, cfg, result, mut run) = a_slow_run_going_on(&scratch, 884);
     let second = scratch.path("second.toml");
     // Its own recording file would be the live run's: refused first, and not what is tested.
     let mut again = Run::start(
@@ -5932,6 +5939,40 @@ fn a_second_run_with_a_live_runs_id_is_refused_without_harming_it() {
         "{}",
         again.text()
     );
+    run.wait_exit(Duration::from_secs(60), 0);
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
+/// The iceoryx2 directory and shared memory of a run are named by its id alone, not by its runs
+/// directory: a second run with a live run's id under another `PI2CMA_RUN_DIR` (another user's,
+/// a script's own) found no run directory, started, failed with iceoryx2's
+/// `ExceedsMaxSupportedSubscribers`, and its clean-up removed the live run's shared memory,
+/// which then made no update again. It is refused before it starts anything.
+#[test]
+fn a_second_run_with_a_live_runs_id_under_another_runs_directory_is_refused() {
+    let scratch = Scratch::new("same-id-other-runs-dir");
+    let (text, cfg, result, mut run) = a_slow_run_going_on(&scratch, 26448);
+    let elsewhere = scratch.path("elsewhere");
+    let mut again = Run::start_with_env(
+        &scratch,
+        26448,
+        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+        &[("PI2CMA_RUN_DIR", elsewhere.to_str().unwrap())],
+    );
+    assert!(!again.wait(Duration::from_secs(20)).success());
+    let id = run_id(26448);
+    assert!(
+        again.text().contains(&format!(
+            "run {id} is active outside {}: ",
+            elsewhere.display()
+        )),
+        "{}",
+        again.text()
+    );
+    // The live run goes on to its end.
+    let before = updates_in(&run.ctl_ok(&["status"]));
+    run.wait_status("more updates", |s| updates_in(s) > before + 2);
     run.wait_exit(Duration::from_secs(60), 0);
     assert_bit_identical(&text, &result);
     assert_nothing_left(&run);
