@@ -4788,6 +4788,103 @@ fn a_rust_worker_that_checks_stop_requested_leaves_a_long_rollout_at_once() {
     assert_nothing_left(&run);
 }
 
+/// The processes of process group `group` (the supervisor's children each lead one).
+fn group_members(group: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|pid| {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            let fields: Vec<&str> = stat
+                .rsplit_once(')')
+                .map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
+            // State (not a zombie), parent, group.
+            fields.len() > 2 && fields[0] != "Z" && fields[2] == group.to_string()
+        })
+        .collect()
+}
+
+/// A worker program as users write them: a shell script that starts a simulator of its own
+/// beside the worker (here `sleep`, which inherits the script's output), runs the worker
+/// without `exec`, and whose own shutdown fails (exit 3 on SIGTERM). Each of these broke the
+/// supervisor:
+/// - the worker announced its own pid, not the script's, so it was taken for a worker joining
+///   from outside into the slot the script held, stopped (SIGTERM), and restarted until
+///   `restart_limit` failed the run;
+/// - a dead worker was reported only once its output pipe closed, which the simulator held
+///   open: the death went unsaid and the worker was never restarted, and the simulator ran on;
+/// - an exit other than as asked at the stop was not said.
+#[test]
+fn a_worker_program_that_is_a_script_with_a_simulator_of_its_own_is_supervised() {
+    use std::os::unix::fs::PermissionsExt;
+    let scratch = Scratch::new("worker-script");
+    let reach = Path::new(SUPERVISOR)
+        .parent()
+        .unwrap()
+        .join("examples/reach-worker");
+    let sims = scratch.path("simulators");
+    let script = scratch.path("worker.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nsleep 600 &\necho $! >> {sims}\ntrap 'wait $worker; exit 3' TERM\n\
+             {reach} --rollout-ms 20 \"$@\" &\nworker=$!\nwait $worker\n",
+            sims = sims.display(),
+            reach = reach.display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let text = external_config_from(
+        "external-reach.toml",
+        "../target/release/examples/reach-worker",
+        &script,
+        &[("updates = 80\n", "")],
+    );
+    let cfg = write_config(&scratch, "script.toml", &text);
+    let mut run = Run::start(&scratch, 26449, &[cfg.to_str().unwrap(), "--no-record"]);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    assert!(!run.text().contains("joined"), "{}", run.text());
+    let script_pid = pid_of(&status, "worker-1");
+    let left = group_members(script_pid);
+    assert_eq!(left.len(), 3, "script, simulator and worker: {left:?}");
+    signal(script_pid, "-9");
+    let end = Instant::now() + Duration::from_secs(10);
+    run.wait_output(
+        &format!("worker-1 (pid {script_pid}) left 2 process(es) running in its process group"),
+        end,
+    );
+    run.wait_output(
+        &format!("worker-1 (pid {script_pid}) died (signal: 9 (SIGKILL))"),
+        end,
+    );
+    run.wait_output("worker-1 (pid ", end);
+    run.wait_output(", incarnation 1) is ready", end);
+    while left.iter().any(|&pid| supervisor::process_alive(pid)) {
+        assert!(Instant::now() < end, "{left:?} outlived their worker");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(30), 0);
+    let out = run.text();
+    for w in [0, 1] {
+        assert!(
+            out.lines()
+                .any(|l| l.contains(&format!("warning: worker-{w} (pid "))
+                    && l.contains("asked to stop, did not end cleanly (exit status: 3")),
+            "{out}"
+        );
+    }
+    assert!(!out.contains("joined"), "{out}");
+    let sims = std::fs::read_to_string(&sims).unwrap();
+    assert_eq!(sims.lines().count(), 3, "{sims}");
+    for pid in sims.lines() {
+        assert!(!supervisor::process_alive(pid.parse().unwrap()), "{pid}");
+    }
+    assert_nothing_left(&run);
+}
+
 /// A worker that exits with status 0 unasked was stopped on purpose (an operator's `kill`,
 /// which a Rust worker answers by ending in order; `sys.exit(0)` in a Python task's rollout):
 /// it is not restarted (it was, as a death, counting towards `restart_limit`), the run goes on

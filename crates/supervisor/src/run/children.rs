@@ -18,7 +18,7 @@ use wire::Control;
 use crate::shm::{self, SHM_DIR};
 
 use super::event_loop::{Outcome, Phase};
-use super::process::{die_with_parent, sigbus_hint, Role};
+use super::process::{die_with_parent, group_members, sigbus_hint, signal_group, Role};
 use super::recorder::recorder_restartable;
 use super::summary::pi2cma_program;
 use super::workers::{may_restart, restart_backoff};
@@ -41,6 +41,11 @@ pub(super) struct Proc {
     /// A worker asked to stop whose SIGTERM waits for the recorder to connect to its ports:
     /// the RECORDER_SYNC it waits for, and until when (see [`Supervisor::stop_worker`]).
     pub(super) term_wait: Option<(u64, Instant)>,
+    /// It has exited while asked to stop, but processes it started in its process group still
+    /// run (a worker program that is a wrapper script without `exec`, whose child is the real
+    /// worker, still finishing its rollout): its exit counts once they are gone, so the stage
+    /// waits for them as for it and kills them at its timeout.
+    pub(super) exited_first: Option<ExitStatus>,
     /// Its last error line, else its last line, and when it was printed.
     last_line: Arc<Mutex<(String, Option<Instant>)>>,
 }
@@ -49,6 +54,9 @@ pub(super) struct Proc {
 /// from it is read ([`Spawned`]); the supervisor reads announcements within a tick of their
 /// sending, so this only has to outlast a loaded machine.
 pub(super) const LATE_ANNOUNCEMENT: Duration = Duration::from_secs(60);
+
+/// How long a child's exit waits for the rest of its output to be printed.
+const OUTPUT_AFTER_EXIT: Duration = Duration::from_millis(200);
 
 /// The pids the supervisor started: running, or reaped within [`LATE_ANNOUNCEMENT`]. They used
 /// to be kept for the whole run, one per worker incarnation, so a continual run whose workers
@@ -156,7 +164,8 @@ impl Supervisor {
         let last_line = Arc::new(Mutex::new((String::new(), None)));
         let name = role.name();
         let last = last_line.clone();
-        let printer = std::thread::Builder::new()
+        let (printed, printer_done) = std::sync::mpsc::channel::<()>();
+        std::thread::Builder::new()
             .name(format!("out-{name}"))
             .spawn(move || {
                 // The reason a process died: its last error line, else its last line (after
@@ -173,13 +182,17 @@ impl Supervisor {
                     }
                     seen_error |= error;
                 }
+                drop(printed);
             })?;
         let tx = self.tx.clone();
         std::thread::Builder::new()
             .name(format!("wait-{pid}"))
             .spawn(move || {
                 let status = child.wait();
-                let _ = printer.join(); // the child's last words are printed before its exit
+                // The child's last words are printed before its exit, but a process it started
+                // (a simulator) holds the pipe open as long as it runs: waiting for the end of
+                // the output hid a dead worker, which was not restarted nor reported.
+                let _ = printer_done.recv_timeout(OUTPUT_AFTER_EXIT);
                 if let Ok(status) = status {
                     let _ = tx.send(Event::Exited { pid, status });
                 }
@@ -198,6 +211,7 @@ impl Supervisor {
                 spawned_at: Instant::now(),
                 ready_at: None,
                 term_wait: None,
+                exited_first: None,
                 last_line,
             },
         );
@@ -205,6 +219,54 @@ impl Supervisor {
             self.slots.entry(w).or_default().pid = Some(pid);
         }
         Ok(())
+    }
+
+    /// A child has exited (its waiter says so). What it left running in its process group is
+    /// waited for if it was asked to stop, and killed if it died unasked: a simulator a crashed
+    /// worker started would otherwise run on beside the one its restart starts, and outlive
+    /// the run. Then [`Self::exited`] judges the exit.
+    pub(super) fn child_exited(&mut self, pid: u32, status: ExitStatus) {
+        let stopping = self.phase == Phase::Stopping;
+        if let Some(p) = self.procs.get_mut(&pid) {
+            let left = group_members(pid);
+            if !left.is_empty() {
+                if p.stopping || stopping {
+                    p.exited_first = Some(status);
+                    return;
+                }
+                let names: Vec<String> = left
+                    .iter()
+                    .map(|m| {
+                        let comm =
+                            std::fs::read_to_string(format!("/proc/{m}/comm")).unwrap_or_default();
+                        format!("{m} {}", comm.trim())
+                    })
+                    .collect();
+                say(&format!(
+                    "{} (pid {pid}) left {} process(es) running in its process group ({}): \
+                     killing them",
+                    p.role.name(),
+                    left.len(),
+                    names.join(", ")
+                ));
+                signal_group(pid, libc::SIGKILL);
+            }
+        }
+        self.exited(pid, status);
+    }
+
+    /// Judges the exits of children that exited before the rest of their process group
+    /// ([`Proc::exited_first`]) once that group is empty.
+    pub(super) fn groups_emptied(&mut self) {
+        let emptied: Vec<(u32, ExitStatus)> = self
+            .procs
+            .iter()
+            .filter_map(|(pid, p)| Some((*pid, p.exited_first?)))
+            .filter(|(pid, _)| group_members(*pid).is_empty())
+            .collect();
+        for (pid, status) in emptied {
+            self.exited(pid, status);
+        }
     }
 
     pub(super) fn exited(&mut self, pid: u32, status: ExitStatus) {
@@ -255,6 +317,21 @@ impl Supervisor {
                 let how = status.to_string();
                 let lost = Control::worker_lost(self.run_id, w, p.incarnation, pid, reason, &how);
                 let _ = self.send_control(lost, false);
+                let asked = p.stopping || self.phase == Phase::Stopping;
+                if asked && !p.sigkilled && !self.killed {
+                    // A worker asked to stop that ended otherwise than as asked (a task whose
+                    // shutdown failed: a robot that did not park) went unsaid.
+                    if !stopped_as_asked(status) {
+                        let msg = format!(
+                            "{} (pid {pid}), asked to stop, did not end cleanly ({cause})",
+                            p.role.name()
+                        );
+                        say(&format!("warning: {msg}"));
+                        self.note(wire::RunNote::WARNING, &msg);
+                    } else if self.phase != Phase::Stopping {
+                        say(&format!("{} (pid {pid}) stopped ({status})", p.role.name()));
+                    }
+                }
                 let Some(slot) = self.slots.get_mut(&w).filter(|_| own_slot) else {
                     return; // scaled away
                 };
@@ -413,6 +490,19 @@ fn death_cause(status: ExitStatus, hung: bool, last: &str, age: Option<Duration>
         ),
         _ => format!("{status}; its last output: {last}"),
     }
+}
+
+/// Whether a process asked to stop (SIGTERM) ended as that asks: exit status 0, or death by
+/// SIGTERM or SIGINT, or their shells' exit codes 128 + signal (a wrapper script, a Python
+/// worker without a handler), which are no failure.
+fn stopped_as_asked(status: ExitStatus) -> bool {
+    use std::os::unix::process::ExitStatusExt as _;
+    let asked = [libc::SIGTERM, libc::SIGINT];
+    status.success()
+        || status.signal().is_some_and(|s| asked.contains(&s))
+        || status
+            .code()
+            .is_some_and(|c| asked.iter().any(|s| c == 128 + s))
 }
 
 #[cfg(test)]

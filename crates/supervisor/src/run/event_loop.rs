@@ -172,6 +172,7 @@ impl Supervisor {
                 self.handle(ev)?;
             }
             self.poll_ports()?;
+            self.groups_emptied();
             self.release_stops()?;
             self.answer_sets(0, None, self.phase == Phase::Stopping);
             self.check_deadlines();
@@ -194,6 +195,10 @@ impl Supervisor {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
         }
         d.extend(self.pending_sets.iter().map(|p| p.until));
+        // Nothing reports that a process group has emptied: look every 20 ms.
+        if self.procs.values().any(|p| p.exited_first.is_some()) {
+            d.push(Instant::now() + Duration::from_millis(20));
+        }
         d.extend(
             self.procs
                 .values()
@@ -542,7 +547,7 @@ impl Supervisor {
                 Ok(())
             }
             Event::Exited { pid, status } => {
-                self.exited(pid, status);
+                self.child_exited(pid, status);
                 Ok(())
             }
         }

@@ -16,7 +16,8 @@ use iceoryx2::prelude::*;
 use pipeline::iox;
 use wire::{Control, Lifecycle, Limits, Overdue, Progress, RecorderAck, RunNote, Service};
 
-use super::process::{process_started, signal_process, Role};
+use super::event_loop::Phase;
+use super::process::{process_group, process_started, signal_process, Role};
 use super::{say, Event, Supervisor};
 
 pub(super) struct Ports {
@@ -94,13 +95,39 @@ impl Supervisor {
             if l.run_id != self.run_id {
                 continue;
             }
-            if let Some(p) = self.procs.get_mut(&l.pid) {
+            // A worker program that is a wrapper (a shell script that sets up an environment
+            // and starts the worker without `exec`) announces its child's pid, not the one the
+            // supervisor started; that child is in the process group of the program started
+            // for the slot. It was taken for a worker joining from outside into an occupied
+            // slot, stopped, and restarted until the restart limit ended the run.
+            let group = (l.role == wire::role::WORKER)
+                .then(|| process_group(l.pid))
+                .flatten()
+                .filter(|g| {
+                    self.procs
+                        .get(g)
+                        .is_some_and(|p| p.role == Role::Worker(l.worker))
+                });
+            let pid = group.unwrap_or(l.pid);
+            if let Some(p) = self.procs.get_mut(&pid) {
+                // A restarted or added worker's pid was said nowhere but in `status`: the
+                // line of its death named only the pid of the one before.
+                if !p.ready && self.phase == Phase::Running && matches!(p.role, Role::Worker(_)) {
+                    say(&format!(
+                        "{} (pid {pid}, incarnation {}) is ready",
+                        p.role.name(),
+                        p.incarnation
+                    ));
+                }
                 p.ready = true;
                 p.ready_at.get_or_insert_with(Instant::now);
                 if p.role == Role::Recorder {
                     self.recorder_back()?;
                 }
-            } else if l.role == wire::role::WORKER && !self.spawned.ours(l.pid, Instant::now()) {
+            } else if l.role == wire::role::WORKER
+                && !self.spawned.ours(l.pid, Instant::now())
+                && !process_group(l.pid).is_some_and(|g| self.spawned.ours(g, Instant::now()))
+            {
                 if let Some(holder) = self.slot_holder(l.worker) {
                     // Both would take slot w's work: every rollout of it would run twice (on a
                     // robot, twice for real). The newcomer is the mistake.

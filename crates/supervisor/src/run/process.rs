@@ -157,6 +157,26 @@ pub(super) fn process_started(pid: u32) -> Option<u64> {
     fields.nth(18)?.parse().ok()
 }
 
+/// The process group of process `pid` (field 5 of `/proc/<pid>/stat`), if it runs.
+pub(super) fn process_group(pid: u32) -> Option<u32> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let (_, rest) = stat.rsplit_once(')')?;
+    // State, parent, group.
+    rest.split_whitespace().nth(2)?.parse().ok()
+}
+
+/// The processes other than zombies in process group `group` (a child of the supervisor leads
+/// one of its own, and what it starts is in it unless it moves out).
+pub(super) fn group_members(group: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|&pid| process_group(pid) == Some(group) && process_alive(pid))
+        .collect()
+}
+
 /// Signals one process that is not ours to group-kill (a worker that joined from outside).
 /// The pid comes from a shared-memory message: 0 or one beyond `pid_t` would signal a process
 /// group or everything the user owns, so only a plain other process's pid is signalled.
