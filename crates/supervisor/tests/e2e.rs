@@ -6008,6 +6008,49 @@ fn a_slow_run_going_on(scratch: &Scratch, id: u64) -> (String, PathBuf, PathBuf,
     (text, cfg, result, run)
 }
 
+/// A stop that waits for a process says so while it waits, naming it: with a robot's
+/// `shutdown_timeout_ms` of a minute, the supervisor said nothing after "signal received"
+/// until the timeout, and a user who took it for hung pressed Ctrl-C again, which kills the
+/// recorder too and leaves the recording unfinished.
+#[test]
+fn a_stop_that_waits_for_a_worker_names_it_while_it_waits() {
+    let scratch = Scratch::new("stop-waits");
+    let text = config(&[
+        ("updates = 40\n", ""),
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 20.0",
+        ),
+        (
+            "max_workers = 16",
+            "max_workers = 16\nshutdown_timeout_ms = 4000",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "stop-waits.toml", &text);
+    let mut run = Run::start(&scratch, 26450, &[cfg.to_str().unwrap(), "--quiet"]);
+    let status = run.wait_status("1 update", |s| updates_in(s) >= 1);
+    let stuck = pid_of(&status, "worker-1");
+    signal(stuck, "-STOP");
+    signal(run.child.id(), "-INT");
+    let waiting = format!("still waiting for worker-1 (pid {stuck}) to stop");
+    run.wait_output(&waiting, Instant::now() + Duration::from_secs(3));
+    run.wait_exit(Duration::from_secs(30), 130);
+    let out = run.text();
+    let said = |needle: &str| {
+        out.find(needle)
+            .unwrap_or_else(|| panic!("{needle}: {out}"))
+    };
+    assert!(
+        said(&waiting) < said("did not stop within 4000 ms"),
+        "{out}"
+    );
+    assert!(
+        out.contains("a second Ctrl-C kills every process at once, the recorder too"),
+        "{out}"
+    );
+    assert_nothing_left(&run);
+}
+
 /// A second run with a live run's id is refused as that: the directory belongs to a run going
 /// on (the message said "is active or was killed (remove the directory)", which would break it).
 #[test]

@@ -46,6 +46,10 @@ pub(super) struct Proc {
     /// worker, still finishing its rollout): its exit counts once they are gone, so the stage
     /// waits for them as for it and kills them at its timeout.
     pub(super) exited_first: Option<ExitStatus>,
+    /// When the run's stop asked it to stop, and whether the wait for it has been said
+    /// ([`Supervisor::say_stop_waits`]).
+    pub(super) asked_at: Option<Instant>,
+    pub(super) wait_said: bool,
     /// Its last error line, else its last line, and when it was printed.
     last_line: Arc<Mutex<(String, Option<Instant>)>>,
 }
@@ -212,6 +216,8 @@ impl Supervisor {
                 ready_at: None,
                 term_wait: None,
                 exited_first: None,
+                asked_at: None,
+                wait_said: false,
                 last_line,
             },
         );

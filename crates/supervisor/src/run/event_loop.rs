@@ -23,6 +23,9 @@ use super::process::{signal_group, Role};
 use super::task_changes::{PendingSet, SET_REPLY_WAIT};
 use super::{say, Event, Supervisor};
 
+/// How long the stop waits for a process before it says so.
+const STOP_WAIT_SAID: Duration = Duration::from_secs(1);
+
 #[derive(Debug, Clone, PartialEq)]
 pub(super) enum Outcome {
     Complete,
@@ -176,6 +179,7 @@ impl Supervisor {
             self.release_stops()?;
             self.answer_sets(0, None, self.phase == Phase::Stopping);
             self.check_deadlines();
+            self.say_stop_waits();
             self.check_stall();
             self.check_joined();
             self.advance()?;
@@ -195,6 +199,12 @@ impl Supervisor {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
         }
         d.extend(self.pending_sets.iter().map(|p| p.until));
+        d.extend(
+            self.procs
+                .values()
+                .filter(|p| !p.wait_said)
+                .filter_map(|p| p.asked_at.map(|t| t + STOP_WAIT_SAID)),
+        );
         // Nothing reports that a process group has emptied: look every 20 ms.
         if self.procs.values().any(|p| p.exited_first.is_some()) {
             d.push(Instant::now() + Duration::from_millis(20));
@@ -378,6 +388,43 @@ impl Supervisor {
         }
     }
 
+    /// Names the processes the stop has waited for longer than [`STOP_WAIT_SAID`], once each:
+    /// with a long `shutdown_timeout_ms` (a robot's episode) the stop said nothing until the
+    /// timeout, and a second Ctrl-C, pressed at a supervisor that looked hung, killed the
+    /// recorder too.
+    fn say_stop_waits(&mut self) {
+        if self.phase != Phase::Stopping || self.killed {
+            return;
+        }
+        let now = Instant::now();
+        let mut waited = Vec::new();
+        for (pid, p) in &mut self.procs {
+            if p.sigkilled || p.wait_said || p.asked_at.is_none_or(|t| now < t + STOP_WAIT_SAID) {
+                continue;
+            }
+            p.wait_said = true;
+            waited.push(format!("{} (pid {pid})", p.role.name()));
+        }
+        if waited.is_empty() {
+            return;
+        }
+        let left = self
+            .phase_deadline
+            .map(|d| d.saturating_duration_since(now).as_secs_f64())
+            .unwrap_or(0.0);
+        let recorder = if self.role_pid(Role::Recorder).is_some() {
+            ", the recorder too, which leaves the recording unfinished"
+        } else {
+            ""
+        };
+        say(&format!(
+            "still waiting for {} to stop; killed in {left:.1} s (pipeline.shutdown_timeout_ms = \
+             {}); a second Ctrl-C kills every process at once{recorder}",
+            waited.join(", "),
+            self.pipe.shutdown_timeout_ms
+        ));
+    }
+
     fn kill_all(&mut self) {
         self.killed = true;
         for pid in self.procs.keys() {
@@ -492,6 +539,7 @@ impl Supervisor {
                     let p = self.procs.get_mut(&pid).expect("pid from procs");
                     if !p.stopping {
                         p.stopping = true;
+                        p.asked_at = Some(Instant::now());
                         asked = true;
                         if matches!(p.role, Role::Worker(_)) {
                             self.stop_worker(pid);
