@@ -6051,6 +6051,30 @@ fn a_stop_that_waits_for_a_worker_names_it_while_it_waits() {
     assert_nothing_left(&run);
 }
 
+/// A run without `--record` whose default recording is there already (an earlier run of the
+/// same `--run-id`) is refused naming that default, not `--record`, which was not given.
+#[test]
+fn a_default_recording_left_by_an_earlier_run_of_the_id_is_named_as_the_default() {
+    let scratch = Scratch::new("default-recording-there");
+    let earlier = scratch.recording("A1", 26451);
+    std::fs::create_dir_all(earlier.parent().unwrap()).unwrap();
+    std::fs::write(&earlier, b"an earlier run's recording").unwrap();
+    let mut run = Run::start(&scratch, 26451, &["--quiet"]);
+    run.wait_exit(Duration::from_secs(20), 1);
+    let out = run.text();
+    assert!(
+        out.contains("is there already (the default place of a run of this name and id")
+            && out.contains("give another --run-id, or --record FILE")
+            && !out.contains("(--record)"),
+        "{out}"
+    );
+    assert_eq!(
+        std::fs::read(&earlier).unwrap(),
+        b"an earlier run's recording"
+    );
+    assert_nothing_left(&run);
+}
+
 /// A second run with a live run's id is refused as that: the directory belongs to a run going
 /// on (the message said "is active or was killed (remove the directory)", which would break it).
 #[test]

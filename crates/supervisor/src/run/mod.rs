@@ -264,7 +264,16 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         // The recorder creates its file before the workers start, so a run that then fails
         // (a worker refusing the config) would leave an empty recording in place of this one.
         // The parts of an earlier split recording too: the new one would remove them.
-        record::refuse_overwrite(&path, "--record")?;
+        // Without --record the file is the id's default one, there from an earlier run of this
+        // id (a script's fixed --run-id, a run whose supervisor was killed): naming `--record`
+        // there sent the user looking for an option they had not given.
+        let option = if opts.record.is_some() {
+            "--record"
+        } else {
+            "the default place of a run of this name and id, left by an earlier run of the id: \
+             give another --run-id, or --record FILE"
+        };
+        record::refuse_overwrite(&path, option)?;
         Some(Recording {
             path,
             defaulted: opts.record.is_none(),
