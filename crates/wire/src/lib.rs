@@ -988,6 +988,35 @@ pub fn run_alive(run_id: u64) -> bool {
     alive || listed.is_err()
 }
 
+/// Whether run `run_id` has a live supervisor ([`process::SUPERVISOR`]'s node under the run's
+/// root), whatever other processes of it run (a recorder or a worker started by hand before
+/// the supervisor). A node whose state or name cannot be read (another user's) counts as one,
+/// and so does a registry that cannot be listed: a second supervisor is started only beside a
+/// run known to have none.
+pub fn supervisor_alive(run_id: u64) -> bool {
+    use iceoryx2::node::NodeView as _;
+    let Ok(config) = iceoryx_config(run_id) else {
+        return true;
+    };
+    let mut alive = false;
+    let listed = Node::<Service>::list(&config, |state| {
+        alive = match state {
+            NodeState::Dead(_) => false,
+            NodeState::Alive(view) => view
+                .details()
+                .as_ref()
+                .is_none_or(|d| d.name().as_str() == process::SUPERVISOR),
+            NodeState::Inaccessible(_) | NodeState::Undefined(_) => true,
+        };
+        if alive {
+            CallbackProgression::Stop
+        } else {
+            CallbackProgression::Continue
+        }
+    });
+    alive || listed.is_err()
+}
+
 /// Creates a named node with the run's config.
 pub fn node(run_id: u64, name: &str) -> Result<Node<Service>, WireError> {
     let config = iceoryx_config(run_id)?;

@@ -338,11 +338,13 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     // The iceoryx2 directory and the shared memory are named by the run id alone: a run of
     // this id under another runs directory (another `PI2CMA_RUN_DIR`, another user) has no run
     // directory here, and starting beside it failed in iceoryx2 and then removed its files.
+    // Processes of the run started by hand before it (a recorder for `--no-record`) are not
+    // such a run.
     let root = wire::iceoryx_root(run_id);
-    if root.exists() && wire::run_alive(run_id) {
+    if root.exists() && wire::supervisor_alive(run_id) {
         let id = wire::run_id_hex(run_id);
         bail!(
-            "run {id} is active outside {}: processes of it are alive in its iceoryx2 directory \
+            "run {id} is active outside {}: its supervisor is alive in its iceoryx2 directory \
              {} (a run under another PI2CMA_RUN_DIR, or another user's); a second run with its \
              id would break it: choose another --run-id",
             control::runs_dir().display(),
