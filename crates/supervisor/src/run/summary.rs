@@ -41,14 +41,12 @@ impl Supervisor {
                 format!(" (resumed at update {first} from {})", s.origin)
             });
             say(&format!(
-                "summary: run {} ({}): {} update{} of {of}{resumed} in {} ({}), {} worker{} targeted at the end, {} restart{}",
+                "summary: run {} ({}): {} update{} of {of}{resumed} {}, {} worker{} targeted at the end, {} restart{}",
                 wire::run_id_hex(self.run_id),
                 r.name,
                 r.updates,
                 plural(r.updates),
-                // The quick start's 40 updates take ~5 ms: "0.00 s" said nothing.
-                interval_text(r.elapsed_s),
-                rate_text(ran as f64 / r.elapsed_s.max(1e-9)),
+                pace_text(ran, r.elapsed_s),
                 self.target_workers,
                 plural(self.target_workers as u64),
                 self.total_restarts,
@@ -63,7 +61,20 @@ impl Supervisor {
                     reading(r.lambda)
                 ));
             }
-            say(&format!("  final mean θ = {}", session::mean_text(&r.mean)));
+            say(&if ran > 0 {
+                format!("  final mean θ = {}", session::mean_text(&r.mean))
+            } else {
+                // Not a result: what the run started from.
+                format!(
+                    "  mean θ = {} (no update ran: {})",
+                    session::mean_text(&r.mean),
+                    if first > 0 {
+                        "the mean it resumed from"
+                    } else {
+                        "the initial mean"
+                    }
+                )
+            });
             for c in &r.task_changes {
                 // A resumed run's settings were in force where it resumed; when they were set
                 // is in the recording it resumed from.
@@ -255,6 +266,20 @@ fn analysis_out(recording: &Path) -> &Path {
     }
 }
 
+/// How long the run's own updates took and at what rate; a run that ran none (stopped, or
+/// failed, before its first) says so: "in 0.000 ms (0 updates/s)" read as a measurement.
+fn pace_text(ran: u64, elapsed_s: f64) -> String {
+    if ran == 0 {
+        return "(none ran)".into();
+    }
+    format!(
+        // The quick start's 40 updates take ~5 ms: "0.00 s" said nothing.
+        "in {} ({})",
+        interval_text(elapsed_s),
+        rate_text(ran as f64 / elapsed_s.max(1e-9))
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -284,6 +309,13 @@ mod tests {
         let lines = restart_lines(2, &[gap]);
         assert!(lines[0].ends_with("are missing:"), "{lines:?}");
         assert!(lines[2].contains("1 of the 2 parts"), "{lines:?}");
+    }
+
+    #[test]
+    fn a_run_that_ran_no_update_says_so_instead_of_a_rate() {
+        assert_eq!(pace_text(0, 0.0), "(none ran)");
+        assert_eq!(pace_text(40, 0.004173), "in 4.173 ms (9585 updates/s)");
+        assert_eq!(pace_text(3, 30.0), "in 30.000 s (0.10 updates/s)");
     }
 
     #[test]
