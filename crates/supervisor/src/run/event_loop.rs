@@ -619,6 +619,15 @@ impl Supervisor {
                 if self.phase == Phase::Stopping {
                     return Err("the run is stopping".into());
                 }
+                if n == 0 {
+                    // What a user who asks for 0 wants is a pause: that is a stop and a resume.
+                    return Err(
+                        "cannot scale to 0 workers: a run needs at least 1 (to pause it, \
+                                `supervisor stop`; `supervisor run CONFIG --resume RECORDING` \
+                                later goes on where it stopped, bit for bit)"
+                            .into(),
+                    );
+                }
                 if !(1..=self.pipe.max_workers).contains(&n) {
                     return Err(format!(
                         "cannot scale to {n} workers: must be between 1 and pipeline.max_workers = {}",
