@@ -71,7 +71,7 @@ pub(crate) use reader::{read_recording_slim_with, Decoded};
 pub use recorder::McapRecorder;
 pub use split::{
     analyze_command, describe_parts, file_name_part, first_part, last_part, part_number, part_path,
-    program_name, recording_parts, refuse_overwrite, resumed_chain,
+    program_name, recording_parts, refuse_overwrite, resumed_chain, unfinished_part,
 };
 pub(crate) use split::{part_path_or_first, RunFiles};
 pub use writer::{now_ns, Event, RolloutTiming, RunStart, RunWriter, UpdateData};

@@ -119,6 +119,18 @@ pub fn last_part(path: &Path) -> PathBuf {
         .unwrap_or_else(|| path.to_path_buf())
 }
 
+/// The part of the recording `path` (any of its parts) that a killed writer left unfinished:
+/// its last part holding anything (one created as the disk filled up holds none of the
+/// updates), when that part has no summary section. `recover` completes it; `--resume` goes on
+/// from it as it is. `None` for a finished recording, or one that is not there.
+pub fn unfinished_part(path: &Path) -> Option<PathBuf> {
+    let last = recording_parts(&first_part(path))
+        .into_iter()
+        .rev()
+        .find(|p| p.is_file() && !crate::recover::holds_nothing(p).unwrap_or(false))?;
+    (!crate::reader::has_summary(&last).unwrap_or(false)).then_some(last)
+}
+
 /// The `analyze` command line for a run's recording `first` (all its parts) that continues the
 /// recordings `earlier` (all their parts, whichever one each names; oldest first, as
 /// [`resumed_chain`] gives them): one learning curve from the run's very start. `pi2cma` is how
@@ -752,6 +764,26 @@ mod tests {
         cfg.run.updates = Some(updates);
         cfg.recording = Some(session::RecordingSection { split_mb });
         crate::testing::record_session(&cfg, 1, path)
+    }
+
+    /// Of a killed writer's recording, the part to recover is its last, named from any part;
+    /// a finished recording, or none, has none.
+    #[test]
+    fn the_unfinished_part_is_the_last_one_without_a_summary() {
+        let dir = std::env::temp_dir().join(format!("split-unfinished-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let first = dir.join("run.mcap");
+        assert_eq!(unfinished_part(&first), None);
+        record(&first, 200, Some(1));
+        let parts = recording_parts(&first);
+        assert_eq!(parts.len(), 3, "{parts:?}");
+        assert_eq!(unfinished_part(&first), None);
+        // The last part cut short, as a SIGKILL of its writer leaves it.
+        let bytes = std::fs::read(&parts[2]).unwrap();
+        std::fs::write(&parts[2], &bytes[..bytes.len() / 2]).unwrap();
+        assert_eq!(unfinished_part(&first), Some(parts[2].clone()));
+        assert_eq!(unfinished_part(&parts[1]), Some(parts[2].clone()));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// 200 A1 updates of ~14 kB in parts of 1 MB: three finished parts, each a recording that

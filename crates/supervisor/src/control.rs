@@ -186,8 +186,12 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
         if !serving(&dir) {
             bail!(
                 "run `{id}` under {} is not active: its supervisor was killed (the next \
-                 `supervisor run` removes what it left behind)",
-                base.display()
+                 `supervisor run` removes what it left behind){}",
+                base.display(),
+                crate::run::unfinished_recording(&dir).map_or(String::new(), |part| format!(
+                    "; {}",
+                    crate::run::unfinished_text(&part)
+                ))
             );
         }
         return Ok(dir);

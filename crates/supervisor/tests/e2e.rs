@@ -1747,17 +1747,30 @@ fn shared_memory_of_a_dead_run_without_its_directory_is_removed_and_a_live_runs_
     assert_nothing_left(&next);
 }
 
+/// ... and the recording its recorder, killed with it, left unfinished is named with what to
+/// do with it, by `status` and by the next run (they named no file).
 #[test]
 fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
     let scratch = Scratch::new("sweep");
     let text = config(&[UNBOUNDED, DELAYED]);
     let cfg = write_config(&scratch, "unbounded.toml", &text);
+    let recording = scratch.path("killed.mcap");
     let mut killed = Run::start(
         &scratch,
         700,
-        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+        &[
+            cfg.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            recording.to_str().unwrap(),
+        ],
     );
-    sigkill_after_3_updates(&mut killed);
+    let s = killed.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let pids = pids_in(&s);
+    assert_eq!(pids.len(), 6, "{s}");
+    sigkill_supervisor(&mut killed, &pids);
+    let unfinished = format!("its recording {} is unfinished: `", recording.display());
+    let what_to_do = format!("recover {}`", recording.display());
     let prefix = killed.shm_prefix();
     let shm = || {
         std::fs::read_dir("/dev/shm")
@@ -1770,10 +1783,19 @@ fn what_a_killed_supervisor_left_behind_is_removed_by_the_next_run() {
     assert!(killed.runs.join(&killed.run_id).exists());
     let (ok, reply) = killed.ctl(&["status"]);
     assert!(!ok && reply.contains("supervisor was killed"), "{reply}");
+    assert!(
+        reply.contains(&unfinished) && reply.contains(&what_to_do),
+        "{reply}"
+    );
 
     let next = next_short_run(&scratch, 701);
     let said = format!("removed what run {} left behind", killed.run_id);
     assert!(next.text().contains(&said), "{}", next.text());
+    assert!(
+        next.text().contains(&unfinished) && next.text().contains(&what_to_do),
+        "{}",
+        next.text()
+    );
     assert_nothing_left(&killed);
     assert_nothing_left(&next);
 }

@@ -2,7 +2,7 @@
 //! of the run and, when another run starts, whatever killed runs left behind. It is not the
 //! stopping of processes (`event_loop`, `process`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use crate::control;
@@ -11,6 +11,36 @@ use super::process::process_alive;
 
 /// The supervisor's pid, in its run directory: tells a killed run from a live one.
 pub(super) const PID_FILE: &str = "supervisor.pid";
+
+/// The recording's first part, as an absolute path, in the run directory of a recorded run: a
+/// run whose supervisor was killed left that recording unfinished, and what was said of it
+/// (its run directory removed by the next run, `status` refusing it) did not name the file.
+pub(super) const RECORDING_FILE: &str = "recording.path";
+
+/// Notes the run's recording `first` in its run directory ([`RECORDING_FILE`]).
+pub(super) fn note_recording(run_dir: &Path, first: &Path) -> std::io::Result<()> {
+    use std::os::unix::ffi::OsStrExt as _;
+    let first = std::path::absolute(first)?;
+    std::fs::write(run_dir.join(RECORDING_FILE), first.as_os_str().as_bytes())
+}
+
+/// The part of the recording of the run in `run_dir` that is unfinished (its recorder was
+/// killed with its supervisor), if it is noted there and is.
+pub(crate) fn unfinished_recording(run_dir: &Path) -> Option<PathBuf> {
+    use std::os::unix::ffi::OsStrExt as _;
+    let noted = std::fs::read(run_dir.join(RECORDING_FILE)).ok()?;
+    record::unfinished_part(Path::new(std::ffi::OsStr::from_bytes(&noted)))
+}
+
+/// What to do with `part`, the unfinished part of a killed run's recording.
+pub(crate) fn unfinished_text(part: &Path) -> String {
+    let part = part.display();
+    format!(
+        "its recording {part} is unfinished: `{pi2cma} recover {part}` completes it, and \
+         `supervisor run CONFIG --resume {part}` goes on from it",
+        pi2cma = super::summary::pi2cma_program().0
+    )
+}
 
 /// Removes everything of run `run_id`: its run directory (and the runs directory if it was the
 /// last run in it), its iceoryx2 directory and its shared memory. Returns how many
@@ -58,7 +88,7 @@ fn remove_prefixed(prefix: &str) -> usize {
 /// A run is gone when its control socket refuses connections and the pid in its run directory
 /// is not alive; a run directory without a pid file (one being created right now) is left
 /// alone unless it is older than a minute.
-pub(super) fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize)> {
+pub(super) fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize, Option<PathBuf>)> {
     let mut removed = Vec::new();
     let Ok(entries) = std::fs::read_dir(base) else {
         return removed;
@@ -71,7 +101,8 @@ pub(super) fn sweep_abandoned_runs(base: &Path) -> Vec<(String, usize)> {
         if name.len() != 16 || !run_abandoned(&e.path()) {
             continue;
         }
-        removed.push((name, remove_run(&e.path(), run_id)));
+        let unfinished = unfinished_recording(&e.path());
+        removed.push((name, remove_run(&e.path(), run_id), unfinished));
     }
     removed
 }

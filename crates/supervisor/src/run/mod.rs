@@ -44,7 +44,8 @@ use crate::shm;
 use crate::EXIT_RECORDING_UNFINISHED;
 
 use children::{Proc, Spawned};
-use cleanup::{sweep_abandoned_runs, sweep_orphaned_ipc, PID_FILE};
+use cleanup::{note_recording, sweep_abandoned_runs, sweep_orphaned_ipc, PID_FILE};
+pub(crate) use cleanup::{unfinished_recording, unfinished_text};
 use event_loop::{Outcome, Phase};
 use ports::Ports;
 use process::Launcher;
@@ -286,10 +287,14 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
             recovering: Vec::new(),
         })
     };
-    for (id, files) in sweep_abandoned_runs(&control::runs_dir()) {
+    for (id, files, unfinished) in sweep_abandoned_runs(&control::runs_dir()) {
         say(&format!(
             "removed what run {id} left behind (its supervisor was killed): its run directory, \
-             iceoryx2 directory and {files} shared-memory files"
+             iceoryx2 directory and {files} shared-memory files{}",
+            unfinished.map_or(String::new(), |part| format!(
+                "; {}",
+                unfinished_text(&part)
+            ))
         ));
     }
     for (id, files) in sweep_orphaned_ipc(run_id) {
@@ -372,6 +377,10 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
     let pid_file = run_dir.join(PID_FILE);
     std::fs::write(&pid_file, std::process::id().to_string())
         .with_context(|| format!("cannot write {}", pid_file.display()))?;
+    if let Some(r) = &recording {
+        note_recording(&run_dir, &r.path)
+            .with_context(|| format!("cannot note the recording in {}", run_dir.display()))?;
+    }
     let (tx, rx) = mpsc::channel();
     let mut sup = Supervisor {
         pipe: pipe.clone(),
