@@ -205,6 +205,17 @@ pub enum SessionError {
     /// A task of your own has another shape than its config declares ([`check_task_shape`]).
     #[error("{0}")]
     TaskShape(String),
+    /// A task of your own refused a value its config gives it: an initial value of
+    /// `[task.external.settings]` or a `[[schedule]]` change ([`InProcess::with_task`]).
+    #[error("{origin}: {what} refused by the task: {error}")]
+    SettingRefused {
+        /// The config file.
+        origin: String,
+        /// Where in it: `task.external.settings` or `[[schedule]] from_update = U`.
+        what: String,
+        /// The task's refusal, naming the setting and value.
+        error: TaskError,
+    },
 }
 
 /// Checks that a task of your own has the shape its config declares: P parameters, N steps, the
@@ -517,7 +528,9 @@ impl InProcess {
     /// before the first update (then the schedule's changes at their updates). So for the same
     /// config and seed the run ends with the pipeline's result, bit for bit. `task` must have
     /// the declared shape ([`check_task_shape`]). Unlike a pipeline worker, a task that
-    /// refuses a scheduled change fails the run here.
+    /// refuses a scheduled change fails the run: here, before the first update, as every
+    /// setting value and scheduled change of the config is tried in `task` first
+    /// ([`SessionError::SettingRefused`], naming the entry).
     pub fn with_task(
         config: &RunConfig,
         seed: u64,
@@ -544,9 +557,12 @@ impl InProcess {
     ) -> Result<Self, SessionError> {
         let (task, declared) = match own {
             None => (build_task(config)?, None),
-            Some(task) => {
+            Some(mut task) => {
                 let declared = config.build_task()?;
                 check_shape_against(task.as_ref(), declared.as_ref(), config)?;
+                if start.is_none() {
+                    try_settings(task.as_mut(), &declared.settings(), config)?;
+                }
                 (task, Some(declared))
             }
         };
@@ -618,7 +634,9 @@ impl InProcess {
         {
             let u = self.optimizer.update_index();
             for change in scheduled_at(&schedule, self.start.as_ref(), u) {
-                self.task.set(&change.name, change.value)?;
+                self.task
+                    .set(&change.name, change.value)
+                    .map_err(refused(&self.config, schedule_entry(change)))?;
                 observer.on_task_change(u, change);
             }
             self.step(observer)?;
@@ -697,6 +715,40 @@ impl InProcess {
             rollout_times: &self.rollout_times,
         });
         Ok(summary)
+    }
+}
+
+/// Sets the config's setting values, then every scheduled change, in a task of your own, in the
+/// order a run sets them. Only the task knows which values it can take (the config's checks
+/// cannot ask it), and a change refused at its update would end an in-process run after all the
+/// rollouts before it.
+fn try_settings(
+    task: &mut dyn Task,
+    initial: &[(&'static str, f64)],
+    config: &RunConfig,
+) -> Result<(), SessionError> {
+    for (name, value) in initial {
+        task.set(name, *value)
+            .map_err(refused(config, "task.external.settings".into()))?;
+    }
+    for change in config.schedule().changes() {
+        task.set(&change.name, change.value)
+            .map_err(refused(config, schedule_entry(change)))?;
+    }
+    Ok(())
+}
+
+/// A change's place in its config, for [`SessionError::SettingRefused`].
+fn schedule_entry(change: &TaskChange) -> String {
+    format!("[[schedule]] from_update = {}", change.from_update)
+}
+
+/// [`SessionError::SettingRefused`] of `config`, at `what`.
+fn refused(config: &RunConfig, what: String) -> impl FnOnce(TaskError) -> SessionError + '_ {
+    move |error| SessionError::SettingRefused {
+        origin: config.origin.display().to_string(),
+        what,
+        error,
     }
 }
 
@@ -903,24 +955,7 @@ mod tests {
             t.set("viapoint", 0.9).unwrap();
             Box::new(t) as Box<dyn Task>
         };
-        let section = |mean: &[f64]| {
-            format!(
-                "[task.external]\nworker = [\"./worker\"]\nparameters = 2\nsteps = 101\n\
-                 initial_mean = {mean:?}\n[task.external.settings]\nviapoint = 0.3\n"
-            )
-        };
-        let external = |mean: &[f64]| {
-            let builtin_section = DEFAULT_CONFIG
-                .split("[task.via-point]")
-                .nth(1)
-                .and_then(|rest| rest.split("\n\n").next())
-                .unwrap();
-            let text = DEFAULT_CONFIG.replace(
-                &format!("[task.via-point]{builtin_section}"),
-                &section(mean),
-            );
-            RunConfig::parse(&text, std::path::Path::new("own.toml")).unwrap()
-        };
+        let external = |mean: &[f64]| external_via_point(mean, "own.toml");
         let mean = own().initial_mean();
         let cfg = external(&mean);
         assert_eq!(
@@ -1002,6 +1037,66 @@ mod tests {
         assert_eq!(*seen.lock().unwrap(), 0.0);
     }
 
+    /// A task of your own that refuses a value of its config fails `with_task`, naming the
+    /// entry, before a rollout: a scheduled change it refuses was found only at its update,
+    /// after the rollouts of all the updates before (hours of them on a robot).
+    #[test]
+    fn a_value_your_task_refuses_fails_the_run_before_its_first_rollout() {
+        let cfg = external_via_point(&[0.0, 0.0], "own.toml");
+        let rollouts = std::rc::Rc::new(std::cell::Cell::new(0));
+        let run = |lowest: f64| {
+            let count = rollouts.clone();
+            let task = Box::new(Hooked {
+                inner: Box::new(tasks::ViaPoint::new(&Default::default()).unwrap()),
+                name: "guarded",
+                rollout: move |_: &[f64], _: &mut [f64], terminal| {
+                    count.set(count.get() + 1);
+                    terminal
+                },
+                set: move |name: &str, value| match value < lowest {
+                    true => Err(TaskError::InvalidSetting {
+                        task: "guarded",
+                        name: name.into(),
+                        value,
+                        reason: "too low",
+                    }),
+                    false => Ok(()),
+                },
+            });
+            InProcess::with_task(&cfg, 1, task).and_then(|mut r| r.run(&mut NoObserver, &|| false))
+        };
+        // The schedule moves the via-point from 0.3 to 0.1 at update 20.
+        assert_eq!(
+            run(0.2).unwrap_err().to_string(),
+            "own.toml: [[schedule]] from_update = 20 refused by the task: task `guarded`: \
+             viapoint = 0.1: too low"
+        );
+        assert_eq!(
+            run(0.5).unwrap_err().to_string(),
+            "own.toml: task.external.settings refused by the task: task `guarded`: \
+             viapoint = 0.3: too low"
+        );
+        assert_eq!(rollouts.get(), 0);
+        run(0.0).unwrap();
+        assert_eq!(rollouts.get(), 40 * 15);
+    }
+
+    /// The default config with its via-point task declared as `[task.external]`, starting from
+    /// `mean`.
+    fn external_via_point(mean: &[f64], origin: &str) -> RunConfig {
+        let builtin_section = DEFAULT_CONFIG
+            .split("[task.via-point]")
+            .nth(1)
+            .and_then(|rest| rest.split("\n\n").next())
+            .unwrap();
+        let section = format!(
+            "[task.external]\nworker = [\"./worker\"]\nparameters = 2\nsteps = 101\n\
+             initial_mean = {mean:?}\n[task.external.settings]\nviapoint = 0.3\n"
+        );
+        let text = DEFAULT_CONFIG.replace(&format!("[task.via-point]{builtin_section}"), &section);
+        RunConfig::parse(&text, std::path::Path::new(origin)).unwrap()
+    }
+
     /// An external task's settings come in alphabetical order, and the refusal of a task that
     /// declares them in another says so (a user cannot see the order in the TOML table).
     #[test]
@@ -1069,6 +1164,45 @@ mod tests {
         }
         fn set(&mut self, _: &str, _: f64) -> Result<(), TaskError> {
             Ok(())
+        }
+    }
+
+    /// A task of your own that misbehaves in one way: `inner` with a hook after each rollout
+    /// (given θ, the step costs and the terminal cost; returning the terminal cost) and one
+    /// before each set (whose refusal is the task's).
+    struct Hooked<R, S> {
+        inner: Box<dyn Task>,
+        name: &'static str,
+        rollout: R,
+        set: S,
+    }
+    impl<R, S> Task for Hooked<R, S>
+    where
+        R: FnMut(&[f64], &mut [f64], f64) -> f64,
+        S: FnMut(&str, f64) -> Result<(), TaskError>,
+    {
+        fn name(&self) -> &'static str {
+            self.name
+        }
+        fn parameters(&self) -> usize {
+            self.inner.parameters()
+        }
+        fn steps(&self) -> usize {
+            self.inner.steps()
+        }
+        fn initial_mean(&self) -> Vec<f64> {
+            self.inner.initial_mean()
+        }
+        fn rollout(&mut self, theta: &[f64], c: &mut [f64]) -> f64 {
+            let terminal = self.inner.rollout(theta, c);
+            (self.rollout)(theta, c, terminal)
+        }
+        fn settings(&self) -> Vec<(&'static str, f64)> {
+            self.inner.settings()
+        }
+        fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+            (self.set)(name, value)?;
+            self.inner.set(name, value)
         }
     }
 
@@ -1146,37 +1280,19 @@ mod tests {
 
     #[test]
     fn a_cost_that_stays_non_finite_fails_the_run_after_the_reruns_saying_so() {
-        /// The via-point task whose rollouts of a negative first parameter cost +∞ at step 4.
-        struct Diverges(Box<dyn Task>);
-        impl Task for Diverges {
-            fn name(&self) -> &'static str {
-                "diverges"
-            }
-            fn parameters(&self) -> usize {
-                self.0.parameters()
-            }
-            fn steps(&self) -> usize {
-                self.0.steps()
-            }
-            fn initial_mean(&self) -> Vec<f64> {
-                self.0.initial_mean()
-            }
-            fn rollout(&mut self, theta: &[f64], c: &mut [f64]) -> f64 {
-                let terminal = self.0.rollout(theta, c);
+        let cfg = default_with_run("nonfinite_reruns = 2");
+        // The via-point task whose rollouts of a negative first parameter cost +∞ at step 4.
+        let task = Box::new(Hooked {
+            inner: build_task(&cfg).unwrap(),
+            name: "diverges",
+            rollout: |theta: &[f64], c: &mut [f64], terminal| {
                 if theta[0] < 0.0 {
                     c[4] = f64::INFINITY;
                 }
                 terminal
-            }
-            fn settings(&self) -> Vec<(&'static str, f64)> {
-                self.0.settings()
-            }
-            fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
-                self.0.set(name, value)
-            }
-        }
-        let cfg = default_with_run("nonfinite_reruns = 2");
-        let task = Box::new(Diverges(build_task(&cfg).unwrap()));
+            },
+            set: |_: &str, _| Ok(()),
+        });
         let mut told = Reruns::default();
         let e = InProcess::with_task(&cfg, 1, task)
             .unwrap()
