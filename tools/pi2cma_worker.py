@@ -317,12 +317,26 @@ def _check_shape(task, shape):
     # the config's: the update weighs the rollouts by those.
     own = getattr(task, "basis_activations", None)
     if own is not None and shape.basis_activations is not None:
-        if [list(map(float, row)) for row in own] != shape.basis_activations:
+        own = [list(map(float, row)) for row in own]
+        if own != shape.basis_activations:
             raise ConfigRefused(
                 f"the task has other basis activations than task.external.basis_activations "
-                f"in {shape.origin}: the update weighs the rollouts by the config's, so put the "
-                f"task's own there"
+                f"in {shape.origin} ({_first_difference(own, shape.basis_activations)}): the "
+                f"update weighs the rollouts by the config's, so put the task's own there"
             )
+
+
+def _first_difference(own, declared):
+    """Where a task's basis activations (rows of floats) first differ from the config's: the
+    step and parameter with both values, or the shapes. Saying only that they differ left a user
+    to compare hundreds of numbers by eye."""
+    for i, (a, b) in enumerate(zip(own, declared)):
+        if len(a) != len(b):
+            return f"step {i}: the task's {len(a)} values, the config's {len(b)}"
+        for j, (x, y) in enumerate(zip(a, b)):
+            if x != y:
+                return f"at step {i}, parameter {j}: the task's {x!r}, the config's {y!r}"
+    return f"the task's are {len(own)} rows, the config's {len(declared)}"
 
 
 def serve(make_task, argv=None):

@@ -264,11 +264,10 @@ fn check_shape_against(
     if let (Some(own), Some(declared_psi)) =
         (task.basis_activations(), declared.basis_activations())
     {
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        if bits(&own) != bits(&declared_psi) {
+        if let Some(difference) = first_difference(&own, &declared_psi, declared.parameters()) {
             return refuse(format!(
-                "task `{}` has other basis activations than {} in {origin}: the update weighs \
-                 the rollouts by the config's, so put the task's own there",
+                "task `{}` has other basis activations than {} in {origin} ({difference}): the \
+                 update weighs the rollouts by the config's, so put the task's own there",
                 task.name(),
                 field("basis_activations"),
             ));
@@ -290,6 +289,27 @@ fn check_shape_against(
         ));
     }
     Ok(())
+}
+
+/// Where a task's own row-major basis activations `own` first differ from the config's
+/// `declared` (N rows of P), bit for bit: the values at that step and parameter, or the lengths.
+/// A message that only said they differ left a user to compare 400 numbers by eye.
+fn first_difference(own: &[f64], declared: &[f64], p: usize) -> Option<String> {
+    if own.len() != declared.len() {
+        return Some(format!(
+            "the task's are {} values, the config's {} rows of {p}",
+            own.len(),
+            declared.len() / p
+        ));
+    }
+    let i = (0..own.len()).find(|&i| own[i].to_bits() != declared[i].to_bits())?;
+    Some(format!(
+        "at step {}, parameter {}: the task's {:?}, the config's {:?}",
+        i / p,
+        i % p,
+        own[i],
+        declared[i]
+    ))
 }
 
 /// The task of a config, with its rollout delay if one is set, ready to run rollouts. An
@@ -1084,6 +1104,11 @@ mod tests {
     /// The default config with its via-point task declared as `[task.external]`, starting from
     /// `mean`.
     fn external_via_point(mean: &[f64], origin: &str) -> RunConfig {
+        RunConfig::parse(&external_via_point_text(mean), std::path::Path::new(origin)).unwrap()
+    }
+
+    /// The text of [`external_via_point`]'s config.
+    fn external_via_point_text(mean: &[f64]) -> String {
         let builtin_section = DEFAULT_CONFIG
             .split("[task.via-point]")
             .nth(1)
@@ -1093,8 +1118,7 @@ mod tests {
             "[task.external]\nworker = [\"./worker\"]\nparameters = 2\nsteps = 101\n\
              initial_mean = {mean:?}\n[task.external.settings]\nviapoint = 0.3\n"
         );
-        let text = DEFAULT_CONFIG.replace(&format!("[task.via-point]{builtin_section}"), &section);
-        RunConfig::parse(&text, std::path::Path::new(origin)).unwrap()
+        DEFAULT_CONFIG.replace(&format!("[task.via-point]{builtin_section}"), &section)
     }
 
     /// An external task's settings come in alphabetical order, and the refusal of a task that
@@ -1165,6 +1189,66 @@ mod tests {
         fn set(&mut self, _: &str, _: f64) -> Result<(), TaskError> {
             Ok(())
         }
+    }
+
+    /// A task whose own basis activations differ from its config's is told where: the first
+    /// step and parameter that differ, with both values, or both shapes.
+    #[test]
+    fn other_basis_activations_are_refused_naming_the_first_difference() {
+        /// The via-point task (P = 2, N = 101) with the activations `psi`.
+        struct Psi(tasks::ViaPoint, Vec<f64>);
+        impl Task for Psi {
+            fn name(&self) -> &'static str {
+                "psi"
+            }
+            fn parameters(&self) -> usize {
+                self.0.parameters()
+            }
+            fn steps(&self) -> usize {
+                self.0.steps()
+            }
+            fn initial_mean(&self) -> Vec<f64> {
+                self.0.initial_mean()
+            }
+            fn basis_activations(&self) -> Option<Vec<f64>> {
+                Some(self.1.clone())
+            }
+            fn rollout(&mut self, theta: &[f64], c: &mut [f64]) -> f64 {
+                self.0.rollout(theta, c)
+            }
+            fn settings(&self) -> Vec<(&'static str, f64)> {
+                self.0.settings()
+            }
+            fn set(&mut self, name: &str, value: f64) -> Result<(), TaskError> {
+                self.0.set(name, value)
+            }
+        }
+        let rows: Vec<String> = (0..101).map(|i| format!("[{i}.0, 0.5]")).collect();
+        let psi: Vec<f64> = (0..101).flat_map(|i| [i as f64, 0.5]).collect();
+        let text = external_via_point_text(&[0.0, 0.0]).replace(
+            "[task.external.settings]",
+            &format!(
+                "basis_activations = [{}]\n[task.external.settings]",
+                rows.join(", ")
+            ),
+        );
+        let cfg = RunConfig::parse(&text, std::path::Path::new("psi.toml")).unwrap();
+        let task = |psi: Vec<f64>| Psi(tasks::ViaPoint::new(&Default::default()).unwrap(), psi);
+        check_task_shape(&task(psi.clone()), &cfg).unwrap();
+        let mut other = psi.clone();
+        other[2 * 7 + 1] = 0.25;
+        assert_eq!(
+            check_task_shape(&task(other), &cfg)
+                .unwrap_err()
+                .to_string(),
+            "task `psi` has other basis activations than task.external.basis_activations in \
+             psi.toml (at step 7, parameter 1: the task's 0.25, the config's 0.5): the update \
+             weighs the rollouts by the config's, so put the task's own there"
+        );
+        assert!(check_task_shape(&task(psi[..200].to_vec()), &cfg)
+            .unwrap_err()
+            .to_string()
+            .contains("(the task's are 200 values, the config's 101 rows of 2)"));
     }
 
     /// A task of your own that misbehaves in one way: `inner` with a hook after each rollout

@@ -4262,7 +4262,8 @@ fn a_python_worker_checks_its_basis_activations_against_the_config() {
         )]),
     );
     let tools = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools");
-    // The config's activations pass; with one value changed, the check names the field.
+    // The config's activations pass; with one value changed, the check names the field and
+    // the value.
     let script = r#"
 import sys, pi2cma_worker as w
 shape = w.Shape(sys.argv[1])
@@ -4270,7 +4271,7 @@ class Task:
     parameters, steps, settings = shape.parameters, shape.steps, {"target_x": 0.3, "target_y": 0.7}
     basis_activations = [list(r) for r in shape.basis_activations]
 w._check_shape(Task, shape)
-Task.basis_activations[3][1] += 0.25
+Task.basis_activations[3][1] = 0.75
 try:
     w._check_shape(Task, shape)
 except w.ConfigRefused as e:  # exits 78: the supervisor does not restart it
@@ -4280,6 +4281,11 @@ except w.ConfigRefused as e:  # exits 78: the supervisor does not restart it
     let text = python_ok(&args, &[("PYTHONPATH", tools.as_os_str())]);
     assert!(
         text.contains("other basis activations than task.external.basis_activations in"),
+        "{text}"
+    );
+    // And where: the step and parameter, the task's value and the config's.
+    assert!(
+        text.contains("(at step 3, parameter 1: the task's 0.75, the config's "),
         "{text}"
     );
 }
