@@ -247,7 +247,8 @@ pub enum TaskSection {
     /// `[task.tball]`: the T-ball task of Section IV-B (keys documented in `tball::TballConfig`).
     Tball(Box<tball::TballConfig>),
     /// `[task.external]`: a task of the user's own, whose rollouts run in their own rollout
-    /// workers (`worker`, see `pipeline::worker::serve`); only the pipeline can run it.
+    /// workers (`worker`, see `pipeline::worker::serve`), or in their own process with
+    /// [`crate::InProcess::with_task`]; [`crate::InProcess::new`] cannot run it.
     External(ExternalConfig),
 }
 

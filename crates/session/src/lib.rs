@@ -343,8 +343,73 @@ pub fn build_task_without_delay(config: &RunConfig) -> Result<Box<dyn Task>, Tas
     config.build_task()
 }
 
-/// The optimizer of a config for session seed `seed`: Σ_init = λ_init·I around the task's
-/// initial mean.
+/// The optimizer of a config for session seed `seed`: Σ_init = λ_init·I around `task`'s initial
+/// mean, with its basis activations. For a `[task.external]` config pass the declared task,
+/// [`RunConfig::build_task`], as [`InProcess::with_task`] does: your own task's initial mean and
+/// activations are not the config's, and would start another run.
+///
+/// To drive the core from a loop of your own (a robot's control loop) rather than through
+/// [`InProcess`]: ask, run your task, tell. Set the config's values and the schedule's changes in
+/// your task as an executor does ([`tasks::TaskSchedule::configure`]) and zero the step costs
+/// before each rollout, and it is the in-process run (and the pipeline's), to the last bit of
+/// the distribution:
+///
+/// ```
+/// use session::{build_optimizer, InProcess, NoObserver, RunConfig};
+/// use tasks::{Task, TaskError};
+///
+/// /// θ should reach `goal` in N = 5 steps; any goal is taken.
+/// struct Line(f64);
+/// impl Task for Line {
+///     fn name(&self) -> &'static str { "line" }
+///     fn parameters(&self) -> usize { 1 }
+///     fn steps(&self) -> usize { 5 }
+///     fn initial_mean(&self) -> Vec<f64> { vec![0.0] }
+///     fn rollout(&mut self, theta: &[f64], per_step: &mut [f64]) -> f64 {
+///         per_step[4] = 0.01 * theta[0].powi(2); // effort, at the last step
+///         (theta[0] - self.0).powi(2)
+///     }
+///     fn settings(&self) -> Vec<(&'static str, f64)> { vec![("goal", self.0)] }
+///     fn set(&mut self, _: &str, value: f64) -> Result<(), TaskError> {
+///         self.0 = value;
+///         Ok(())
+///     }
+/// }
+///
+/// // The default config's [run] and [optimizer], for 10 updates (in 40 the runs from any
+/// // initial mean end in the same bits: λ is at its bound and the mean near the goal).
+/// let head = session::DEFAULT_CONFIG.split("[task.via-point]").next().unwrap();
+/// let text = head.replace("updates = 40", "updates = 10")
+///     + "[task.external]\nworker = [\"./line-worker\"]\nparameters = 1\nsteps = 5\n\
+///        initial_mean = [0.5]\nsettings = { goal = 2.0 }\n\
+///        [[schedule]]\nfrom_update = 5\nset = \"goal\"\nvalue = 3.0\n";
+/// let config = RunConfig::parse(&text, "line.toml".as_ref())?;
+///
+/// let mut run = InProcess::with_task(&config, 7, Box::new(Line(0.0)))?;
+/// run.run(&mut NoObserver, &|| false)?;
+///
+/// let mut optimizer = build_optimizer(&config, config.build_task()?.as_ref(), 7)?;
+/// let (mut line, schedule) = (Line(0.0), config.schedule());
+/// let initial = config.build_task()?.settings();
+/// let mut per_step = vec![0.0; line.steps()];
+/// while optimizer.update_index() < config.run.updates.unwrap() {
+///     schedule.configure(&mut line, &initial, optimizer.update_index())?;
+///     let batch = optimizer.ask().clone();
+///     let mut costs = optimizer.cost_batch();
+///     for k in 0..batch.rollouts {
+///         per_step.fill(0.0);
+///         let terminal = line.rollout(batch.row(k), &mut per_step);
+///         costs.insert(k, &per_step, terminal)?;
+///     }
+///     optimizer.tell(&costs)?;
+/// }
+/// let (own, in_process) = (optimizer.distribution(), run.optimizer().distribution());
+/// let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+/// assert_eq!(bits(own.mean.as_slice()), bits(in_process.mean.as_slice()));
+/// assert_eq!(bits(own.covariance.as_slice()), bits(in_process.covariance.as_slice()));
+/// assert!((own.mean[0] - 3.0).abs() < 0.2, "{}", own.mean);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn build_optimizer(
     config: &RunConfig,
     task: &dyn Task,
