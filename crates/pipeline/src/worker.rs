@@ -83,7 +83,10 @@ pub fn main(args: &WorkerArgs) -> Result<(), ProcessError> {
 /// both. The same task runs without the pipeline through `session::InProcess::with_task`.
 ///
 /// `make_task` may fail with any error type that converts into a boxed error (`anyhow::Error`
-/// does); it comes back as [`ProcessError::MakeTask`], unchanged. The other failures: the
+/// does); it comes back as [`ProcessError::MakeTask`], unchanged, and the supervisor restarts
+/// the worker (a simulator not up yet may be there next time). A config your task can never
+/// run (a robot without the joint it names) is [`ProcessError::ConfigRefused`], also through
+/// `?` in an `anyhow::Result`: the worker exits with 78 and is not restarted. The other failures: the
 /// run's config, services or ports ([`ProcessError::Config`], [`ProcessError::Service`],
 /// [`ProcessError::Port`]), the task's shape ([`ProcessError::TaskShape`]), a work item not of
 /// the run's shape ([`ProcessError::WorkItemShape`]), a setting value the task refuses with
