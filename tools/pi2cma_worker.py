@@ -277,6 +277,52 @@ def _node(run_id, worker, incarnation):
     )
 
 
+class _RunEnd:
+    """How a worker the supervisor did not start (or one behind a wrapper script without `exec`)
+    learns that its run has ended, as crates/pipeline's RunEnd: the run directory, which the
+    supervisor removes last, is gone; or the supervisor it has seen is gone without removing it
+    (killed with SIGKILL). Looked at most once a second."""
+
+    def __init__(self, run_dir, config):
+        self.run_dir, self.config = run_dir, config
+        self.supervisor_seen = False
+        self.checked = None
+
+    def _supervisor_known_alive(self):
+        # As wire::supervisor_known_alive: True for a live node named `supervisor`, False when
+        # every node could be read and none is one, None when that cannot be told (a registry
+        # that cannot be listed, a node whose state or name cannot be read or is being created).
+        try:
+            states = iox2.Node.list(iox2.ServiceType.Ipc, self.config)
+        except Exception:
+            return None
+        found = False
+        for state in states:
+            if isinstance(state, iox2.NodeState.Dead):
+                continue
+            details = state[0].details if isinstance(state, iox2.NodeState.Alive) else None
+            if details is None:
+                found = None
+            elif details.name.as_str() == "supervisor":
+                return True
+        return found
+
+    def ended(self):
+        now = time.monotonic()
+        if self.checked is not None and now - self.checked < 1.0:
+            return None
+        self.checked = now
+        if not os.path.isdir(self.run_dir):
+            return f"its run directory {self.run_dir} is gone"
+        # Only a supervisor seen for certain is missed: a node being created reads as unknown.
+        alive = self._supervisor_known_alive()
+        if alive:
+            self.supervisor_seen = True
+        elif alive is False and self.supervisor_seen:
+            return "its supervisor was killed; the next `supervisor run` removes what it left"
+        return None
+
+
 def _shape_attribute(task, name, what):
     """The task's attribute `name`, or ConfigRefused naming it: a task written after the Rust
     trait (`def settings(self)`) or without the attribute failed with `TypeError: 'method' object
@@ -545,15 +591,12 @@ def _serve(make_task, args):
     reported_at = time.monotonic()
     last_notify = time.monotonic()
     n = shape.steps
-    last_run_dir_check = time.monotonic()
+    run_end = _RunEnd(args.run_dir, node.config)
     while not stop:
-        # A worker the supervisor did not start learns that the run has ended from its run
-        # directory, which the supervisor removes last (as rollout-worker does).
-        if time.monotonic() - last_run_dir_check >= 1.0:
-            last_run_dir_check = time.monotonic()
-            if not os.path.isdir(args.run_dir):
-                print(f"the run has ended (its run directory {args.run_dir} is gone): exiting", flush=True)
-                break
+        why = run_end.ended()
+        if why is not None:
+            print(f"the run has ended ({why}): exiting", flush=True)
+            break
         try:
             doorbell.timed_wait(iox2.Duration.from_millis(50))
         except iox2.ListenerWaitError as e:

@@ -128,6 +128,60 @@ impl Context {
     }
 }
 
+/// How a process the supervisor did not start (a worker or a recorder started by hand) learns
+/// that its run has ended, since nobody stops it: the run directory, which the supervisor
+/// removes last, is gone; or the supervisor it has seen is gone without removing anything
+/// (killed with SIGKILL: until a later `supervisor run` swept the run away, such a process waited
+/// forever, a recorder with its file unfinished). A supervisor not yet seen is not missed: such
+/// a process may be started before it.
+pub struct RunEnd {
+    run_dir: PathBuf,
+    run_id: u64,
+    supervisor_seen: bool,
+    checked: Option<std::time::Instant>,
+}
+
+impl RunEnd {
+    /// Watches run `run_id`, whose run directory is `run_dir`.
+    pub fn new(run_dir: &Path, run_id: u64) -> Self {
+        Self {
+            run_dir: run_dir.to_path_buf(),
+            run_id,
+            supervisor_seen: false,
+            checked: None,
+        }
+    }
+
+    /// Why the run has ended, if it has: looked at most once a second (the supervisor is
+    /// looked for in the run's iceoryx2 node registry), `None` in between.
+    pub fn ended(&mut self) -> Option<String> {
+        if self
+            .checked
+            .is_some_and(|t| t.elapsed() < Duration::from_secs(1))
+        {
+            return None;
+        }
+        self.checked = Some(std::time::Instant::now());
+        if !self.run_dir.exists() {
+            return Some(format!(
+                "its run directory {} is gone",
+                self.run_dir.display()
+            ));
+        }
+        // Only a supervisor seen for certain is missed: a node being created reads as unknown.
+        match wire::supervisor_known_alive(self.run_id) {
+            Some(true) => {
+                self.supervisor_seen = true;
+                None
+            }
+            Some(false) if self.supervisor_seen => Some(
+                "its supervisor was killed; the next `supervisor run` removes what it left".into(),
+            ),
+            _ => None,
+        }
+    }
+}
+
 /// Where the updater writes the run's [`result::RunResult`]: `<run dir>/result.toml`.
 pub fn result_path(run_dir: &Path) -> PathBuf {
     run_dir.join("result.toml")

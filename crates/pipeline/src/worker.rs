@@ -182,7 +182,7 @@ fn slot<T: Task>(
     let mut reported_at = Instant::now();
     let mut last_notify = Instant::now();
     let mut unannounced = false;
-    let mut last_run_dir_check = Instant::now();
+    let mut run_end = crate::RunEnd::new(&ctx.run_dir, ctx.run_id);
     let mut spin = Spin::new(Duration::from_micros(ctx.config.pipeline().worker_spin_us));
     wait_loop_spinning(&doorbell, &mut spin, || {
         // The sampler rings the workers one after another, and the kernel tends to run a woken
@@ -313,15 +313,9 @@ fn slot<T: Task>(
         // A worker the supervisor did not start is not stopped by it: it learns that the run
         // has ended from the run directory, which the supervisor removes last. Without this it
         // waited for work forever.
-        if last_run_dir_check.elapsed() >= Duration::from_secs(1) {
-            last_run_dir_check = Instant::now();
-            if !ctx.run_dir.exists() {
-                println!(
-                    "the run has ended (its run directory {} is gone): exiting",
-                    ctx.run_dir.display()
-                );
-                return Ok(Flow::Stop);
-            }
+        if let Some(why) = run_end.ended() {
+            println!("the run has ended ({why}): exiting");
+            return Ok(Flow::Stop);
         }
         Ok(Flow::Continue)
     })?;

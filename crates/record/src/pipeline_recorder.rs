@@ -157,7 +157,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let mut hold = false;
     // For the exit line: rounds of draining and writing, and requests of a held updater.
     let (mut rounds, mut holds) = (0u64, 0u64);
-    let mut last_run_dir_check = std::time::Instant::now();
+    let mut run_end = pipeline::RunEnd::new(&ctx.run_dir, ctx.run_id);
+    let mut ending = None;
     let why = loop {
         iox(
             doorbell.try_wait(|a| hold |= a.id == wire::HOLD),
@@ -283,18 +284,17 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             break "signal";
         }
         // A recorder started by hand (`supervisor run --no-record`) is not stopped by the
-        // supervisor: as a worker started by hand does, it learns that the run has ended from
-        // the run directory, which the supervisor removes last. Without this, a run that never
-        // came or whose supervisor died left it waiting forever with its file unfinished.
-        if last_run_dir_check.elapsed() >= std::time::Duration::from_secs(1) {
-            last_run_dir_check = std::time::Instant::now();
-            if !ctx.run_dir.exists() {
-                eprintln!(
-                    "the run has ended (its run directory {} is gone): finishing the recording",
-                    ctx.run_dir.display()
-                );
-                break "run directory gone";
-            }
+        // supervisor: as a worker started by hand does, it learns that the run has ended
+        // ([`pipeline::RunEnd`]). Without this, a run that never came or whose supervisor was
+        // killed left it waiting forever with its file unfinished. One more round first: what
+        // was published just before the end is taken in.
+        if let Some(why) = ending.take() {
+            eprintln!("the run has ended ({why}): finishing the recording");
+            break "run ended";
+        }
+        if let Some(why) = run_end.ended() {
+            ending = Some(why);
+            continue;
         }
         // A bounded wait, as in the pipeline's processes (`pipeline::wait_loop`); shorter while
         // the run is active, because the updater skips rings within RECORDER_RING_INTERVAL of
@@ -563,7 +563,7 @@ impl WriterState {
             .is_some_and(|f| self.assembler.first_update().is_none_or(|n| n >= f))
     }
 
-    /// Logs the recorder's exit and `why` (`run complete`, `signal`, `run directory gone`) and
+    /// Logs the recorder's exit and `why` (`run complete`, `signal`, `run ended`) and
     /// finishes the file (summary, indexes); returns the number of updates written.
     fn finish(mut self, why: &str) -> anyhow::Result<u64> {
         let pid = self.pid;

@@ -4248,6 +4248,60 @@ fn python_config(edits: &[(&str, &str)]) -> String {
     )
 }
 
+/// A Python worker started by hand (or behind a wrapper script without `exec`) ends when its
+/// run's supervisor is SIGKILLed, as rollout-worker does: it saw the supervisor, and the
+/// supervisor is gone. Before, it waited until a later `supervisor run` swept the run directory
+/// away, which may never come.
+#[test]
+fn a_python_worker_started_by_hand_ends_when_the_supervisor_is_killed() {
+    let scratch = Scratch::new("python-orphan");
+    let text = python_config(&[("updates = 80\n", "")]);
+    let cfg = write_config(&scratch, "orphan.toml", &text);
+    let mut run = Run::start(
+        &scratch,
+        26600,
+        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+    );
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let run_dir = run.runs.join(&run.run_id);
+    let worker = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools/reach_worker.py");
+    let log = scratch.path("joined.log");
+    let mut joined = KillOnDrop(
+        Command::new(worker)
+            .arg("--config")
+            .arg(run_dir.join("config.toml"))
+            .arg("--run-dir")
+            .arg(&run_dir)
+            .args(["--run-id", &run.run_id, "--worker", "5"])
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let said = format!("worker-5 (pid {}) joined the run", joined.0.id());
+    run.wait_output(&said, Instant::now() + Duration::from_secs(30));
+    let pids = pids_in(&run.ctl_ok(&["status"]));
+    sigkill_supervisor(&mut run, &pids);
+    assert!(run_dir.exists(), "a killed supervisor removes nothing");
+    let end = Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        if let Some(status) = joined.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            Instant::now() < end,
+            "the joined Python worker outlived its supervisor"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status}");
+    let said = std::fs::read_to_string(&log).unwrap();
+    assert!(said.contains("its supervisor was killed"), "{said}");
+    let next = next_short_run(&scratch, 26601);
+    assert_nothing_left(&run);
+    assert_nothing_left(&next);
+}
+
 /// `tools/pi2cma_worker.py` checks a task's basis activations (an attribute) against the
 /// config's, as `serve` does in Rust.
 #[test]

@@ -64,6 +64,8 @@ fn setup_with(name: &str, updates: u64, delay_ms: f64, run_lines: &str) -> Run {
         "stop-reruns" => 4,
         "stop-reruns-one-worker" => 5,
         "gone" => 6,
+        "supervisor-killed" => 7,
+        "sweeper" => 8,
         _ => 2,
     };
     Run {
@@ -214,6 +216,68 @@ fn a_recorder_started_by_hand_finishes_its_file_when_the_run_directory_is_gone()
         "{:?}",
         r.logs
     );
+}
+
+/// A recorder and a worker started by hand learn that their run has ended when its supervisor
+/// is SIGKILLed (its run directory stays until a later `supervisor run` sweeps it): the
+/// recorder finishes its file with every update it had, the worker exits. Before, both waited
+/// for good, the recording unfinished.
+#[test]
+fn a_recorder_and_a_worker_started_by_hand_end_when_the_supervisor_is_killed() {
+    let bin = bin_dir();
+    let run = setup("supervisor-killed", 100_000, 5.0);
+    let out = run.dir.join("run.mcap");
+    let mut rec = KillOnDrop(start_recorder(&bin, &run, &out));
+    let mut sup = KillOnDrop(start_supervisor(&bin, &run));
+    let t = Instant::now();
+    while progress(&run) < 3 {
+        assert!(t.elapsed() < Duration::from_secs(60), "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let run_dir = run.dir.join("runs").join(&run.run_id);
+    let mut worker = KillOnDrop(
+        Command::new(bin.join("rollout-worker"))
+            .arg("--config")
+            .arg(run_dir.join("config.toml"))
+            .arg("--run-dir")
+            .arg(&run_dir)
+            .args(["--run-id", &run.run_id, "--worker", "5"])
+            .stdout(std::fs::File::create(run.dir.join("worker.log")).unwrap())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    sup.0.kill().unwrap();
+    let _ = sup.0.wait();
+    assert!(run_dir.exists(), "a killed supervisor removes nothing");
+    let status = wait_bounded(&mut rec.0, 15);
+    assert!(status.success(), "{status}");
+    let status = wait_bounded(&mut worker.0, 15);
+    assert!(status.success(), "{status}");
+    let said = std::fs::read_to_string(run.dir.join("worker.log")).unwrap();
+    assert!(said.contains("its supervisor was killed"), "{said}");
+    let r = read_recording(&out).unwrap();
+    assert!(r.indexed && r.truncated.is_none(), "not finished: {out:?}");
+    assert!(r.updates.len() >= 3, "{} updates", r.updates.len());
+    assert!(record::recompute::verify(&r).unwrap().mismatches.is_empty());
+
+    // What the killed run left behind is swept by the next run under the runs directory.
+    let sweeper = setup("sweeper", 2, 0.0);
+    let mut next = KillOnDrop(
+        Command::new(bin.join("supervisor"))
+            .arg("run")
+            .arg(&sweeper.config)
+            .args(["--run-id", &sweeper.run_id, "--no-record", "--bin-dir"])
+            .arg(&bin)
+            .env("PI2CMA_RUN_DIR", run.dir.join("runs"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    assert!(wait_bounded(&mut next.0, 60).success());
+    assert!(!run_dir.exists(), "not swept: {run_dir:?}");
 }
 
 /// Updates completed so far, from the updater's result file or the supervisor's progress lines

@@ -994,27 +994,39 @@ pub fn run_alive(run_id: u64) -> bool {
 /// and so does a registry that cannot be listed: a second supervisor is started only beside a
 /// run known to have none.
 pub fn supervisor_alive(run_id: u64) -> bool {
+    supervisor_known_alive(run_id).unwrap_or(true)
+}
+
+/// Whether run `run_id` has a live supervisor, as far as its node registry tells: `Some(true)`
+/// for a live node named [`process::SUPERVISOR`], `Some(false)` when every node could be read
+/// and none is one, `None` when that cannot be told (the registry cannot be listed, or a node's
+/// state or name cannot be read: another user's, or one being created).
+pub fn supervisor_known_alive(run_id: u64) -> Option<bool> {
     use iceoryx2::node::NodeView as _;
-    let Ok(config) = iceoryx_config(run_id) else {
-        return true;
-    };
-    let mut alive = false;
+    let config = iceoryx_config(run_id).ok()?;
+    let mut found = Some(false);
     let listed = Node::<Service>::list(&config, |state| {
-        alive = match state {
-            NodeState::Dead(_) => false,
+        let this = match state {
+            NodeState::Dead(_) => Some(false),
             NodeState::Alive(view) => view
                 .details()
                 .as_ref()
-                .is_none_or(|d| d.name().as_str() == process::SUPERVISOR),
-            NodeState::Inaccessible(_) | NodeState::Undefined(_) => true,
+                .map(|d| d.name().as_str() == process::SUPERVISOR),
+            NodeState::Inaccessible(_) | NodeState::Undefined(_) => None,
         };
-        if alive {
-            CallbackProgression::Stop
-        } else {
-            CallbackProgression::Continue
+        match this {
+            Some(true) => {
+                found = Some(true);
+                CallbackProgression::Stop
+            }
+            Some(false) => CallbackProgression::Continue,
+            None => {
+                found = None;
+                CallbackProgression::Continue
+            }
         }
     });
-    alive || listed.is_err()
+    listed.ok().and(found)
 }
 
 /// Creates a named node with the run's config.
