@@ -166,16 +166,27 @@ pub enum SessionError {
     /// terminal) with `run.nonfinite_reruns = 0`, or finite costs whose update overflows f64.
     // The cost error is part of the message, not a source: chained, it would be printed twice
     // (`update 4: cost … is NaN: cost … is NaN`).
-    #[error("update {update}: {error}{}", reruns::without_reruns(error))]
+    #[error(
+        "update {update}{}: {error}{}",
+        ran_with_text(ran_with),
+        reruns::without_reruns(error)
+    )]
     Cost {
         /// The update (0-based) whose costs were refused.
         update: u64,
         /// What the core found.
         error: CostError,
+        /// The task settings its rollouts ran with (none for a task without settings): a
+        /// change that made the costs overflow shows in them, as in the pipeline's error.
+        ran_with: Vec<(&'static str, f64)>,
     },
     /// A rollout whose costs were still not finite after `reruns` reruns
     /// (`run.nonfinite_reruns`).
-    #[error("update {update}: {error}{}", reruns::after_reruns(error, *reruns))]
+    #[error(
+        "update {update}{}: {error}{}",
+        ran_with_text(ran_with),
+        reruns::after_reruns(error, *reruns)
+    )]
     CostAfterReruns {
         /// The update (0-based).
         update: u64,
@@ -183,6 +194,8 @@ pub enum SessionError {
         error: CostError,
         /// Reruns tried: `run.nonfinite_reruns`.
         reruns: u32,
+        /// The task settings its rollouts ran with (none for a task without settings).
+        ran_with: Vec<(&'static str, f64)>,
     },
     /// The task refused a setting (the config's initial values or a scheduled change), or the
     /// config's task could not be built.
@@ -216,6 +229,18 @@ pub enum SessionError {
         /// The task's refusal, naming the setting and value.
         error: TaskError,
     },
+}
+
+/// ` (ran with viapoint = 0.3)` after a cost error's update: the settings its rollouts ran
+/// with, as the pipeline's error gives them; nothing for a task without settings.
+fn ran_with_text(settings: &[(&'static str, f64)]) -> String {
+    if settings.is_empty() {
+        return String::new();
+    }
+    format!(
+        " (ran with {})",
+        tasks::settings_text(settings.iter().copied())
+    )
 }
 
 /// Checks that a task of your own has the shape its config declares: P parameters, N steps, the
@@ -779,6 +804,7 @@ impl InProcess {
                             update,
                             error,
                             reruns,
+                            ran_with: self.task.settings(),
                         })
                     }
                 }
@@ -788,7 +814,11 @@ impl InProcess {
         let summary = self
             .optimizer
             .tell(&self.costs)
-            .map_err(|error| SessionError::Cost { update, error })?;
+            .map_err(|error| SessionError::Cost {
+                update,
+                error,
+                ran_with: self.task.settings(),
+            })?;
         let settings = self.task.settings();
         observer.on_update(&UpdateRecord {
             before: &before,
@@ -926,6 +956,7 @@ mod tests {
                 step: Some(0),
                 value: f64::NAN,
             },
+            ran_with: vec![("viapoint", 0.3)],
         };
         let mut chain = e.to_string();
         let mut source = std::error::Error::source(&e);
@@ -936,7 +967,8 @@ mod tests {
         assert_eq!(
             chain,
             format!(
-                "update 4: cost of rollout 1 at step 0 is NaN; costs must be finite{}",
+                "update 4 (ran with viapoint = 0.3): cost of rollout 1 at step 0 is NaN; costs \
+                 must be finite{}",
                 reruns::without_reruns(&CostError::NonFinite {
                     rollout: 1,
                     step: Some(0),
@@ -1397,8 +1429,8 @@ mod tests {
             .to_string();
         assert_eq!(
             e,
-            "update 3: cost of rollout 7 (terminal) is NaN; costs must be finite (if the task \
-             gives such costs now and then, `run.nonfinite_reruns = N` runs such a rollout again, \
+            "update 3 (ran with viapoint = 0.3): cost of rollout 7 (terminal) is NaN; costs \
+             must be finite (if the task gives such costs now and then, `run.nonfinite_reruns = N` runs such a rollout again, \
              up to N times, with the same parameters)"
         );
         assert!(told.0.is_empty());
@@ -1456,8 +1488,10 @@ mod tests {
         assert_eq!(
             e.to_string(),
             format!(
-                "update {update}: cost of rollout {rollout} at step 4 is inf; costs must be \
-                 finite, still after 2 reruns with the same parameters (run.nonfinite_reruns = 2)"
+                "update {update} (ran with viapoint = {}): cost of rollout {rollout} at step 4 is \
+                 inf; costs must be finite, still after 2 reruns with the same parameters \
+                 (run.nonfinite_reruns = 2)",
+                if *update < 20 { "0.3" } else { "0.1" }
             )
         );
         let attempts: Vec<&str> = told
