@@ -181,7 +181,7 @@ fn write_outputs(out: &Path, results: &[experiment::ConfigResult]) -> Result<Str
     experiment::write_mean_csv(&out.join("mean_curves.csv"), results)
         .with_context(|| format!("writing {}", out.join("mean_curves.csv").display()))?;
     figures::fig2(&out.join("fig2.svg"), results)?;
-    let table = experiment::summary_table(results);
+    let table = experiment::summary_table(results) + &experiment::summary_notes(results);
     std::fs::write(out.join("summary.md"), &table)
         .with_context(|| format!("writing {}", out.join("summary.md").display()))?;
     Ok(table)
@@ -681,10 +681,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             let table = write_outputs(&out, &results)?;
             say!("{table}");
-            say!(
-                "re-converged at: first update from which the mean eval cost stays within 10% of its jump above the optimum of the changed task\nresults in {}/",
-                out.display()
-            );
+            say!("results in {}/", out.display());
         }
         Command::Analyze(args) => say!(
             "{}",
