@@ -1118,3 +1118,121 @@ fn an_experiment_records_a_run_name_with_a_slash_into_its_mcap_directory() {
     );
     assert!(d.join("res/mcap/day_1_A1-seed1.mcap").is_file());
 }
+
+/// An `--out` that names a file is refused before anything runs. An experiment ran every
+/// session and only then failed, `error: creating afile: File exists (os error 17)`, with its
+/// results lost (hours, with the paper's session counts; found by a user test of the README).
+#[test]
+fn an_out_that_is_a_file_is_refused_before_anything_runs() {
+    let d = scratch("out-is-a-file");
+    std::fs::write(d.join("afile"), b"mine").expect("file");
+    let a1 = repo().join("config/A1.toml");
+    let a1 = a1.to_str().expect("utf-8");
+    for args in [
+        &["experiment", a1, "--sessions", "2", "--out", "afile"][..],
+        &["run", "--updates", "3", "--out", "afile"][..],
+    ] {
+        let refused = pi2cma(args, &d);
+        let err = String::from_utf8_lossy(&refused.stderr);
+        assert!(
+            !refused.status.success()
+                && err.contains("afile: is a file, not a directory (--out)")
+                && !err.contains("running"),
+            "{args:?}: {err}"
+        );
+    }
+    assert_eq!(std::fs::read(d.join("afile")).expect("kept"), b"mine");
+}
+
+/// `run --no-record --out DIR` where DIR holds a run's recording replaced that run's tables and
+/// figures with its own, beside the other run's recording (found by a user test of the README,
+/// which says such a directory is refused).
+#[test]
+fn an_unrecorded_run_does_not_replace_the_results_beside_a_recording() {
+    let d = scratch("no-record-beside");
+    let first = pi2cma(&["run", "--out", "mine", "--updates", "3", "--quiet"], &d);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let summary = std::fs::read(d.join("mine/summary.md")).expect("summary");
+    let c2 = repo().join("config/C2.toml");
+    let again = pi2cma(
+        &[
+            "run",
+            c2.to_str().expect("utf-8"),
+            "--out",
+            "mine",
+            "--updates",
+            "3",
+            "--no-record",
+        ],
+        &d,
+    );
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        !again.status.success()
+            && err.contains("mine: holds another run's recording")
+            && err.contains("mine/run.mcap"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(d.join("mine/summary.md")).expect("kept"),
+        summary
+    );
+}
+
+/// runs/latest is the latest run's as a whole. A resumed run writes its recording only, and the
+/// previous run's updates.csv, summary.md and fig2.svg (another config's) stayed beside it; a
+/// `--no-record` run left the previous run's run.mcap beside its own results.
+#[test]
+fn runs_latest_holds_nothing_of_the_previous_run_after_a_resumed_or_unrecorded_run() {
+    let d = scratch("latest-whole");
+    let ok = |out: &Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    ok(&pi2cma(
+        &["run", "--out", "day1", "--updates", "3", "--quiet"],
+        &d,
+    ));
+    ok(&pi2cma(
+        &["run", "--updates", "3", "--quiet", "--seed", "7"],
+        &d,
+    ));
+    let latest = d.join("runs/latest");
+    assert!(latest.join("summary.md").is_file() && latest.join("run.mcap").is_file());
+    ok(&pi2cma(
+        &[
+            "run",
+            "--resume",
+            "day1/run.mcap",
+            "--updates",
+            "5",
+            "--quiet",
+        ],
+        &d,
+    ));
+    for f in ["updates.csv", "mean_curves.csv", "fig2.svg", "summary.md"] {
+        assert!(
+            !latest.join(f).exists(),
+            "the previous run's {f} is still there"
+        );
+    }
+    let meta = record::read_run_metadata(&latest.join("run.mcap")).expect("resumed recording");
+    assert_eq!(meta["first_update"], "3");
+
+    ok(&pi2cma(
+        &["run", "--updates", "3", "--quiet", "--no-record"],
+        &d,
+    ));
+    assert!(
+        !latest.join("run.mcap").exists(),
+        "the previous run's recording is beside this run's results"
+    );
+    assert!(latest.join("summary.md").is_file());
+}

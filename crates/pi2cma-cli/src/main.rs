@@ -224,7 +224,6 @@ fn run_resumed(
     if let Some(why) = &point.truncated {
         say!("(the recording was cut off: {why}; resuming after its last complete update)");
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let recorder = (!no_record)
         .then(|| recorder(&mcap, text).map(|r| r.resuming(&start)))
         .transpose()?;
@@ -295,22 +294,50 @@ fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
     }
 }
 
+/// Creates `out`, the directory a run or experiment writes its results to, before anything runs:
+/// an experiment given `--out` naming a file ran every session and only then failed, with
+/// `creating afile: File exists (os error 17)`, its results lost.
+fn create_out_dir(out: &Path, given: bool) -> Result<()> {
+    let what = if given {
+        "--out"
+    } else {
+        "the default results directory"
+    };
+    if std::fs::symlink_metadata(out).is_ok() && !out.is_dir() {
+        bail!(
+            "{}: is a file, not a directory ({what}): give a directory (one that does not exist \
+             is created)",
+            out.display()
+        );
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {} ({what})", out.display()))
+}
+
 /// The subdirectories of a default output directory that the previous run's commands wrote:
 /// the printed `analyze` command's `analysis/`, an experiment's recordings in `mcap/`. A run
 /// writes its own files over the previous ones, but these it does not: a new run's results sat
 /// beside the previous run's analysis (CSV files and figures of another seed).
 const REPLACED_SUBDIRS: [&str; 2] = ["analysis", "mcap"];
 
+/// The files a run or experiment writes at the top of its output directory, besides `run`'s
+/// `run.mcap` (and its parts). In the default
+/// directory the next run removes the previous run's before it starts: a resumed run (which
+/// writes its recording only), a `--no-record` run, a run that failed and an experiment stopped
+/// in its first session each left the previous run's tables, figures or recording beside their
+/// own, as if they were theirs.
+const REPLACED_FILES: [&str; 4] = ["updates.csv", "mean_curves.csv", "fig2.svg", "summary.md"];
+
 /// What those subdirectories hold when only pi2cma wrote them.
 const OUTPUT_EXTENSIONS: [&str; 5] = ["csv", "svg", "md", "mcap", "png"];
 
-/// Removes the previous run's [`REPLACED_SUBDIRS`] from `out`, the default directory, so that
-/// the run about to write there replaces its results as a whole. Never called for a directory
+/// Removes the previous run's [`REPLACED_SUBDIRS`], [`REPLACED_FILES`] and `recording` (with its
+/// parts) from `out`, the default directory, so that the run about to write there replaces its
+/// results as a whole. Never called for a directory
 /// given by `--out`. Nothing else in `out` is removed; a subdirectory that holds a file no
 /// pi2cma command writes (a link, another extension) is refused, naming the file, and so is
 /// one with a file being recorded (another run writing there). Left as it is when the
 /// recording a run resumes lies in `out` (it is still read, and its analysis joins it).
-fn replace_default_dir(out: &Path, resumed: Option<&Path>) -> Result<()> {
+fn replace_default_dir(out: &Path, resumed: Option<&Path>, recording: Option<&str>) -> Result<()> {
     if !std::fs::symlink_metadata(out).is_ok_and(|m| m.is_dir()) {
         return Ok(());
     }
@@ -347,6 +374,21 @@ fn replace_default_dir(out: &Path, resumed: Option<&Path>) -> Result<()> {
                 dir.display()
             )
         })?;
+    }
+    // `run`'s recording, and a split recording's later parts with it.
+    let recording = recording
+        .map(|r| record::recording_parts(&out.join(r)))
+        .unwrap_or_default();
+    let files = REPLACED_FILES.iter().map(|f| out.join(f)).chain(recording);
+    for file in files {
+        if std::fs::symlink_metadata(&file).is_ok_and(|m| !m.is_dir()) {
+            std::fs::remove_file(&file).with_context(|| {
+                format!(
+                    "replacing {} (the previous run's) for this run's",
+                    file.display()
+                )
+            })?;
+        }
     }
     Ok(())
 }
@@ -521,18 +563,31 @@ fn run(cli: Cli) -> Result<()> {
             if !replaceable && !no_record {
                 record::refuse_overwrite(&mcap, "--out")?;
             }
+            if !replaceable && no_record && point.is_none() {
+                // Unrecorded, the run still writes its results, which replaced those of the
+                // recorded run beside them: a directory whose run.mcap and CSV files were of
+                // two runs.
+                record::refuse_overwrite(&mcap, "--out").with_context(|| {
+                    format!(
+                        "{}: holds another run's recording, whose results (updates.csv, \
+                         mean_curves.csv, fig2.svg, summary.md) this run would replace even \
+                         with --no-record: give another --out",
+                        out.display()
+                    )
+                })?;
+            }
             if replaceable {
                 let resumed = point.as_ref().map(|p| Path::new(&p.start.origin));
-                replace_default_dir(&out, resumed)?;
+                replace_default_dir(&out, resumed, Some("run.mcap"))?;
             }
             for note in cfg.notes() {
                 eprintln!("note: {note}");
             }
+            create_out_dir(&out, !replaceable)?;
             stop_on_signal()?;
             if let Some(point) = point {
                 return run_resumed(&cfg, text, point, &out, quiet, no_record);
             }
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             say!(
                 "pi2cma: run {} ({}), seed {}, {} updates, in-process",
                 cfg.run.name,
@@ -624,8 +679,9 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             if replaceable {
-                replace_default_dir(&out, None)?;
+                replace_default_dir(&out, None, None)?;
             }
+            create_out_dir(&out, !replaceable)?;
             // Ctrl-C (or SIGTERM) stops the session under way after its current update, with
             // a finished recording; the outputs hold the sessions completed before it.
             if record {
