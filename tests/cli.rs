@@ -1236,3 +1236,47 @@ fn runs_latest_holds_nothing_of_the_previous_run_after_a_resumed_or_unrecorded_r
     );
     assert!(latest.join("summary.md").is_file());
 }
+
+/// A run stopped with Ctrl-C says how to go on from its recording, and that command goes on
+/// (it said only "the recording is complete"; found by a user test of the README).
+#[test]
+fn an_interrupted_run_prints_the_command_that_resumes_it() {
+    let d = scratch("interrupted-resume");
+    let text = config_edit::edited(
+        session::DEFAULT_CONFIG,
+        &[(
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 2",
+        )],
+    );
+    std::fs::write(d.join("slow.toml"), text).expect("write config");
+    let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args(["run", "slow.toml", "--out", "res", "--quiet"])
+        .current_dir(&d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("pi2cma starts");
+    // Updates of 30 ms: stopped within the 40.
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let out = interrupt(child);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(130), "{stdout}");
+    let command = stdout
+        .lines()
+        .find_map(|l| l.split_once("go on with: ").map(|(_, c)| c.to_string()))
+        .unwrap_or_else(|| panic!("no resume command:\n{stdout}"));
+    let args: Vec<&str> = command.split_whitespace().skip(1).collect();
+    assert_eq!(
+        args,
+        ["run", "--resume", "res/run.mcap", "--out", "OTHER_DIR"],
+        "{command}"
+    );
+    let resumed = pi2cma(&[&args[..4], &["res2", "--quiet"]].concat(), &d);
+    let text = String::from_utf8_lossy(&resumed.stdout);
+    assert!(
+        resumed.status.success() && text.contains("resumed at update"),
+        "{text}{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+}

@@ -233,7 +233,10 @@ fn run_resumed(
     run_observed(cfg, recorder, quiet, |observer, stop| {
         exec.run(observer, stop)
     })?;
-    say_if_interrupted(exec.optimizer().update_index() - origin_update, !no_record);
+    say_if_interrupted(
+        exec.optimizer().update_index() - origin_update,
+        (!no_record).then_some(mcap.as_path()),
+    );
     let d = exec.optimizer().distribution();
     say!("final mean θ = {}", session::mean_text(d.mean.as_slice()));
     say!("final λ = {:.4}", exec.optimizer().lambda());
@@ -273,13 +276,18 @@ fn interrupted() -> bool {
     INTERRUPTED.load(Ordering::SeqCst)
 }
 
-fn say_if_interrupted(updates: u64, recorded: bool) {
+/// After Ctrl-C: how many updates ran, and with a recording, the command that goes on from it
+/// (the README's "a stopped run goes on with --resume" was said nowhere the user looks then).
+/// Into another directory: recording over the file resumed from is refused.
+fn say_if_interrupted(updates: u64, recording: Option<&Path>) {
     if interrupted() {
-        let recording = if recorded {
-            "; the recording is complete"
-        } else {
-            ""
-        };
+        let recording = recording.map_or(String::new(), |mcap| {
+            format!(
+                "; the recording is complete; go on with: {} run --resume {} --out OTHER_DIR",
+                this_program(),
+                mcap.display()
+            )
+        });
         say!("interrupted after {updates} updates (exit code 130){recording}");
     }
 }
@@ -599,7 +607,10 @@ fn run(cli: Cli) -> Result<()> {
             let session = run_observed(&cfg, recorder, quiet, |observer, stop| {
                 experiment::run_one(&cfg, cfg.run.seed, observer, stop)
             })?;
-            say_if_interrupted(session.summaries.len() as u64, !no_record);
+            say_if_interrupted(
+                session.summaries.len() as u64,
+                (!no_record).then_some(mcap.as_path()),
+            );
             let result = experiment::summarize(&cfg, vec![session])?;
             let table = write_outputs(&out, std::slice::from_ref(&result))?;
             say!("\n{table}");
