@@ -106,7 +106,9 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
                     x: &x,
                     y: &column(|p| p.exploration_cost_mean),
                     band: Some(&column(|p| p.exploration_cost_std)),
-                    lambda: None,
+                    // λ is the exploration's size: drawn in its colour (in the evaluation's it
+                    // read as a property of rollout 0).
+                    lambda: Some(&column(|p| p.lambda)),
                 },
             ),
             Curve::new(
@@ -115,7 +117,7 @@ pub fn plot(rec: &Recording, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
                     x: &x,
                     y: &column(|p| p.eval_cost),
                     band: None,
-                    lambda: Some(&column(|p| p.lambda)),
+                    lambda: None,
                 },
             ),
         ];

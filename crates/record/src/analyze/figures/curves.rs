@@ -441,6 +441,31 @@ mod tests {
         );
     }
 
+    /// λ is drawn in the colour of the exploration it measures, not in that of the evaluation
+    /// line (rollout 0), above which it was orange too.
+    #[test]
+    fn lambda_has_the_exploration_lines_colour() {
+        let r = rec_with(&[5.0, 4.0, 3.0, 2.0, 6.0, 5.0], None);
+        let dir = std::env::temp_dir().join(format!("pi2cma-lambda-colour-{}", std::process::id()));
+        plot(&r, &dir).unwrap();
+        let svg = std::fs::read_to_string(dir.join("learning_curve.svg")).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        // The lines of 6 points, in drawing order: exploration, evaluation, λ.
+        let strokes: Vec<&str> = svg
+            .split("<polyline")
+            .skip(1)
+            .filter(|p| {
+                p.split_once("points=\"")
+                    .and_then(|(_, pts)| pts.split('"').next())
+                    .is_some_and(|pts| pts.split_whitespace().count() == 6)
+            })
+            .filter_map(|p| p.split_once("stroke=\"")?.1.split('"').next())
+            .collect();
+        assert_eq!(strokes.len(), 3, "{strokes:?}");
+        assert_eq!(strokes[2], strokes[0], "{strokes:?}");
+        assert_ne!(strokes[2], strokes[1], "{strokes:?}");
+    }
+
     #[test]
     fn curves_break_where_updates_are_missing() {
         assert_eq!(contiguous(&[]), Vec::<std::ops::Range<usize>>::new());
