@@ -1183,6 +1183,50 @@ fn an_unrecorded_run_does_not_replace_the_results_beside_a_recording() {
     );
 }
 
+/// An experiment into an --out that holds an earlier experiment's recordings (mcap/) is refused:
+/// without --record it replaced that one's summary.md, mean_curves.csv and fig2.svg beside
+/// recordings they no longer described.
+#[test]
+fn an_experiment_does_not_replace_the_results_beside_an_earlier_ones_recordings() {
+    let d = scratch("experiment-beside");
+    let a1 = repo().join("config/A1.toml");
+    let c2 = repo().join("config/C2.toml");
+    let experiment = |config: &Path, record: bool| {
+        let mut args = vec![
+            "experiment",
+            config.to_str().expect("utf-8"),
+            "--sessions",
+            "1",
+            "--out",
+            "e",
+        ];
+        if record {
+            args.push("--record");
+        }
+        pi2cma(&args, &d)
+    };
+    let first = experiment(&a1, true);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let summary = std::fs::read(d.join("e/summary.md")).expect("summary");
+    for record in [false, true] {
+        let again = experiment(&c2, record);
+        let err = String::from_utf8_lossy(&again.stderr);
+        assert!(
+            !again.status.success()
+                && err.contains("e: holds an earlier experiment's recordings (e/mcap/A1-seed"),
+            "--record {record}: {err}"
+        );
+    }
+    assert_eq!(
+        std::fs::read(d.join("e/summary.md")).expect("kept"),
+        summary
+    );
+}
+
 /// runs/latest is the latest run's as a whole. A resumed run writes its recording only, and the
 /// previous run's updates.csv, summary.md and fig2.svg (another config's) stayed beside it; a
 /// `--no-record` run left the previous run's run.mcap beside its own results.

@@ -302,6 +302,36 @@ fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
     }
 }
 
+/// Refuses `out` (an experiment's `--out`) when it holds an earlier experiment's recordings in
+/// `mcap/`: this experiment's tables and figures would replace that one's beside recordings
+/// they no longer describe (with `--record` of other configs, beside its own too).
+fn refuse_earlier_experiment(out: &Path) -> Result<()> {
+    let dir = out.join("mcap");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Ok(());
+    };
+    let mut found: Vec<String> = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".mcap"))
+        .collect();
+    found.sort();
+    if let Some(first) = found.first() {
+        bail!(
+            "{}: holds an earlier experiment's recordings ({}{}), which this experiment's \
+             results (summary.md, mean_curves.csv, fig2.svg) would no longer describe: give \
+             another --out",
+            out.display(),
+            dir.join(first).display(),
+            match found.len() {
+                1 => String::new(),
+                n => format!(" and {} more", n - 1),
+            }
+        );
+    }
+    Ok(())
+}
+
 /// Creates `out`, the directory a run or experiment writes its results to, before anything runs:
 /// an experiment given `--out` naming a file ran every session and only then failed, with
 /// `creating afile: File exists (os error 17)`, its results lost.
@@ -688,6 +718,9 @@ fn run(cli: Cli) -> Result<()> {
                         }
                     }
                 }
+            }
+            if !replaceable {
+                refuse_earlier_experiment(&out)?;
             }
             if replaceable {
                 replace_default_dir(&out, None, None)?;
