@@ -473,7 +473,9 @@ pub fn experiment(
         "Re-convergence (tolerance {tolerance}): updates from the segment start until every later \
          eval cost of the segment is within tolerance × (peak − lowest) of the lowest; a segment \
          whose last eval cost is outside that band, or whose band holds for its last update \
-         only, has not converged (\"–\"). Means are over the sessions that converged.\n"
+         only, has not converged (\"–\"). Means are over the sessions that converged. \
+         Converged means levelled off, at whatever cost: whether that is the task's optimum, the \
+         last column says (decaying exploration levels off far above it).\n"
     );
     let _ = writeln!(t, "| run | segment from update | sessions | converged | updates to converge (mean ± std) | converged at (mean) | eval cost at the segment's end (mean ± std) |");
     let _ = writeln!(t, "|---|---|---|---|---|---|---|");
