@@ -216,6 +216,22 @@ fn a_recorder_started_by_hand_finishes_its_file_when_the_run_directory_is_gone()
         "{:?}",
         r.logs
     );
+    // No supervisor came to remove the run's iceoryx2 directory and shared memory: the test
+    // does (a later `supervisor run` would, after a minute).
+    remove_ipc(&run.run_id);
+}
+
+/// Removes run `run_id`'s iceoryx2 directory and shared-memory files.
+fn remove_ipc(run_id: &str) {
+    let _ = std::fs::remove_dir_all(format!("/tmp/p2c-{run_id}"));
+    for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+        if e.file_name()
+            .to_string_lossy()
+            .starts_with(&format!("p2c{run_id}_"))
+        {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
 }
 
 /// A recorder and a worker started by hand learn that their run has ended when its supervisor
