@@ -462,7 +462,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // A change taken while an update ran waits for that update's end; a run stopped before
     // then never applies it, though the reply to `supervisor set` named the update it was due
     // at. It is in neither the result file nor the recording, so say so rather than drop it.
-    for c in &runtime {
+    // A change overridden by a later one of its setting would not have applied either.
+    let overridden = |i: usize| runtime[i + 1..].iter().any(|d| d.name == runtime[i].name);
+    for (_, c) in runtime.iter().enumerate().filter(|(i, _)| !overridden(*i)) {
         println!(
             "task change {} = {} due from update {} not applied: the run stopped before that \
              update (after --resume, give it again with `supervisor set`)",

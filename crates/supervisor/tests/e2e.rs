@@ -5393,11 +5393,15 @@ fn a_task_change_the_stopped_run_never_reached_is_reported_not_applied() {
     // control service, so the updater takes it as due from update 1.
     let end = Instant::now() + Duration::from_secs(30);
     run.wait_output("run started", end);
-    let (ok, reply) = run.ctl(&["set", "viapoint", "0.9"]);
-    assert!(
-        ok && reply.contains("takes effect from update 1"),
-        "{reply}"
-    );
+    // The first is overridden by the second, due from the same update: only the second would
+    // have applied, and only it is reported.
+    for value in ["0.8", "0.9"] {
+        let (ok, reply) = run.ctl(&["set", "viapoint", value]);
+        assert!(
+            ok && reply.contains("takes effect from update 1"),
+            "{reply}"
+        );
+    }
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(30), 0);
     assert!(
@@ -5405,6 +5409,12 @@ fn a_task_change_the_stopped_run_never_reached_is_reported_not_applied() {
             "task change viapoint = 0.9 due from update 1 not applied: the run stopped before \
              that update"
         ),
+        "{}",
+        run.text()
+    );
+    assert!(
+        !run.text()
+            .contains("viapoint = 0.8 due from update 1 not applied"),
         "{}",
         run.text()
     );
