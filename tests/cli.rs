@@ -12,6 +12,15 @@ fn pi2cma(args: &[&str], dir: &Path) -> Output {
         .expect("pi2cma starts")
 }
 
+/// Asserts that a pi2cma command succeeded, showing its errors if not.
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
@@ -1233,13 +1242,6 @@ fn an_experiment_does_not_replace_the_results_beside_an_earlier_ones_recordings(
 #[test]
 fn runs_latest_holds_nothing_of_the_previous_run_after_a_resumed_or_unrecorded_run() {
     let d = scratch("latest-whole");
-    let ok = |out: &Output| {
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
     ok(&pi2cma(
         &["run", "--out", "day1", "--updates", "3", "--quiet"],
         &d,
@@ -1323,4 +1325,57 @@ fn an_interrupted_run_prints_the_command_that_resumes_it() {
         "{text}{}",
         String::from_utf8_lossy(&resumed.stderr)
     );
+}
+
+/// `run --out` into an experiment's directory and `experiment --out` into a run's are refused as
+/// each is into its own kind: the tables and figures both write at the top of the directory
+/// (summary.md, mean_curves.csv, fig2.svg) replaced the other's beside its recordings, which
+/// they no longer described.
+#[test]
+fn a_run_and_an_experiment_do_not_replace_the_results_beside_each_others_recordings() {
+    let d = scratch("run-experiment-beside");
+    let a1 = repo().join("config/A1.toml");
+    let a1 = a1.to_str().expect("utf-8");
+    ok(&pi2cma(
+        &["run", "--out", "r", "--updates", "3", "--quiet"],
+        &d,
+    ));
+    ok(&pi2cma(
+        &[
+            "experiment",
+            a1,
+            "--sessions",
+            "1",
+            "--out",
+            "e",
+            "--record",
+        ],
+        &d,
+    ));
+    let summaries =
+        || ["r", "e"].map(|dir| std::fs::read(d.join(dir).join("summary.md")).expect("summary"));
+    let before = summaries();
+    let into_run = pi2cma(&["experiment", a1, "--sessions", "1", "--out", "r"], &d);
+    let err = String::from_utf8_lossy(&into_run.stderr);
+    assert!(
+        !into_run.status.success()
+            && err.contains("r: holds another run's recording")
+            && err.contains("r/run.mcap"),
+        "{err}"
+    );
+    for no_record in [false, true] {
+        let mut args = vec!["run", "--out", "e", "--updates", "3", "--quiet"];
+        if no_record {
+            args.push("--no-record");
+        }
+        let into_experiment = pi2cma(&args, &d);
+        let err = String::from_utf8_lossy(&into_experiment.stderr);
+        assert!(
+            !into_experiment.status.success()
+                && err.contains("e: holds an earlier experiment's recordings (e/mcap/A1-seed"),
+            "--no-record {no_record}: {err}"
+        );
+    }
+    assert!(!d.join("e/run.mcap").exists());
+    assert_eq!(summaries(), before);
 }

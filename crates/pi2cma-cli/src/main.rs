@@ -302,10 +302,21 @@ fn output_dir(out: Option<PathBuf>, default: &str) -> (PathBuf, bool) {
     }
 }
 
-/// Refuses `out` (an experiment's `--out`) when it holds an earlier experiment's recordings in
-/// `mcap/`: this experiment's tables and figures would replace that one's beside recordings
-/// they no longer describe (with `--record` of other configs, beside its own too).
-fn refuse_earlier_experiment(out: &Path) -> Result<()> {
+/// Refuses `out`, a directory given by `--out`, when it holds recordings: `run`'s `run.mcap` (or
+/// parts of it) or an experiment's `mcap/*.mcap`. The tables and figures `command` writes at the
+/// top of the directory (summary.md, mean_curves.csv, fig2.svg, updates.csv), recorded or not,
+/// would replace those beside the recordings, which they would no longer describe: an
+/// experiment into an earlier experiment's directory, a `--no-record` run into a run's, and
+/// each into the other's did so.
+fn refuse_results_beside_recordings(out: &Path, command: &str) -> Result<()> {
+    record::refuse_overwrite(&out.join("run.mcap"), "--out").with_context(|| {
+        format!(
+            "{}: holds another run's recording, whose results (updates.csv, mean_curves.csv, \
+             fig2.svg, summary.md) this {command} would replace, recorded or not: give another \
+             --out",
+            out.display()
+        )
+    })?;
     let dir = out.join("mcap");
     let Ok(entries) = std::fs::read_dir(&dir) else {
         return Ok(());
@@ -318,7 +329,7 @@ fn refuse_earlier_experiment(out: &Path) -> Result<()> {
     found.sort();
     if let Some(first) = found.first() {
         bail!(
-            "{}: holds an earlier experiment's recordings ({}{}), which this experiment's \
+            "{}: holds an earlier experiment's recordings ({}{}), which this {command}'s \
              results (summary.md, mean_curves.csv, fig2.svg) would no longer describe: give \
              another --out",
             out.display(),
@@ -601,18 +612,10 @@ fn run(cli: Cli) -> Result<()> {
             if !replaceable && !no_record {
                 record::refuse_overwrite(&mcap, "--out")?;
             }
-            if !replaceable && no_record && point.is_none() {
-                // Unrecorded, the run still writes its results, which replaced those of the
-                // recorded run beside them: a directory whose run.mcap and CSV files were of
-                // two runs.
-                record::refuse_overwrite(&mcap, "--out").with_context(|| {
-                    format!(
-                        "{}: holds another run's recording, whose results (updates.csv, \
-                         mean_curves.csv, fig2.svg, summary.md) this run would replace even \
-                         with --no-record: give another --out",
-                        out.display()
-                    )
-                })?;
+            if !replaceable && point.is_none() {
+                // Unrecorded, the run still writes its results (a resumed one writes only its
+                // recording, checked above).
+                refuse_results_beside_recordings(&out, "run")?;
             }
             if replaceable {
                 let resumed = point.as_ref().map(|p| Path::new(&p.start.origin));
@@ -720,7 +723,7 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
             if !replaceable {
-                refuse_earlier_experiment(&out)?;
+                refuse_results_beside_recordings(&out, "experiment")?;
             }
             if replaceable {
                 replace_default_dir(&out, None, None)?;
