@@ -834,23 +834,28 @@ impl InProcess {
 }
 
 /// Sets the config's setting values, then every scheduled change, in a task of your own, in the
-/// order a run sets them. Only the task knows which values it can take (the config's checks
-/// cannot ask it), and a change refused at its update would end an in-process run after all the
-/// rollouts before it.
+/// order a run sets them, and leaves it at the config's values, where a run begins. Only the
+/// task knows which values it can take (the config's checks cannot ask it), and a change
+/// refused at its update would end an in-process run after all the rollouts before it.
 fn try_settings(
     task: &mut dyn Task,
     initial: &[(&'static str, f64)],
     config: &RunConfig,
 ) -> Result<(), SessionError> {
-    for (name, value) in initial {
-        task.set(name, *value)
-            .map_err(refused(config, "task.external.settings".into()))?;
-    }
+    let set_initial = |task: &mut dyn Task| {
+        initial.iter().try_for_each(|(name, value)| {
+            task.set(name, *value)
+                .map_err(refused(config, "task.external.settings".into()))
+        })
+    };
+    set_initial(task)?;
     for change in config.schedule().changes() {
         task.set(&change.name, change.value)
             .map_err(refused(config, schedule_entry(change)))?;
     }
-    Ok(())
+    // Not at the schedule's last change: an update stepped without `run` (which sets the
+    // values again) ran with it.
+    set_initial(task)
 }
 
 /// A change's place in its config, for [`SessionError::SettingRefused`].
@@ -1196,6 +1201,17 @@ mod tests {
         assert_eq!(rollouts.get(), 0);
         run(0.0).unwrap();
         assert_eq!(rollouts.get(), 40 * 15);
+    }
+
+    /// Trying the config's values leaves a task of your own at them, as a run begins, not at the
+    /// schedule's last change: an update stepped without `run` ([`InProcess::step`]) ran with
+    /// the via-point at 0.1, the change due from update 20.
+    #[test]
+    fn trying_the_settings_leaves_your_task_at_the_configs_values() {
+        let cfg = external_via_point(&[0.0, 0.0], "own.toml");
+        let task = Box::new(tasks::ViaPoint::new(&Default::default()).unwrap());
+        let exec = InProcess::with_task(&cfg, 1, task).unwrap();
+        assert_eq!(exec.task.settings(), [("viapoint", 0.3)]);
     }
 
     /// The default config with its via-point task declared as `[task.external]`, starting from
