@@ -1287,6 +1287,7 @@ fn runs_latest_holds_nothing_of_the_previous_run_after_a_resumed_or_unrecorded_r
 /// (it said only "the recording is complete"; found by a user test of the README).
 #[test]
 fn an_interrupted_run_prints_the_command_that_resumes_it() {
+    use std::io::BufRead as _;
     let d = scratch("interrupted-resume");
     let text = config_edit::edited(
         session::DEFAULT_CONFIG,
@@ -1296,17 +1297,32 @@ fn an_interrupted_run_prints_the_command_that_resumes_it() {
         )],
     );
     std::fs::write(d.join("slow.toml"), text).expect("write config");
-    let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
-        .args(["run", "slow.toml", "--out", "res", "--quiet"])
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+        .args(["run", "slow.toml", "--out", "res"])
         .current_dir(&d)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("pi2cma starts");
-    // Updates of 30 ms: stopped within the 40.
-    std::thread::sleep(std::time::Duration::from_millis(300));
+    // Updates of 30 ms: stopped within the 40, after its first, not after a fixed time (a
+    // signal that comes before pi2cma has installed its handler, as on a loaded machine,
+    // kills it).
+    let mut lines = std::io::BufReader::new(child.stdout.take().expect("stdout")).lines();
+    let mut stdout = String::new();
+    for line in lines.by_ref() {
+        let line = line.expect("utf-8");
+        stdout += &line;
+        stdout.push('\n');
+        if line.starts_with("update ") {
+            break;
+        }
+    }
+    // The rest of its output, 40 lines at most, waits in the pipe.
     let out = interrupt(child);
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    for line in lines {
+        stdout += &line.expect("utf-8");
+        stdout.push('\n');
+    }
     assert_eq!(out.status.code(), Some(130), "{stdout}");
     let command = stdout
         .lines()
