@@ -6106,7 +6106,9 @@ fn a_slow_run_going_on(scratch: &Scratch, id: u64) -> (String, PathBuf, PathBuf,
 /// A stop that waits for a process says so while it waits, naming it: with a robot's
 /// `shutdown_timeout_ms` of a minute, the supervisor said nothing after "signal received"
 /// until the timeout, and a user who took it for hung pressed Ctrl-C again, which kills the
-/// recorder too and leaves the recording unfinished.
+/// recorder too and leaves the recording unfinished. A stop not begun by Ctrl-C (`supervisor
+/// stop`) is told that Ctrl-C now kills, not that "a second" does: the first one a user then
+/// pressed, to stop it in order, killed every process.
 #[test]
 fn a_stop_that_waits_for_a_worker_names_it_while_it_waits() {
     let scratch = Scratch::new("stop-waits");
@@ -6122,28 +6124,37 @@ fn a_stop_that_waits_for_a_worker_names_it_while_it_waits() {
         ),
     ]);
     let cfg = write_config(&scratch, "stop-waits.toml", &text);
-    let mut run = Run::start(&scratch, 26450, &[cfg.to_str().unwrap(), "--quiet"]);
-    let status = run.wait_status("1 update", |s| updates_in(s) >= 1);
-    let stuck = pid_of(&status, "worker-1");
-    signal(stuck, "-STOP");
-    signal(run.child.id(), "-INT");
-    let waiting = format!("still waiting for worker-1 (pid {stuck}) to stop");
-    run.wait_output(&waiting, Instant::now() + Duration::from_secs(3));
-    run.wait_exit(Duration::from_secs(30), 130);
-    let out = run.text();
-    let said = |needle: &str| {
-        out.find(needle)
-            .unwrap_or_else(|| panic!("{needle}: {out}"))
-    };
-    assert!(
-        said(&waiting) < said("did not stop within 4000 ms"),
-        "{out}"
-    );
-    assert!(
-        out.contains("a second Ctrl-C kills every process at once, the recorder too"),
-        "{out}"
-    );
-    assert_nothing_left(&run);
+    let signalled = Run::start(&scratch, 26450, &[cfg.to_str().unwrap(), "--quiet"]);
+    let commanded = Run::start(&scratch, 26960, &[cfg.to_str().unwrap(), "--quiet"]);
+    for (mut run, by_signal) in [(signalled, true), (commanded, false)] {
+        let status = run.wait_status("1 update", |s| updates_in(s) >= 1);
+        let stuck = pid_of(&status, "worker-1");
+        signal(stuck, "-STOP");
+        if by_signal {
+            signal(run.child.id(), "-INT");
+        } else {
+            run.ctl_ok(&["stop"]);
+        }
+        let waiting = format!("still waiting for worker-1 (pid {stuck}) to stop");
+        run.wait_output(&waiting, Instant::now() + Duration::from_secs(3));
+        run.wait_exit(Duration::from_secs(30), if by_signal { 130 } else { 0 });
+        let out = run.text();
+        let said = |needle: &str| {
+            out.find(needle)
+                .unwrap_or_else(|| panic!("{needle}: {out}"))
+        };
+        assert!(
+            said(&waiting) < said("did not stop within 4000 ms"),
+            "{out}"
+        );
+        let kills = if by_signal {
+            "a second Ctrl-C kills every process at once, the recorder too"
+        } else {
+            "Ctrl-C now kills every process at once, the recorder too"
+        };
+        assert!(out.contains(kills), "{out}");
+        assert_nothing_left(&run);
+    }
 }
 
 /// A run without `--record` whose default recording is there already (an earlier run of the

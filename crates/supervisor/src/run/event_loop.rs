@@ -417,9 +417,17 @@ impl Supervisor {
         } else {
             ""
         };
+        // Any signal during the stop kills: "a second Ctrl-C" only to a user who has pressed
+        // one. After `supervisor stop` (or a failure, or the run's end) a user pressed Ctrl-C
+        // as a first one, to stop in order, and lost the recording's finish.
+        let ctrl_c = if self.outcome == Some(Outcome::Interrupted) {
+            "a second Ctrl-C kills"
+        } else {
+            "Ctrl-C now kills"
+        };
         say(&format!(
             "still waiting for {} to stop; killed in {left:.1} s (pipeline.shutdown_timeout_ms = \
-             {}); a second Ctrl-C kills every process at once{recorder}",
+             {}); {ctrl_c} every process at once{recorder}",
             waited.join(", "),
             self.pipe.shutdown_timeout_ms
         ));
