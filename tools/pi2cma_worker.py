@@ -286,7 +286,9 @@ class _RunEnd:
     def __init__(self, run_dir, config):
         self.run_dir, self.config = run_dir, config
         self.supervisor_seen = False
-        self.checked = None
+        # Missing at the last look, with the run directory still there.
+        self.supervisor_missed = False
+        self.next_look = None
 
     def _supervisor_known_alive(self):
         # As wire::supervisor_known_alive: True for a live node named `supervisor`, False when
@@ -309,17 +311,22 @@ class _RunEnd:
 
     def ended(self):
         now = time.monotonic()
-        if self.checked is not None and now - self.checked < 1.0:
+        if self.next_look is not None and now < self.next_look:
             return None
-        self.checked = now
+        self.next_look = now + 1.0
         if not os.path.isdir(self.run_dir):
             return f"its run directory {self.run_dir} is gone"
         # Only a supervisor seen for certain is missed: a node being created reads as unknown.
         alive = self._supervisor_known_alive()
         if alive:
-            self.supervisor_seen = True
-        elif alive is False and self.supervisor_seen:
+            self.supervisor_seen, self.supervisor_missed = True, False
+        elif alive is False and self.supervisor_missed:
             return "its supervisor was killed; the next `supervisor run` removes what it left"
+        elif alive is False and self.supervisor_seen:
+            # One that ends in order removes its node, then the run directory a moment later:
+            # look again soon rather than take it for killed.
+            self.supervisor_missed = True
+            self.next_look = now + 0.1
         return None
 
 

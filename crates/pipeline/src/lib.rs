@@ -138,8 +138,15 @@ pub struct RunEnd {
     run_dir: PathBuf,
     run_id: u64,
     supervisor_seen: bool,
-    checked: Option<std::time::Instant>,
+    /// The supervisor was missing at the last look, with the run directory still there.
+    supervisor_missed: bool,
+    /// When to look next.
+    next_look: Option<Instant>,
 }
+
+/// How long after a look at a missing supervisor the next one comes: one that ends in order
+/// removes its node first and the run directory a moment later.
+const SUPERVISOR_MISSED_LOOK: Duration = Duration::from_millis(100);
 
 impl RunEnd {
     /// Watches run `run_id`, whose run directory is `run_dir`.
@@ -148,20 +155,19 @@ impl RunEnd {
             run_dir: run_dir.to_path_buf(),
             run_id,
             supervisor_seen: false,
-            checked: None,
+            supervisor_missed: false,
+            next_look: None,
         }
     }
 
     /// Why the run has ended, if it has: looked at most once a second (the supervisor is
     /// looked for in the run's iceoryx2 node registry), `None` in between.
     pub fn ended(&mut self) -> Option<String> {
-        if self
-            .checked
-            .is_some_and(|t| t.elapsed() < Duration::from_secs(1))
-        {
+        let now = Instant::now();
+        if self.next_look.is_some_and(|t| now < t) {
             return None;
         }
-        self.checked = Some(std::time::Instant::now());
+        self.next_look = Some(now + Duration::from_secs(1));
         if !self.run_dir.exists() {
             return Some(format!(
                 "its run directory {} is gone",
@@ -172,11 +178,20 @@ impl RunEnd {
         match wire::supervisor_known_alive(self.run_id) {
             Some(true) => {
                 self.supervisor_seen = true;
+                self.supervisor_missed = false;
                 None
             }
-            Some(false) if self.supervisor_seen => Some(
+            // Missed twice with the run directory there: killed. Taken as killed at the first,
+            // a supervisor that ended in order was, when the look came between the removal of
+            // its node and that of the run directory.
+            Some(false) if self.supervisor_missed => Some(
                 "its supervisor was killed; the next `supervisor run` removes what it left".into(),
             ),
+            Some(false) if self.supervisor_seen => {
+                self.supervisor_missed = true;
+                self.next_look = Some(now + SUPERVISOR_MISSED_LOOK);
+                None
+            }
             _ => None,
         }
     }
@@ -556,6 +571,44 @@ mod tests {
     use super::*;
 
     const MAX: Duration = Duration::from_micros(200);
+
+    /// A supervisor that ends in order removes its node, and then, a moment later, the run
+    /// directory: a process started by hand that looked in between was told "its supervisor
+    /// was killed; the next `supervisor run` removes what it left", of a run that had ended
+    /// as asked and left nothing.
+    #[test]
+    fn a_supervisor_that_ends_in_order_is_not_taken_for_a_killed_one() {
+        let run_id = 0x6960;
+        let dir = std::env::temp_dir().join(format!("p2c-run-end-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let supervisor = wire::node(run_id, wire::process::SUPERVISOR).unwrap();
+        let mut end = RunEnd::new(&dir, run_id);
+        let look = |end: &mut RunEnd| {
+            end.next_look = None;
+            end.ended()
+        };
+        assert_eq!(look(&mut end), None);
+        drop(supervisor);
+        assert_eq!(look(&mut end), None, "the run directory goes next");
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(
+            look(&mut end),
+            Some(format!("its run directory {} is gone", dir.display()))
+        );
+        // Gone, and the run directory still there: killed.
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut end = RunEnd::new(&dir, run_id);
+        let supervisor = wire::node(run_id, wire::process::SUPERVISOR).unwrap();
+        assert_eq!(look(&mut end), None);
+        drop(supervisor);
+        assert_eq!(look(&mut end), None);
+        assert_eq!(
+            look(&mut end).as_deref(),
+            Some("its supervisor was killed; the next `supervisor run` removes what it left")
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+        let _ = std::fs::remove_dir_all(wire::iceoryx_root(run_id));
+    }
 
     #[test]
     fn a_worker_id_is_named_once_and_a_flood_of_ids_once_more() {

@@ -4344,6 +4344,62 @@ except w.ConfigRefused as e:  # exits 78: the supervisor does not restart it
     );
 }
 
+/// `tools/pi2cma_worker.py`'s `_RunEnd`, as `pipeline::RunEnd`: a supervisor that ends in
+/// order removes its node, then the run directory a moment later; a worker started by hand
+/// that looked in between was told its supervisor "was killed" of a run that had ended as
+/// asked. Only a supervisor missing at two looks, the run directory still there, was killed.
+#[test]
+fn a_python_worker_does_not_take_a_supervisor_that_ended_in_order_for_a_killed_one() {
+    let scratch = Scratch::new("python-run-end");
+    let tools = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tools");
+    let run_dir = scratch.path("run");
+    let script = r#"
+import gc, os, sys, pi2cma_worker as w
+iox2, run_id, run_dir = w.iox2, int(sys.argv[1], 16), sys.argv[2]
+def supervisor():
+    config = iox2.config.default()
+    config.global_cfg.prefix = iox2.FileName.new(f"p2c{run_id:016x}_")
+    config.global_cfg.root_path = iox2.Path.new(f"/tmp/p2c-{run_id:016x}/")
+    node = (iox2.NodeBuilder.new().name(iox2.NodeName.new("supervisor")).config(config)
+            .create(iox2.ServiceType.Ipc))
+    return node, config
+def look(end):
+    end.next_look = None
+    return end.ended()
+for ends_in_order in [True, False]:
+    os.mkdir(run_dir)
+    node, config = supervisor()
+    end = w._RunEnd(run_dir, config)
+    assert look(end) is None
+    del node
+    gc.collect()
+    assert look(end) is None, "missed once"
+    if ends_in_order:
+        os.rmdir(run_dir)
+        print(look(end))
+    else:
+        print(look(end))
+        os.rmdir(run_dir)
+"#;
+    let id = run_id(26962);
+    let args = [
+        "-c".as_ref(),
+        script.as_ref(),
+        id.as_ref(),
+        run_dir.as_os_str(),
+    ];
+    let text = python_ok(&args, &[("PYTHONPATH", tools.as_os_str())]);
+    let _ = std::fs::remove_dir_all(format!("/tmp/p2c-{id}"));
+    assert_eq!(
+        text,
+        format!(
+            "its run directory {} is gone\nits supervisor was killed; the next `supervisor \
+             run` removes what it left\n",
+            run_dir.display()
+        )
+    );
+}
+
 /// The Python reader's `--join --check` of `files`, which must succeed; returns its output.
 /// Needs tools/requirements.txt.
 fn python_join_check(files: &[&Path]) -> String {
