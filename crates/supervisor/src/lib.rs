@@ -23,7 +23,9 @@ mod run;
 mod shm;
 
 pub use control::{client, runs_dir};
-pub use run::{default_recording, process_alive, run, RunOptions, EMPTY_PART_REMOVED};
+pub use run::{
+    default_recording, group_members, process_alive, run, RunOptions, EMPTY_PART_REMOVED,
+};
 
 /// Exit code of a run stopped by SIGINT/SIGTERM.
 pub const EXIT_INTERRUPTED: u8 = 130;

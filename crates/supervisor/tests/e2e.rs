@@ -4929,23 +4929,6 @@ fn a_rust_worker_that_checks_stop_requested_leaves_a_long_rollout_at_once() {
     assert_nothing_left(&run);
 }
 
-/// The processes of process group `group` (the supervisor's children each lead one).
-fn group_members(group: u32) -> Vec<u32> {
-    std::fs::read_dir("/proc")
-        .unwrap()
-        .flatten()
-        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
-        .filter(|pid| {
-            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-            let fields: Vec<&str> = stat
-                .rsplit_once(')')
-                .map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
-            // State (not a zombie), parent, group.
-            fields.len() > 2 && fields[0] != "Z" && fields[2] == group.to_string()
-        })
-        .collect()
-}
-
 /// A worker program as users write them: a shell script that starts a simulator of its own
 /// beside the worker (here `sleep`, which inherits the script's output), runs the worker
 /// without `exec`, and whose own shutdown fails (exit 3 on SIGTERM). Each of these broke the
@@ -4988,7 +4971,7 @@ fn a_worker_program_that_is_a_script_with_a_simulator_of_its_own_is_supervised()
     let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
     assert!(!run.text().contains("joined"), "{}", run.text());
     let script_pid = pid_of(&status, "worker-1");
-    let left = group_members(script_pid);
+    let left = supervisor::group_members(script_pid);
     assert_eq!(left.len(), 3, "script, simulator and worker: {left:?}");
     signal(script_pid, "-9");
     let end = Instant::now() + Duration::from_secs(10);

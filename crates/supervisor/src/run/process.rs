@@ -167,7 +167,7 @@ pub(super) fn process_group(pid: u32) -> Option<u32> {
 
 /// The processes other than zombies in process group `group` (a child of the supervisor leads
 /// one of its own, and what it starts is in it unless it moves out).
-pub(super) fn group_members(group: u32) -> Vec<u32> {
+pub fn group_members(group: u32) -> Vec<u32> {
     std::fs::read_dir("/proc")
         .into_iter()
         .flatten()
