@@ -607,7 +607,16 @@ mod tests {
             Some("its supervisor was killed; the next `supervisor run` removes what it left")
         );
         std::fs::remove_dir_all(&dir).unwrap();
+        // What the nodes leave, as a supervisor's clean-up removes it.
         let _ = std::fs::remove_dir_all(wire::iceoryx_root(run_id));
+        for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+            if e.file_name()
+                .to_string_lossy()
+                .starts_with(&wire::file_prefix(run_id))
+            {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
     }
 
     #[test]
