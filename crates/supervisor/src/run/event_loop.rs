@@ -199,12 +199,7 @@ impl Supervisor {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
         }
         d.extend(self.pending_sets.iter().map(|p| p.until));
-        d.extend(
-            self.procs
-                .values()
-                .filter(|p| !p.wait_said)
-                .filter_map(|p| p.asked_at.map(|t| t + STOP_WAIT_SAID)),
-        );
+        d.extend(self.procs.values().filter_map(|p| self.stop_wait_due(p)));
         // Nothing reports that a process group has emptied: look every 20 ms.
         if self.procs.values().any(|p| p.exited_first.is_some()) {
             d.push(Instant::now() + Duration::from_millis(20));
@@ -392,18 +387,28 @@ impl Supervisor {
     /// with a long `shutdown_timeout_ms` (a robot's episode) the stop said nothing until the
     /// timeout, and a second Ctrl-C, pressed at a supervisor that looked hung, killed the
     /// recorder too.
+    /// When the stop's wait for `p` is to be said ([`Self::say_stop_waits`]), if it is to be:
+    /// one rule for the saying and for the event loop's wake-ups, which woke at once, over and
+    /// over, for a process SIGKILLed and not yet reaped.
+    fn stop_wait_due(&self, p: &Proc) -> Option<Instant> {
+        let says = self.phase == Phase::Stopping && !self.killed && !p.sigkilled && !p.wait_said;
+        says.then_some(p.asked_at?).map(|t| t + STOP_WAIT_SAID)
+    }
+
     fn say_stop_waits(&mut self) {
-        if self.phase != Phase::Stopping || self.killed {
-            return;
-        }
         let now = Instant::now();
+        let due: Vec<u32> = self
+            .procs
+            .iter()
+            .filter(|(_, p)| self.stop_wait_due(p).is_some_and(|t| t <= now))
+            .map(|(pid, _)| *pid)
+            .collect();
         let mut waited = Vec::new();
-        for (pid, p) in &mut self.procs {
-            if p.sigkilled || p.wait_said || p.asked_at.is_none_or(|t| now < t + STOP_WAIT_SAID) {
-                continue;
+        for pid in due {
+            if let Some(p) = self.procs.get_mut(&pid) {
+                p.wait_said = true;
+                waited.push(format!("{} (pid {pid})", p.role.name()));
             }
-            p.wait_said = true;
-            waited.push(format!("{} (pid {pid})", p.role.name()));
         }
         if waited.is_empty() {
             return;
