@@ -2709,6 +2709,16 @@ mod tests {
             "test.toml: schedule[0].value = 0.01: task `tball`, setting `ball_height`: the \
              ball's centre must be at least its radius above the ground"
         );
+        // The paper's 5 cm lower ball given in cm: accepted, it made every rollout from update
+        // 20 on a miss.
+        let text = edit(TBALL, &[("value = 0.47", "value = 47")]);
+        assert_eq!(
+            error(&text),
+            "test.toml: schedule[0].value = 47: task `tball`, setting `ball_height`: out of the \
+             bat's reach: the ball's centre can be at most shoulder[2] + upper_arm + forearm + \
+             hand + bat_length + bat_radius + ball_radius above the ground (2.435 m with \
+             config/tball.toml's arm); heights are in metres"
+        );
         // Finite settings under which every rollout's cost overflows passed, and failed the
         // run at its first update, or at the schedule's after learning up to it.
         let text = edit(TBALL, &[("tee_x = 0.76", "tee_x = 1e300")]);

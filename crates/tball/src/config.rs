@@ -52,11 +52,15 @@ pub struct TballConfig {
     /// (0: a soft tee absorbs the downward velocity; 1: a rigid tee reflects it).
     pub tee_restitution: f64,
     /// x of the ball's centre while it rests on the tee (m); a setting a schedule may change.
+    /// Any finite value: a tee out of the bat's reach makes every swing a miss.
     pub tee_x: f64,
     /// y of the ball's centre while it rests on the tee (m); a setting a schedule may change.
     pub tee_y: f64,
     /// Height of the ball's centre above the ground while it rests on the tee (m). A setting a
-    /// schedule may change: the paper lowers the ball by 5 cm after 20 updates.
+    /// schedule may change: the paper lowers the ball by 5 cm after 20 updates. Refused below
+    /// `ball_radius` (under the ground) and above the highest point the bat can touch,
+    /// `shoulder[2] + upper_arm + forearm + hand + bat_length + bat_radius + ball_radius`
+    /// (2.435 m here), where every swing would miss.
     pub ball_height: f64,
     /// Gravitational acceleration of the ball's flight (m/s², acting along −z).
     pub gravity: f64,

@@ -153,14 +153,20 @@ impl Tball {
                 return Err(invalid(name, v, "must be in [0, 1]"));
             }
         }
-        if !(c.target_y_min.is_finite()
-            && c.target_y_max.is_finite()
-            && c.target_y_min < c.target_y_max)
-        {
+        for (name, v) in [
+            ("target_y_min", c.target_y_min),
+            ("target_y_max", c.target_y_max),
+        ] {
+            if !v.is_finite() {
+                return Err(invalid(name, v, "must be finite"));
+            }
+        }
+        if c.target_y_min >= c.target_y_max {
             return Err(invalid(
                 "target_y_min",
                 c.target_y_min,
-                "target_y_min < target_y_max, both finite",
+                "must be below target_y_max (the target strip runs from target_y_min to \
+                 target_y_max)",
             ));
         }
         let finite = c
@@ -219,6 +225,20 @@ impl Tball {
     /// The configuration, with the settings (`ball_height`, `tee_x`, `tee_y`) as last set.
     pub fn config(&self) -> &TballConfig {
         &self.config
+    }
+
+    /// The highest ball centre the bat can touch: the arm and bat stretched straight up from the
+    /// shoulder, plus the bat's and the ball's radii. Whatever the tee's x and y, a higher ball
+    /// is never hit.
+    fn highest_reachable_ball(&self) -> f64 {
+        let c = &self.config;
+        c.shoulder[2]
+            + c.upper_arm
+            + c.forearm
+            + c.hand
+            + c.bat_length
+            + c.bat_radius
+            + c.ball_radius
     }
 
     /// The ball's centre while it rests on the tee.
@@ -430,6 +450,15 @@ impl Task for Tball {
                 value,
                 "the ball's centre must be at least its radius above the ground",
             )),
+            // A ball no pose of the arm can touch makes every rollout a miss, and the run learns
+            // nothing from then on: a height given in cm (47 for 0.47) is the likely cause.
+            "ball_height" if value > self.highest_reachable_ball() => Err(invalid(
+                name,
+                value,
+                "out of the bat's reach: the ball's centre can be at most shoulder[2] + \
+                 upper_arm + forearm + hand + bat_length + bat_radius + ball_radius above the \
+                 ground (2.435 m with config/tball.toml's arm); heights are in metres",
+            )),
             "ball_height" => {
                 self.config.ball_height = value;
                 Ok(())
@@ -559,5 +588,69 @@ mod tests {
             ..TballConfig::default()
         };
         assert!(Tball::new(&empty_target).is_err());
+    }
+
+    /// A ball no pose can reach was accepted (`supervisor set ball_height 47`, a height in cm):
+    /// every rollout then missed, and the run learnt nothing more.
+    #[test]
+    fn a_ball_out_of_the_bats_reach_is_refused() {
+        let mut t = task();
+        for far in [47.0, 2.44, 1e300] {
+            match t.set("ball_height", far) {
+                Err(TaskError::InvalidSetting { name, reason, .. }) => {
+                    assert_eq!(name, "ball_height");
+                    assert!(reason.contains("out of the bat's reach"), "{reason}");
+                }
+                other => panic!("{far}: {other:?}"),
+            }
+            assert_eq!(t.resting_ball()[2], 0.52, "a refused value leaves the task");
+        }
+        let config = TballConfig {
+            ball_height: 52.0,
+            ..TballConfig::default()
+        };
+        assert!(Tball::new(&config).is_err());
+        // The bound is the arm and bat pointing straight up (shoulder pitch π), touching the
+        // ball from below; the number the message quotes for config/tball.toml's arm.
+        let up = t
+            .arm
+            .pose(&[0.0, std::f64::consts::PI, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let c = t.config();
+        let touching = up.tip[2] + c.bat_radius + c.ball_radius;
+        assert!((touching - t.highest_reachable_ball()).abs() < 1e-12);
+        assert!((t.highest_reachable_ball() - 2.435).abs() < 1e-12);
+        t.set("ball_height", touching).unwrap();
+    }
+
+    /// `target_y_max = nan` was reported as `target_y_min = -1.5`, the valid one.
+    #[test]
+    fn a_bad_target_bound_is_named() {
+        let nan_max = TballConfig {
+            target_y_max: f64::NAN,
+            ..TballConfig::default()
+        };
+        match Tball::new(&nan_max) {
+            Err(TaskError::InvalidSetting { name, value, .. }) => {
+                assert_eq!(name, "target_y_max");
+                assert!(value.is_nan());
+            }
+            other => panic!("{other:?}"),
+        }
+        let crossed = TballConfig {
+            target_y_min: -0.5,
+            ..TballConfig::default()
+        };
+        match Tball::new(&crossed) {
+            Err(TaskError::InvalidSetting {
+                name,
+                value,
+                reason,
+                ..
+            }) => {
+                assert_eq!((name.as_str(), value), ("target_y_min", -0.5));
+                assert!(reason.contains("below target_y_max"), "{reason}");
+            }
+            other => panic!("{other:?}"),
+        }
     }
 }
