@@ -10,8 +10,10 @@ use serde::Deserialize;
 pub struct TballConfig {
     /// Movement duration (s); the paper's swing lasts 1 s. N = duration/dt + 1 time steps.
     pub duration: f64,
-    /// DMP integration and simulation time step (s); bat–ball contact is found to sub-step
-    /// precision within it.
+    /// DMP integration and simulation time step (s). Bat–ball contact is detected at the steps
+    /// and located to sub-step precision within the first step that ends in contact; the bat
+    /// must move much less than bat_radius + ball_radius per step for no contact to be skipped
+    /// (the initial swing: 3 mm against 6.5 cm at 1 ms).
     pub dt: f64,
     /// Basis functions per joint (the paper: 3), so the policy has 7·basis_functions parameters.
     pub basis_functions: usize,
