@@ -169,7 +169,21 @@ fn run() -> Res<()> {
         elapsed.as_secs_f64()
     );
     let task = Tball::new(task_cfg)?;
-    plot_learning_curve(&args.out.join("cost_lambda.svg"), &sessions, change)?;
+    // The line marks the config's change, named as given (not the paper's "5 cm lower" whatever
+    // the schedule says); numbered from 1 like the figure's updates.
+    let change_label = cfg.schedule.first().map(|c| {
+        format!(
+            "{} = {} from update {}",
+            c.set,
+            tasks::value_text(c.value),
+            c.from_update + 1
+        )
+    });
+    plot_learning_curve(
+        &args.out.join("cost_lambda.svg"),
+        &sessions,
+        change.zip(change_label.as_deref()),
+    )?;
     plot_ball(&args.out.join("ball_trajectories.svg"), &task, &sessions[0])?;
     plot_bat(&args.out.join("bat_paths.svg"), &task, &sessions[0])?;
     println!("wrote {}", args.out.display());
@@ -303,7 +317,11 @@ fn summary_table(
 
 /// Cost of the evaluation rollout (mean over sessions, with the mean ± std of the exploration
 /// rollouts' costs as a band) and λ on a log axis, per update.
-fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<usize>) -> Res<()> {
+fn plot_learning_curve(
+    path: &Path,
+    sessions: &[Vec<UpdateRow>],
+    change: Option<(usize, &str)>,
+) -> Res<()> {
     let n = sessions[0].len();
     let cost: Vec<(f64, f64)> = (0..n)
         .map(|u| {
@@ -367,13 +385,13 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
     c.draw_series(LineSeries::new(cost, BLUE.stroke_width(2)))?
         .label("evaluation rollout")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 15, y)], BLUE.stroke_width(2)));
-    if let Some(ch) = change {
+    if let Some((ch, label)) = change {
         let x = ch as f64 + 0.5;
         c.draw_series(std::iter::once(PathElement::new(
             vec![(x, 0.0), (x, y_max)],
             BLACK.mix(0.5),
         )))?
-        .label("ball 5 cm lower")
+        .label(label)
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 15, y)], BLACK.mix(0.5)));
     }
     c.configure_series_labels()
@@ -406,8 +424,9 @@ fn plot_learning_curve(path: &Path, sessions: &[Vec<UpdateRow>], change: Option<
     Ok(())
 }
 
-/// Ball trajectories (side view: y–z, to scale) of the evaluation rollouts after updates 1,
-/// 20, 21, 40, one panel above the other, under a legend of target, tee and ball.
+/// Ball trajectories (side view: y–z, to scale) of the evaluation rollouts of updates 1, 20, 21,
+/// 40 (numbered from 1: the evaluation rollout of update u runs the mean of u − 1 updates), one
+/// panel above the other, under a legend of target, tee and ball.
 fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
     let updates = [1usize, 20, 21, 40];
     let cfg = task.config();
@@ -420,8 +439,8 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
         let trace: Trace = t.trace(&row.samples[0]);
         let flight = trace.ball_path(0.01, cfg.gravity, t.resting_ball());
         let label = match trace.outcome.hit {
-            Some(h) => format!("lands at y = {:.2} m", h.landing[1]),
-            None => "miss".into(),
+            Some(h) => landing_text(&t, h.landing),
+            None => "the bat misses the ball".into(),
         };
         panels.push((u, t.resting_ball(), flight, label));
     }
@@ -458,7 +477,9 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
         let zt = Ticks::linear(z0, z1, h, Along::Vertical);
         let mut c = ChartBuilder::on(area)
             .caption(
-                format!("session 0, after update {u}: side view (y–z), to scale; {label}"),
+                format!(
+                    "session 0, update {u}, evaluation rollout (side view y–z, to scale): {label}"
+                ),
                 ("sans-serif", 14),
             )
             .margin(8)
@@ -487,6 +508,29 @@ fn plot_ball(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
     }
     root.present()?;
     Ok(())
+}
+
+/// Where a ball lands against the target, for a caption. "lands at y = -1.50 m" alone did not
+/// say whether -1.5004 m was in the target; a miss under a centimetre is given in mm, not as
+/// "0.00 m".
+fn landing_text(task: &Tball, landing: tball::Vec3) -> String {
+    let y = landing[1];
+    let off = task.distance_to_target(landing);
+    let place = if off == 0.0 {
+        "in the target".to_string()
+    } else {
+        let side = if y > task.config().target_y_max {
+            "short of"
+        } else {
+            "past"
+        };
+        if off < 0.01 {
+            format!("{:.1} mm {side} the target", off * 1e3)
+        } else {
+            format!("{off:.2} m {side} the target")
+        }
+    };
+    format!("lands at y = {y:.2} m, {place}")
 }
 
 /// What a legend entry shows next to its text.
@@ -607,4 +651,22 @@ fn plot_bat(path: &Path, task: &Tball, rows: &[UpdateRow]) -> Res<()> {
     }
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_caption_says_where_the_ball_lands_against_the_target() {
+        let task = Tball::new(&tball::TballConfig::default()).unwrap();
+        let at = |y: f64| landing_text(&task, [0.4, y, 0.035]);
+        assert_eq!(at(-1.5), "lands at y = -1.50 m, in the target");
+        assert_eq!(at(-1.5004), "lands at y = -1.50 m, 0.4 mm past the target");
+        assert_eq!(
+            at(-0.91),
+            "lands at y = -0.91 m, 0.09 m short of the target"
+        );
+        assert_eq!(at(-1.65), "lands at y = -1.65 m, 0.15 m past the target");
+    }
 }
