@@ -265,7 +265,7 @@ pub(in crate::analyze) fn draw_curves(
             }
         }
     }
-    mark_changes(&mut chart, changes, (lo, hi))?;
+    mark_changes(&mut chart, changes, (lo, hi), true)?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
 
     let (llo, lhi) = log_range(
@@ -289,7 +289,7 @@ pub(in crate::analyze) fn draw_curves(
         .draw()
         .map_err(|x| e(&x))?;
     // λ rising again after a change is the point of the method: the change is marked here too.
-    mark_changes(&mut chart, changes, (llo, lhi))?;
+    mark_changes(&mut chart, changes, (llo, lhi), false)?;
     for (i, c) in curves.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         for p in c.pieces.iter().filter(|p| !p.lambda.is_empty()) {
@@ -309,19 +309,21 @@ pub(in crate::analyze) fn draw_curves(
     Ok(())
 }
 
-/// A dashed vertical line from `y.0` to `y.1` at each task change's update.
+/// A dashed vertical line from `y.0` to `y.1` at each task change's update; with `legend`, one
+/// legend entry for them (the dashes were unexplained in the figure).
 fn mark_changes<DB, CT>(
     chart: &mut ChartContext<'_, DB, CT>,
     changes: &[u64],
     y: (f64, f64),
+    legend: bool,
 ) -> Result<(), String>
 where
     DB: DrawingBackend,
     CT: CoordTranslate<From = (f64, f64)>,
 {
-    for &u in changes {
+    for (i, &u) in changes.iter().enumerate() {
         let x = u as f64;
-        chart
+        let series = chart
             .draw_series(DashedLineSeries::new(
                 vec![(x, y.0), (x, y.1)],
                 5,
@@ -329,6 +331,11 @@ where
                 BLACK.mix(0.6).stroke_width(1),
             ))
             .map_err(|x| format!("{x:?}"))?;
+        if legend && i == 0 {
+            series
+                .label("task change (in force from this update)")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.mix(0.6)));
+        }
     }
     Ok(())
 }
@@ -439,6 +446,16 @@ mod tests {
             dash_ys.iter().any(|y| *y > split),
             "no dash on the λ panel: {dash_ys:?}"
         );
+        // And the legend says what the dashes are (they were unexplained).
+        let legend = "task change (in force from this update)";
+        assert!(svg_texts(&svg).iter().any(|t| t == legend), "{svg}");
+        // Only where there is one.
+        let mut r = rec_with(&[5.0, 4.0, 3.0, 2.0, 6.0, 5.0], None);
+        r.run.push(proto::RunInfo::default());
+        plot(&r, &dir).unwrap();
+        let svg = std::fs::read_to_string(dir.join("learning_curve.svg")).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(!svg_texts(&svg).iter().any(|t| t == legend));
     }
 
     /// λ is drawn in the colour of the exploration it measures, not in that of the evaluation
