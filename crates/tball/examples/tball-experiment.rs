@@ -249,12 +249,23 @@ fn summary_table(
     sessions: &[Vec<UpdateRow>],
     change: Option<usize>,
 ) -> std::fmt::Result {
+    let n = sessions[0].len();
+    // The updates either side of the change (the paper's 20 and 21 without one) and the last:
+    // the headers said cost@20, cost@21 and cost@40 whatever the config's schedule and length.
+    let before = change.unwrap_or(20);
+    let after = before + 1;
     writeln!(
         out,
         "{:>7} {:>10} {:>9} {:>9} {:>9} {:>10} {:>9} {:>9}",
-        "session", "first_hit", "cost@1", "cost@20", "cost@21", "λpeak@", "cost@40", "target@40"
+        "session",
+        "first_hit",
+        "cost@1",
+        format!("cost@{before}"),
+        format!("cost@{after}"),
+        "λpeak@",
+        format!("cost@{n}"),
+        format!("target@{n}")
     )?;
-    let n = sessions[0].len();
     let at = |rows: &[UpdateRow], u: usize| rows.get(u - 1).map_or(f64::NAN, |r| r.eval_cost);
     let mut firsts = Vec::new();
     let mut peaks = Vec::new();
@@ -282,8 +293,8 @@ fn summary_table(
             s,
             first.map_or("never".into(), |f| f.to_string()),
             at(rows, 1),
-            at(rows, 20),
-            at(rows, 21),
+            at(rows, before),
+            at(rows, after),
             peak.map_or("-".into(), |p| p.to_string()),
             at(rows, n),
             rows.last().is_some_and(in_target),
@@ -295,8 +306,8 @@ fn summary_table(
         "mean",
         mean(firsts.iter().copied()),
         mean(sessions.iter().map(|r| at(r, 1))),
-        mean(sessions.iter().map(|r| at(r, 20))),
-        mean(sessions.iter().map(|r| at(r, 21))),
+        mean(sessions.iter().map(|r| at(r, before))),
+        mean(sessions.iter().map(|r| at(r, after))),
         mean(peaks.iter().copied()),
         mean(sessions.iter().map(|r| at(r, n))),
         mean(
@@ -668,5 +679,44 @@ mod tests {
             "lands at y = -0.91 m, 0.09 m short of the target"
         );
         assert_eq!(at(-1.65), "lands at y = -1.65 m, 0.15 m past the target");
+    }
+
+    /// The table's headers said cost@20, cost@21 and cost@40 for any config; a run of 6
+    /// updates changing after 2 printed its update 6 under "cost@40".
+    #[test]
+    fn the_summary_names_the_updates_it_shows() {
+        let row = |u: usize| UpdateRow {
+            eval_cost: u as f64,
+            eval_terminal: 1.0,
+            landing_y: None,
+            lambda: 1.0,
+            exploration_mean: 0.0,
+            exploration_std: 0.0,
+            samples: Vec::new(),
+            ball_height: 0.5,
+        };
+        let sessions = vec![(1..=6).map(row).collect::<Vec<_>>()];
+        let mut out = String::new();
+        summary_table(&mut out, &sessions, Some(2)).unwrap();
+        let mut lines = out.lines();
+        let header: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+        assert_eq!(
+            header,
+            [
+                "session",
+                "first_hit",
+                "cost@1",
+                "cost@2",
+                "cost@3",
+                "λpeak@",
+                "cost@6",
+                "target@6"
+            ]
+        );
+        // Each column holds the cost of the update its header names (the cost of update u is
+        // u here).
+        let row0: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+        assert_eq!(row0[2..5], ["1.000", "2.000", "3.000"]);
+        assert_eq!(row0[6], "6.000");
     }
 }
