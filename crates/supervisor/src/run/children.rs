@@ -240,6 +240,13 @@ impl Supervisor {
                     p.exited_first = Some(status);
                     return;
                 }
+                // Killed with its group already (hung, or overdue after a scale-down): what is
+                // left is dying of that SIGKILL, not left running.
+                if p.hung.is_some() || p.sigkilled {
+                    signal_group(pid, libc::SIGKILL);
+                    self.exited(pid, status);
+                    return;
+                }
                 let names: Vec<String> = left
                     .iter()
                     .map(|m| {
