@@ -41,6 +41,9 @@ pub struct Recording {
     pub rollouts: Vec<proto::Rollout>,
     /// The `/task_change` messages, in file order.
     pub task_changes: Vec<proto::TaskChange>,
+    /// The `/unfinished_update` after the last `/update`, if the run stopped in the update after
+    /// its last recorded one (pipeline recordings): the settings that update was to run with.
+    pub unfinished: Option<proto::UnfinishedUpdate>,
     /// Empty when read slim.
     pub logs: Vec<proto::Log>,
     /// What analysis keeps of the messages, either way read.
@@ -584,6 +587,7 @@ impl Recording {
         self.truncated = next.truncated;
         self.run.extend(next.run);
         self.updates.extend(next.updates);
+        self.unfinished = next.unfinished;
         self.rollouts.extend(next.rollouts);
         // A change at the update where `next` begins can be in both: recorded at the end of
         // this one (the run stopped right after it) and at the start of `next` (in-process).
@@ -667,10 +671,11 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
     read(path, false, &mut |_, _| {})
 }
 
-/// Reads and decodes a recording, each `/update` without its bulk: `samples`, `cost_per_step`,
-/// `cost_terminal` and `weights` are left empty ([`Recording::slim`]); everything else, the
-/// distributions before and after included, is read. [`read_recording`] reads the whole
-/// updates.
+/// Reads and decodes a recording slim ([`Recording::slim`]): of `/update` only the first and the
+/// last are kept, without their bulk (`samples`, `cost_per_step`, `cost_terminal` and `weights`
+/// left empty), and `/summary`, `/rollout` and `/log` are not kept; every update's scalars are
+/// in the crate's digest (the learning curve, what `analyze` needs). [`read_recording`] reads
+/// every message whole.
 pub fn read_recording_slim(path: &Path) -> Result<Recording, RecordError> {
     read(path, true, &mut |_, _| {})
 }
@@ -734,6 +739,10 @@ fn read(
                     rec.updates.truncate(1);
                 }
                 rec.updates.push(u);
+                rec.unfinished = None;
+            }
+            topics::UNFINISHED_UPDATE => {
+                rec.unfinished = Some(decode(path, topic, index, "UnfinishedUpdate", data)?);
             }
             topics::SUMMARY => {
                 let s = decode(path, topic, index, "UpdateSummary", data)?;
@@ -856,6 +865,37 @@ mod tests {
         // Overlapping the first part: not a continuation.
         let early = with_meta(part("dir/a.part-2.mcap", 7, 5, 20), &restart);
         assert!(!first.is_continued_after_restart_by(&early));
+    }
+
+    /// `/unfinished_update` is read into the recording: it was only in [`read_ends`], so a user
+    /// reading every topic with [`read_recording`] could not see it.
+    #[test]
+    fn read_recording_holds_the_unfinished_update() {
+        let dir = std::env::temp_dir().join(format!("reader-unfinished-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.mcap");
+        let mut w = crate::RunWriter::create(&path).unwrap();
+        w.write_event(0, crate::Event::Start, "updater", 1, "ready")
+            .unwrap();
+        w.write_unfinished_update(7, &[("viapoint", 0.1)]).unwrap();
+        w.finish().unwrap();
+        let rec = read_recording(&path).unwrap();
+        let u = rec
+            .unfinished
+            .as_ref()
+            .expect("the /unfinished_update read");
+        assert_eq!(u.update, 7);
+        assert_eq!(
+            (u.task_settings[0].name.as_str(), u.task_settings[0].value),
+            ("viapoint", 0.1)
+        );
+        // A finished recording has none.
+        let mut cfg = session::RunConfig::default_config();
+        cfg.run.updates = Some(2);
+        let finished = dir.join("b.mcap");
+        crate::testing::record_session(&cfg, 1, &finished);
+        assert_eq!(read_recording(&finished).unwrap().unfinished, None);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// Streamed, the ends of a recording are those of the whole read, for a finished file and
