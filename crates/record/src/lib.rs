@@ -14,6 +14,15 @@
 //! iceoryx2 services and writes through [`RunWriter`]. Only [`pipeline_recorder`] knows of
 //! processes and shared memory; the rest reads and writes files. Topic names and schemas are documented in the repository README, section
 //! "Recording (MCAP) and analysis".
+//!
+//! Reading a recording with code of your own: [`read_recording`] gives a [`Recording`] with
+//! every message decoded ([`proto`] types): [`Recording::run_info`] (P, N, hyperparameters),
+//! `updates` (samples K×P and `cost_per_step` K×N row-major, `weights`, `before`/`after`),
+//! `summaries`, `rollouts`, `task_changes`, `unfinished`, `logs`, and the MCAP `metadata`.
+//! [`distribution_from_proto`] turns a `Distribution` into the core's; a rollout's total is
+//! `pi2cma::total_cost` (the recorded totals to the bit); [`recompute::recompute_update`]
+//! recomputes an update with the core. A run in several files (parts, resumes):
+//! [`join_resumed`].
 #![warn(missing_docs)]
 
 pub mod analyze;
