@@ -1678,31 +1678,47 @@ impl RunConfig {
         for (n, v) in in_force {
             task.set(n, *v)?;
         }
-        task.set(name, value)?;
-        if matches!(self.task, TaskSection::External(_)) {
-            return Ok(());
-        }
-        tasks::check_initial_rollout(task.as_mut()).map_err(|e| {
-            // Name the settings that made the difference, if any besides the change did.
+        // Name the settings that made the difference, if any besides the change did: a value
+        // refused only because of them (a T-ball tee in reach of the shoulder along x alone,
+        // not with the tee's y in force) would otherwise read as refused on its own.
+        let with_others = |task: &dyn tasks::Task, e: tasks::TaskError| {
             let others = tasks::settings_text(task.settings().into_iter().filter(|&(n, v)| {
                 n != name
                     && from_config
                         .iter()
                         .any(|&(c, cv)| c == n && cv.to_bits() != v.to_bits())
             }));
+            let in_force = |reason: String| {
+                format!(
+                    "{reason} (together with the settings in force that differ from the \
+                     config: {others})"
+                )
+            };
             match e {
-                tasks::TaskError::Invalid { task, reason } if !others.is_empty() => {
-                    tasks::TaskError::Invalid {
-                        task,
-                        reason: format!(
-                            "{reason} (together with the settings in force that differ from \
-                             the config: {others})"
-                        ),
-                    }
-                }
+                _ if others.is_empty() => e,
+                tasks::TaskError::Invalid { task, reason } => tasks::TaskError::Invalid {
+                    task,
+                    reason: in_force(reason),
+                },
+                tasks::TaskError::InvalidSetting {
+                    task,
+                    name,
+                    value,
+                    reason,
+                } => tasks::TaskError::Invalid {
+                    task,
+                    reason: in_force(format!("{name} = {}: {reason}", num(value))),
+                },
                 e => e,
             }
-        })
+        };
+        if let Err(e) = task.set(name, value) {
+            return Err(with_others(task.as_ref(), e));
+        }
+        if matches!(self.task, TaskSection::External(_)) {
+            return Ok(());
+        }
+        tasks::check_initial_rollout(task.as_mut()).map_err(|e| with_others(task.as_ref(), e))
     }
 
     /// The config's task at its initial settings, without a rollout delay. For
@@ -2721,12 +2737,29 @@ mod tests {
         );
         // Finite settings under which every rollout's cost overflows passed, and failed the
         // run at its first update, or at the schedule's after learning up to it.
-        let text = edit(TBALL, &[("tee_x = 0.76", "tee_x = 1e300")]);
+        let text = edit(
+            TBALL,
+            &[
+                ("miss_gap_weight = 100.0", "miss_gap_weight = 1e308"),
+                ("ball_height = 0.52", "ball_height = 2.4"),
+                ("tee_x = 0.76", "tee_x = -0.9"),
+            ],
+        );
         assert_eq!(
             error(&text),
-            "test.toml: task.tball = {ball_height = 0.52, tee_x = 1e300, tee_y = -0.53}: task \
+            "test.toml: task.tball = {ball_height = 2.4, tee_x = -0.9, tee_y = -0.53}: task \
              `tball`: with these settings a rollout of the initial mean gives the terminal cost \
              = inf: costs must be finite, so every update would fail"
+        );
+        // A tee given in cm (76 for 0.76): accepted, and every rollout missed.
+        let text = edit(TBALL, &[("tee_x = 0.76", "tee_x = 76")]);
+        assert_eq!(
+            error(&text),
+            "test.toml: task.tball.tee_x = 76: out of the bat's reach: the tee can be at most \
+             upper_arm + forearm + hand + bat_length + bat_radius + ball_radius (1.185 m with \
+             config/tball.toml's arm) from the shoulder, horizontally: hypot(tee_x - \
+             shoulder[0], tee_y - shoulder[1]), with the tee's other coordinate as set; \
+             positions are in metres"
         );
         assert_eq!(
             error(&three("viapoint", "1e308")),
@@ -2802,18 +2835,39 @@ mod tests {
     #[test]
     fn a_task_change_is_judged_with_the_settings_in_force() {
         let cfg = parse(TBALL).unwrap();
-        let far = 1e154;
-        // Alone, a tee 10¹⁵⁴ m along x still gives finite costs…
-        cfg.check_task_change(&[], "tee_x", far).unwrap();
-        // …but not once an earlier change has moved it as far along y: the distance overflows.
-        let in_force = [("tee_y".to_string(), far)];
+        // Alone, a tee 1 m along x is within the bat's reach (1.053 m from the shoulder, at
+        // most 1.185 m)…
+        cfg.check_task_change(&[], "tee_x", 1.0).unwrap();
+        // …but not once an earlier change has moved it to y = 0.6 (1.281 m): judged with the
+        // config's tee_y = -0.53 instead, it would pass.
+        let in_force = [("tee_y".to_string(), 0.6)];
         let e = cfg
-            .check_task_change(&in_force, "tee_x", far)
+            .check_task_change(&in_force, "tee_x", 1.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("task `tball`: tee_x = 1: out of the bat's reach")
+                && e.ends_with("(together with the settings in force that differ from the config: tee_y = 0.6)"),
+            "{e}"
+        );
+        // The same for costs that overflow only together. With a miss's gap weighted 10³⁰⁸ per
+        // m, a ball at 2.4 m (gap 1.504 m) or a tee at x = -0.9, behind the robot (1.187 m),
+        // is missed at a finite cost, both together (1.852 m) at an infinite one.
+        let text = edit(
+            TBALL,
+            &[("miss_gap_weight = 100.0", "miss_gap_weight = 1e308")],
+        );
+        let cfg = parse(&text).unwrap();
+        cfg.check_task_change(&[], "tee_x", -0.9).unwrap();
+        cfg.check_task_change(&[], "ball_height", 2.4).unwrap();
+        let in_force = [("ball_height".to_string(), 2.4)];
+        let e = cfg
+            .check_task_change(&in_force, "tee_x", -0.9)
             .unwrap_err()
             .to_string();
         assert!(
             e.contains("terminal cost = inf")
-                && e.ends_with("(together with the settings in force that differ from the config: tee_y = 1e154)"),
+                && e.ends_with("(together with the settings in force that differ from the config: ball_height = 2.4)"),
             "{e}"
         );
         // Settings in force that the change replaces are not named.

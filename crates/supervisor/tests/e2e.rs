@@ -1905,19 +1905,20 @@ fn a_runtime_change_is_judged_with_the_settings_earlier_changes_left() {
         &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
     );
     run.wait_status("2 updates", |s| updates_in(s) >= 2);
-    // A tee 10¹⁵⁴ m away along y, then as far along x: each alone keeps the costs finite, both
-    // overflow the distance. The second is judged with the first in force, not with the config.
-    run.ctl_ok(&["set", "tee_y", "1e154"]);
-    let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
+    // The tee moved to y = 0.6, then to x = 1: each alone is within the bat's reach (1.103 m,
+    // 1.053 m from the shoulder; at most 1.185 m), both together are not (1.281 m). The second
+    // is judged with the first in force: with the config's tee_y = -0.53 it would pass.
+    run.ctl_ok(&["set", "tee_y", "0.6"]);
+    let (ok, reply) = run.ctl(&["set", "tee_x", "1"]);
     assert!(
-        !ok && reply.contains("terminal cost = inf")
-            && reply.contains("settings in force that differ from the config: tee_y = 1e154"),
+        !ok && reply.contains("out of the bat's reach")
+            && reply.contains("settings in force that differ from the config: tee_y = 0.6"),
         "{reply}"
     );
     // Once the updater reports the first change, it is still the one in force.
-    run.wait_status("tee_y in force", |s| s.contains("tee_y = 1e154"));
-    let (ok, reply) = run.ctl(&["set", "tee_x", "1e154"]);
-    assert!(!ok && reply.contains("tee_y = 1e154"), "{reply}");
+    run.wait_status("tee_y in force", |s| s.contains("tee_y = 0.6"));
+    let (ok, reply) = run.ctl(&["set", "tee_x", "1"]);
+    assert!(!ok && reply.contains("tee_y = 0.6"), "{reply}");
     // A negative value (config/tball.toml has tee_y = -0.53) is a value, not an option: clap
     // answered "unexpected argument '-0' found".
     run.ctl_ok(&["set", "tee_y", "-0.5"]);

@@ -279,10 +279,10 @@ impl<T: Task + ?Sized> Task for Box<T> {
 }
 
 /// Runs the initial mean once and fails if a cost is not finite: settings under which even it
-/// costs NaN or ±inf (a tee 10³⁰⁰ m away, a via-point whose distance times its weight
-/// overflows) would fail every update, so they are refused where they are given (a config, a
-/// schedule entry, a runtime change) rather than by the update that first meets them. Not for
-/// a task whose rollouts run elsewhere ([`External`]).
+/// costs NaN or ±inf (a T-ball miss weighted 10³⁰⁸ per m of gap, a via-point whose distance
+/// times its weight overflows) would fail every update, so they are refused where they are given
+/// (a config, a schedule entry, a runtime change) rather than by the update that first meets
+/// them. Not for a task whose rollouts run elsewhere ([`External`]).
 pub fn check_initial_rollout(task: &mut dyn Task) -> Result<(), TaskError> {
     let mut per_step = vec![0.0; task.steps()];
     let terminal = task.rollout(&task.initial_mean(), &mut per_step);

@@ -54,7 +54,9 @@ pub struct TballConfig {
     /// (0: a soft tee absorbs the downward velocity; 1: a rigid tee reflects it).
     pub tee_restitution: f64,
     /// x of the ball's centre while it rests on the tee (m); a setting a schedule may change.
-    /// Any finite value: a tee out of the bat's reach makes every swing a miss.
+    /// `tee_x` and `tee_y` are refused where the tee is farther from the shoulder, horizontally,
+    /// than `upper_arm + forearm + hand + bat_length + bat_radius + ball_radius` (1.185 m
+    /// here): every swing would miss. Each is judged with the other as set.
     pub tee_x: f64,
     /// y of the ball's centre while it rests on the tee (m); a setting a schedule may change.
     pub tee_y: f64,

@@ -241,6 +241,27 @@ impl Tball {
             + c.ball_radius
     }
 
+    /// The farthest the tee can be from the shoulder, horizontally, for the bat to touch the
+    /// ball: no point of the arm and bat is farther from the shoulder than their lengths, plus
+    /// the bat's and the ball's radii for the touch. Whatever the ball's height, a farther tee is
+    /// never hit.
+    fn farthest_reachable_tee(&self) -> f64 {
+        let c = &self.config;
+        c.upper_arm + c.forearm + c.hand + c.bat_length + c.bat_radius + c.ball_radius
+    }
+
+    /// The tee's horizontal distance from the shoulder were `name` (`tee_x` or `tee_y`) set to
+    /// `value`, the other coordinate as it is.
+    fn tee_distance(&self, name: &str, value: f64) -> f64 {
+        let c = &self.config;
+        let (x, y) = if name == "tee_x" {
+            (value, c.tee_y)
+        } else {
+            (c.tee_x, value)
+        };
+        (x - c.shoulder[0]).hypot(y - c.shoulder[1])
+    }
+
     /// The ball's centre while it rests on the tee.
     pub fn resting_ball(&self) -> Vec3 {
         [
@@ -463,6 +484,20 @@ impl Task for Tball {
                 self.config.ball_height = value;
                 Ok(())
             }
+            // As for the ball's height: a tee no pose can reach makes every rollout a miss
+            // (`set tee_x 3` was accepted, and the run learnt nothing from then on). The other
+            // coordinate is the one in force, so a change is judged with the tee where it is.
+            "tee_x" | "tee_y" if self.tee_distance(name, value) > self.farthest_reachable_tee() => {
+                Err(invalid(
+                    name,
+                    value,
+                    "out of the bat's reach: the tee can be at most upper_arm + forearm + hand + \
+                     bat_length + bat_radius + ball_radius (1.185 m with config/tball.toml's \
+                     arm) from the shoulder, horizontally: hypot(tee_x - shoulder[0], tee_y - \
+                     shoulder[1]), with the tee's other coordinate as set; positions are in \
+                     metres",
+                ))
+            }
             "tee_x" => {
                 self.config.tee_x = value;
                 Ok(())
@@ -525,7 +560,8 @@ mod tests {
     #[test]
     fn a_miss_costs_the_documented_penalty() {
         let mut t = task();
-        t.set("tee_x", 3.0).unwrap();
+        // Behind the robot, within reach: the forward swing misses it.
+        t.set("tee_x", -0.9).unwrap();
         let theta = t.initial_mean();
         let trace = t.trace(&theta);
         assert!(trace.outcome.hit.is_none());
@@ -620,6 +656,77 @@ mod tests {
         assert!((touching - t.highest_reachable_ball()).abs() < 1e-12);
         assert!((t.highest_reachable_ball() - 2.435).abs() < 1e-12);
         t.set("ball_height", touching).unwrap();
+    }
+
+    /// A tee no pose can reach was accepted (`supervisor set tee_x 3`, or `tee_y = 76` in
+    /// [task.tball], a position in cm): every rollout then missed, and the run learnt nothing
+    /// more.
+    #[test]
+    fn a_tee_out_of_the_bats_reach_is_refused() {
+        let mut t = task();
+        let refused = |t: &mut Tball, name: &str, far: f64| match t.set(name, far) {
+            Err(TaskError::InvalidSetting {
+                name: n,
+                value,
+                reason,
+                ..
+            }) => {
+                assert_eq!((n.as_str(), value), (name, far));
+                assert!(reason.contains("out of the bat's reach"), "{reason}");
+            }
+            other => panic!("{name} = {far}: {other:?}"),
+        };
+        for (name, far) in [
+            ("tee_x", 3.0),
+            ("tee_x", -1.2),
+            ("tee_y", 76.0),
+            ("tee_y", 1e300),
+        ] {
+            refused(&mut t, name, far);
+            assert_eq!(
+                t.resting_ball(),
+                [0.76, -0.53, 0.52],
+                "a refused value leaves the task"
+            );
+        }
+        for config in [
+            TballConfig {
+                tee_x: 3.0,
+                ..TballConfig::default()
+            },
+            TballConfig {
+                tee_y: 76.0,
+                ..TballConfig::default()
+            },
+        ] {
+            assert!(matches!(
+                Tball::new(&config),
+                Err(TaskError::InvalidSetting { .. })
+            ));
+        }
+        // Each coordinate is judged with the other as it is: either move alone is in reach
+        // (1.053 m, 1.103 m from the shoulder), both together are not (1.281 m).
+        t.set("tee_x", 1.0).unwrap();
+        t.set("tee_x", 0.76).unwrap();
+        t.set("tee_y", 0.6).unwrap();
+        refused(&mut t, "tee_x", 1.0);
+        // The bound is the arm and bat stretched out forward (shoulder pitch π/2), touching the
+        // ball level with the shoulder; the number the message quotes for config/tball.toml's
+        // arm.
+        let out = t
+            .arm
+            .pose(&[0.0, std::f64::consts::FRAC_PI_2, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        let c = t.config().clone();
+        assert!((out.tip[2] - c.shoulder[2]).abs() < 1e-12, "{:?}", out.tip);
+        let level = (out.tip[0] - c.shoulder[0]).hypot(out.tip[1] - c.shoulder[1]);
+        let reach = level + c.bat_radius + c.ball_radius;
+        assert!((reach - t.farthest_reachable_tee()).abs() < 1e-12);
+        assert!((reach - 1.185).abs() < 1e-12);
+        // Straight ahead of the shoulder, at that distance: in reach, and no farther.
+        let touching = c.shoulder[0] + reach;
+        t.set("tee_y", c.shoulder[1]).unwrap();
+        t.set("tee_x", touching).unwrap();
+        refused(&mut t, "tee_x", touching + 1e-9);
     }
 
     /// `target_y_max = nan` was reported as `target_y_min = -1.5`, the valid one.
