@@ -1675,9 +1675,7 @@ impl RunConfig {
     ) -> Result<(), tasks::TaskError> {
         let mut task = self.build_task()?;
         let from_config = task.settings();
-        for (n, v) in in_force {
-            task.set(n, *v)?;
-        }
+        tasks::set_all(task.as_mut(), in_force)?;
         // Name the settings that made the difference, if any besides the change did: a value
         // refused only because of them (a T-ball tee in reach of the shoulder along x alone,
         // not with the tee's y in force) would otherwise read as refused on its own.
@@ -2870,6 +2868,12 @@ mod tests {
                 && e.ends_with("(together with the settings in force that differ from the config: ball_height = 2.4)"),
             "{e}"
         );
+        // A tee the run reached by moving y, then x (1.15 m straight ahead of the shoulder), is
+        // in force whatever order its coordinates are set in: x first, with the config's
+        // y = -0.53, is out of reach (1.196 m), and every change was refused.
+        let ahead = [("tee_x".to_string(), 1.15), ("tee_y".to_string(), -0.2)];
+        let tball = parse(TBALL).unwrap();
+        tball.check_task_change(&ahead, "ball_height", 0.5).unwrap();
         // Settings in force that the change replaces are not named.
         let e = cfg
             .check_task_change(&[("tee_x".to_string(), 0.1)], "tee_x", 1e300)

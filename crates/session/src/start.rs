@@ -107,9 +107,7 @@ impl Start {
         initial: &[(&'static str, f64)],
     ) -> Result<(), TaskError> {
         schedule.configure(task, initial, self.update.saturating_sub(1))?;
-        for (name, value) in &self.settings {
-            task.set(name, *value)?;
-        }
+        tasks::set_all(task, &self.settings)?;
         for c in self.scheduled_at_start(schedule) {
             task.set(&c.name, c.value)?;
         }
@@ -323,5 +321,29 @@ mod tests {
             ..start
         };
         assert!(published.scheduled_at_start(&schedule).is_empty());
+    }
+
+    /// A T-ball run that moved its tee to y = -0.2, then to x = 1.15 (straight ahead of the
+    /// shoulder, within the bat's reach), could not be resumed: its settings were set in their
+    /// order, x first, with the config's y = -0.53 out of reach.
+    #[test]
+    fn settings_a_run_reached_one_change_at_a_time_are_resumed_in_any_order() {
+        let mut task = tball::Tball::new(&tball::TballConfig::default()).unwrap();
+        let initial = task.settings();
+        let start = Start {
+            update: 3,
+            distribution: Distribution {
+                mean: DVector::zeros(1),
+                covariance: DMatrix::identity(1, 1),
+            },
+            settings: vec![("tee_x".into(), 1.15), ("tee_y".into(), -0.2)],
+            ran_with: Vec::new(),
+            published: true,
+            origin: "runs/a.mcap".into(),
+        };
+        start
+            .configure(&TaskSchedule::default(), &mut task, &initial)
+            .unwrap();
+        assert_eq!(task.resting_ball(), [1.15, -0.2, 0.52]);
     }
 }

@@ -154,6 +154,31 @@ pub fn value_text(v: f64) -> String {
     }
 }
 
+/// Sets every one of `settings`, whose values together are a state the task was in (the
+/// settings a run is at, a recording's), in rounds: those refused are tried again after a round
+/// that took any. A task may judge one setting with another as it is (T-ball's tee must be in
+/// the bat's reach with both of its coordinates), so a state reached one change at a time may be
+/// refused half-way when set in another order. Fails with the first refusal of a round that took
+/// none.
+pub fn set_all<N: AsRef<str>>(task: &mut dyn Task, settings: &[(N, f64)]) -> Result<(), TaskError> {
+    let mut left: Vec<&(N, f64)> = settings.iter().collect();
+    while !left.is_empty() {
+        let tried = left.len();
+        let mut first = None;
+        left.retain(|(name, value)| match task.set(name.as_ref(), *value) {
+            Ok(()) => false,
+            Err(e) => {
+                first.get_or_insert(e);
+                true
+            }
+        });
+        if left.len() == tried {
+            return Err(first.expect("a round that took none refused one"));
+        }
+    }
+    Ok(())
+}
+
 /// Settings as messages list them: `viapoint = 0.3, goal = 1` ([`value_text`] values).
 pub fn settings_text<N: std::fmt::Display>(settings: impl IntoIterator<Item = (N, f64)>) -> String {
     let list: Vec<String> = settings
