@@ -402,29 +402,27 @@ impl Applied {
         Ok(refusals)
     }
 
-    /// Sets the settings `which` to their values in `target`, in rounds: those the task refuses
-    /// are tried again after a round that took any. Returns those refused in the last round
-    /// (a refused value leaves the task as it was), with why.
+    /// Sets the settings `which` to their values in `target` ([`tasks::set_in_rounds`]) and
+    /// keeps the values taken. Returns those refused in the last round (a refused value leaves
+    /// the task as it was), with why.
     fn take<T: Task>(
         &mut self,
         task: &mut T,
         target: &[f64],
-        mut which: Vec<usize>,
+        which: Vec<usize>,
     ) -> Vec<(usize, tasks::TaskError)> {
-        loop {
-            let tried = which.len();
-            let mut refused = Vec::new();
-            for i in which {
-                match task.set(self.names[i], target[i]) {
-                    Ok(()) => self.values[i] = target[i],
-                    Err(e) => refused.push((i, e)),
-                }
+        let settings: Vec<(&str, f64)> =
+            which.iter().map(|&i| (self.names[i], target[i])).collect();
+        let refused: Vec<(usize, tasks::TaskError)> = tasks::set_in_rounds(task, &settings)
+            .into_iter()
+            .map(|(j, e)| (which[j], e))
+            .collect();
+        for &i in &which {
+            if !refused.iter().any(|(r, _)| *r == i) {
+                self.values[i] = target[i];
             }
-            if refused.is_empty() || refused.len() == tried {
-                return refused;
-            }
-            which = refused.into_iter().map(|(i, _)| i).collect();
         }
+        refused
     }
 }
 

@@ -161,22 +161,34 @@ pub fn value_text(v: f64) -> String {
 /// refused half-way when set in another order. Fails with the first refusal of a round that took
 /// none.
 pub fn set_all<N: AsRef<str>>(task: &mut dyn Task, settings: &[(N, f64)]) -> Result<(), TaskError> {
-    let mut left: Vec<&(N, f64)> = settings.iter().collect();
-    while !left.is_empty() {
-        let tried = left.len();
-        let mut first = None;
-        left.retain(|(name, value)| match task.set(name.as_ref(), *value) {
-            Ok(()) => false,
-            Err(e) => {
-                first.get_or_insert(e);
-                true
-            }
-        });
-        if left.len() == tried {
-            return Err(first.expect("a round that took none refused one"));
-        }
+    match set_in_rounds(task, settings).into_iter().next() {
+        Some((_, e)) => Err(e),
+        None => Ok(()),
     }
-    Ok(())
+}
+
+/// [`set_all`]'s rounds, returning what is still refused after a round that took none: the
+/// index of each such setting in `settings`, with its refusal (empty when all were taken). A
+/// pipeline worker takes an update's changes so and keeps the refused ones' earlier values.
+pub fn set_in_rounds<N: AsRef<str>>(
+    task: &mut dyn Task,
+    settings: &[(N, f64)],
+) -> Vec<(usize, TaskError)> {
+    let mut which: Vec<usize> = (0..settings.len()).collect();
+    loop {
+        let tried = which.len();
+        let mut refused = Vec::new();
+        for i in which {
+            let (name, value) = &settings[i];
+            if let Err(e) = task.set(name.as_ref(), *value) {
+                refused.push((i, e));
+            }
+        }
+        if refused.is_empty() || refused.len() == tried {
+            return refused;
+        }
+        which = refused.into_iter().map(|(i, _)| i).collect();
+    }
 }
 
 /// Settings as messages list them: `viapoint = 0.3, goal = 1` ([`value_text`] values).
