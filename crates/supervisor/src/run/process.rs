@@ -146,34 +146,55 @@ pub(super) fn still_runs(pid: u32, started: u64) -> bool {
 /// When process `pid` started (clock ticks after boot, field 22 of `/proc/<pid>/stat`) if it
 /// runs: with the pid, an identity that pid reuse does not fool. `None` for a zombie.
 pub(super) fn process_started(pid: u32) -> Option<u64> {
+    // Field 22 is 19 after the parent (field 4).
+    stat_fields(pid, |state, after| {
+        if state == "Z" {
+            return None;
+        }
+        after.nth(18)?.parse().ok()
+    })
+}
+
+/// The process group of process `pid` (field 5 of `/proc/<pid>/stat`), if it exists.
+pub(super) fn process_group(pid: u32) -> Option<u32> {
+    stat_fields(pid, |_, after| group_field(after))
+}
+
+/// The group among the fields after the state: parent, then group.
+fn group_field(after_state: &mut std::str::SplitWhitespace<'_>) -> Option<u32> {
+    after_state.nth(1)?.parse().ok()
+}
+
+/// What `field` takes from `/proc/<pid>/stat`: the state (field 3; `Z` for a zombie, one that
+/// has exited and waits to be reaped) and the fields after it. `None` if `pid` does not exist.
+fn stat_fields<T>(
+    pid: u32,
+    field: impl FnOnce(&str, &mut std::str::SplitWhitespace<'_>) -> Option<T>,
+) -> Option<T> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
     // The fields follow the parenthesised command name, which may contain spaces and `)`.
     let (_, rest) = stat.rsplit_once(')')?;
     let mut fields = rest.split_whitespace();
-    // Field 3, the state; field 22 is 18 further on.
-    if fields.next()? == "Z" {
-        return None;
-    }
-    fields.nth(18)?.parse().ok()
-}
-
-/// The process group of process `pid` (field 5 of `/proc/<pid>/stat`), if it runs.
-pub(super) fn process_group(pid: u32) -> Option<u32> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    let (_, rest) = stat.rsplit_once(')')?;
-    // State, parent, group.
-    rest.split_whitespace().nth(2)?.parse().ok()
+    let state = fields.next()?;
+    field(state, &mut fields)
 }
 
 /// The processes other than zombies in process group `group` (a child of the supervisor leads
-/// one of its own, and what it starts is in it unless it moves out).
+/// one of its own, and what it starts is in it unless it moves out). One read of each
+/// process's stat: its group and its state.
 pub fn group_members(group: u32) -> Vec<u32> {
+    let member = |pid: u32| {
+        stat_fields(pid, |state, after| {
+            Some(state != "Z" && group_field(after)? == group)
+        })
+        .unwrap_or(false)
+    };
     std::fs::read_dir("/proc")
         .into_iter()
         .flatten()
         .flatten()
         .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
-        .filter(|&pid| process_group(pid) == Some(group) && process_alive(pid))
+        .filter(|&pid| member(pid))
         .collect()
 }
 
