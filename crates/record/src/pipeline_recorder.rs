@@ -20,7 +20,8 @@
 //! One thread: drain every subscriber (distributions first), recompute each complete update
 //! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k)),
 //! log a mismatch with the distribution the updater published as an `error` event on `/log`,
-//! write and flush it, acknowledge, and look for new samples before sleeping. At thousands of
+//! write the updates complete at once and hand them to the OS together (one `write`),
+//! acknowledge, and look for new samples before sleeping. At thousands of
 //! updates per second it therefore works in rounds of several updates and is rung rarely. A
 //! SIGKILL loses the updates of the round being written (at most the lag bound plus one); `mcap-tool
 //! recover` completes the file. SIGINT/SIGTERM finish the file (summary and indexes) after
@@ -115,6 +116,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         None => RunFiles::create(&out)?,
     };
     writer.split_at_mb(ctx.config.recording_split_mb());
+    // A round's updates go to the OS in one `write` (see `State::write_complete`).
+    writer.hold_output();
     // Where a resumed run starts: the supervisor's start file, read at once, not the origin
     // recording, which is streamed whole (a day's run: gigabytes) before the recorder may
     // announce itself.
@@ -229,8 +232,9 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             }
         }
         // Every subscriber has been drained once: what is still missing can no longer arrive.
-        // Each written update is acknowledged at once, so a held updater goes on while the rest
-        // of the round is written; it is rung back when half the lag bound is free.
+        // Updates are acknowledged as each `write` of them reaches the OS (at most
+        // `WriterState::WRITE_BYTES` apart), so a held updater goes on while the rest of a long
+        // round is written; it is rung back when half the lag bound is free.
         let newest = next_update.unwrap_or(0);
         let ring_back = |hold: &mut bool| {
             // Not fatal: after the final update the updater may already have exited.
@@ -478,6 +482,11 @@ impl WorkerSlots {
 }
 
 impl WriterState {
+    /// The most a `write` of updates to the OS holds, about (bytes of messages before
+    /// compression): 17 A1 updates, 3 of T-ball. It bounds the memory of a long round and
+    /// the time before its first acknowledgement.
+    const WRITE_BYTES: u64 = 256 << 10;
+
     fn new(
         ctx: &Context,
         text: String,
@@ -1007,7 +1016,13 @@ impl WriterState {
 
     /// Writes every complete update; with `skip_lost`, also gives up (with an `error` event) on
     /// updates whose inputs can no longer arrive, and writes what that unblocks.
-    /// Calls `written(u)` after update u is written and flushed (or given up).
+    /// Calls `written(u)` once the updates up to u are written and flushed (or given up), for
+    /// the newest u of every `write` to the OS.
+    ///
+    /// The updates complete at once (a round's, at full speed several) are handed to the OS
+    /// together, in one `write` of at most [`WriterState::WRITE_BYTES`] (and acknowledged then): the
+    /// page cache takes larger writes for less CPU per byte ([`crate::RunWriter::hold_output`]).
+    /// A SIGKILL loses what this call has not flushed, the round's updates, as before.
     fn write_complete(
         &mut self,
         skip_lost: bool,
@@ -1015,6 +1030,7 @@ impl WriterState {
     ) -> anyhow::Result<()> {
         let pid = self.pid;
         loop {
+            let mut unflushed = None;
             while let Some(a) = self.assembler.next_complete() {
                 let a = a?;
                 for (name, value) in &a.changed {
@@ -1077,8 +1093,17 @@ impl WriterState {
                     ),
                     )?;
                 }
-                written(a.update)?;
                 self.assembler.recycle(a.costs);
+                unflushed = Some(a.update);
+                if self.writer.held_bytes() >= Self::WRITE_BYTES {
+                    self.writer.flush()?;
+                    written(a.update)?;
+                    unflushed = None;
+                }
+            }
+            if let Some(u) = unflushed {
+                self.writer.flush()?;
+                written(u)?;
             }
             if !skip_lost {
                 return Ok(());

@@ -397,6 +397,8 @@ pub struct RunFiles {
     /// The settings the last update written ran with: the next part's `/run` names them as
     /// what the update before its first ran with.
     last_settings: Vec<(String, f64)>,
+    /// [`RunFiles::hold_output`]: for every part's writer.
+    held: bool,
 }
 
 impl RunFiles {
@@ -425,6 +427,7 @@ impl RunFiles {
             pending_changes: Vec::new(),
             create_at_start: false,
             last_settings: Vec::new(),
+            held: false,
         })
     }
 
@@ -458,6 +461,7 @@ impl RunFiles {
             pending_changes: Vec::new(),
             create_at_start: true,
             last_settings: Vec::new(),
+            held: false,
         })
     }
 
@@ -465,6 +469,24 @@ impl RunFiles {
     /// `None`: one file.
     pub fn split_at_mb(&mut self, mb: Option<u64>) {
         self.split_bytes = mb.map(|mb| mb.saturating_mul(1 << 20));
+    }
+
+    /// As [`RunWriter::hold_output`], for this part and the ones after it: updates reach the
+    /// OS at [`RunFiles::flush`] (or when their part is finished).
+    pub fn hold_output(&mut self) {
+        self.held = true;
+        if let Some(w) = &mut self.writer {
+            w.hold_output();
+        }
+    }
+
+    /// A part's writer, holding its output if [`RunFiles::hold_output`] said so.
+    fn create_part(&self, path: &Path) -> Result<RunWriter<FileSink>, RecordError> {
+        let mut w = RunWriter::create(path)?;
+        if self.held {
+            w.hold_output();
+        }
+        Ok(w)
     }
 
     fn writer(&mut self) -> Result<&mut RunWriter<FileSink>, RecordError> {
@@ -498,7 +520,7 @@ impl RunFiles {
                     "is there already: a restarted recorder begins a new part",
                 ));
             }
-            self.writer = Some(RunWriter::create(&path)?);
+            self.writer = Some(self.create_part(&path)?);
         }
         match (self.part, start.part) {
             // A restarted recorder's part names the one its predecessor left.
@@ -549,7 +571,7 @@ impl RunFiles {
         }
         self.part += 1;
         let path = self.file();
-        let mut w = RunWriter::create(&path)?;
+        let mut w = self.create_part(&path)?;
         let previous = previous.display().to_string();
         let ran_before: Vec<(&str, f64)> = self
             .last_settings
@@ -628,6 +650,11 @@ impl RunFiles {
 
     pub fn flush(&mut self) -> Result<(), RecordError> {
         self.writer()?.flush()
+    }
+
+    /// Bytes of messages not yet flushed, before compression (see [`RunFiles::hold_output`]).
+    pub fn held_bytes(&self) -> u64 {
+        self.writer.as_ref().map_or(0, RunWriter::held_bytes)
     }
 
     /// Whether there is a part being written: not for a restarted recorder's part before its

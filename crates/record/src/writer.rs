@@ -1,9 +1,12 @@
 //! The low-level writer: one MCAP file per run, protobuf messages on fixed topics, a zstd chunk
-//! closed and flushed to the OS after every update. Both the in-process [`crate::McapRecorder`]
-//! and the pipeline's recorder process write through it.
+//! closed and flushed to the OS after every update (or, its output held, with the updates
+//! after it at the next flush: the pipeline's recorder hands a round over at once). Both the
+//! in-process [`crate::McapRecorder`] and the pipeline's recorder process write through it.
 
 use std::collections::BTreeMap;
-use std::io::{Seek, Write};
+use std::io::{Seek, SeekFrom, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 use crate::reserve::ReservingFile;
 use crate::seek_buffer::SeekBuffer;
@@ -161,6 +164,41 @@ impl Event {
 /// `u32` and hands it to zstd as `i32`, so the level is written as its two's complement.
 const ZSTD_LEVEL: u32 = (-1000i32).cast_unsigned();
 
+/// What the `mcap` writer writes to: `W`, its flushes passed on only while `passes` (they are
+/// held while [`RunWriter::hold_output`] is in force, between [`RunWriter::flush`]es).
+struct FlushGate<W> {
+    inner: W,
+    passes: Arc<AtomicBool>,
+}
+
+impl<W: Write> Write for FlushGate<W> {
+    fn write(&mut self, data: &[u8]) -> std::io::Result<usize> {
+        self.inner.write(data)
+    }
+
+    fn write_all(&mut self, data: &[u8]) -> std::io::Result<()> {
+        self.inner.write_all(data)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        if self.passes.load(Ordering::Relaxed) {
+            self.inner.flush()
+        } else {
+            Ok(())
+        }
+    }
+}
+
+impl<W: Seek> Seek for FlushGate<W> {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(to)
+    }
+
+    fn stream_position(&mut self) -> std::io::Result<u64> {
+        self.inner.stream_position()
+    }
+}
+
 /// Channel ids of the topics, in [`topics::ALL`] order.
 struct Channels([u16; topics::ALL.len()]);
 
@@ -174,7 +212,12 @@ const COST_PER_STEP_FIELD: u32 = 10;
 /// also closes the chunk and flushes it to the OS. Dropping the writer finishes the file (summary
 /// and indexes); call [`RunWriter::finish`] to see errors.
 pub struct RunWriter<W: Write + Seek> {
-    mcap: mcap::Writer<W>,
+    mcap: mcap::Writer<FlushGate<W>>,
+    /// Whether the `mcap` writer's flushes reach `W` (see [`RunWriter::hold_output`]).
+    passes: Arc<AtomicBool>,
+    held: bool,
+    /// Bytes of messages written since the last [`RunWriter::flush`], before compression.
+    held_bytes: u64,
     file: PathBuf,
     channels: Channels,
     sequence: u32,
@@ -242,8 +285,13 @@ impl<W: Write + Seek> RunWriter<W> {
             .chunk_size(Some(8 << 20))
             .profile("")
             .library(concat!("pi2cma-record/", env!("CARGO_PKG_VERSION")));
+        let passes = Arc::new(AtomicBool::new(true));
+        let gate = FlushGate {
+            inner: w,
+            passes: Arc::clone(&passes),
+        };
         let mut mcap = opts
-            .create(w)
+            .create(gate)
             .map_err(|e| RecordError::mcap(file.clone(), e))?;
         let mut ids = [0u16; topics::ALL.len()];
         for (i, (topic, schema)) in topics::ALL.iter().enumerate() {
@@ -256,6 +304,9 @@ impl<W: Write + Seek> RunWriter<W> {
         }
         Ok(Self {
             mcap,
+            passes,
+            held: false,
+            held_bytes: 0,
             file,
             channels: Channels(ids),
             sequence: 0,
@@ -267,6 +318,12 @@ impl<W: Write + Seek> RunWriter<W> {
     /// Bytes of messages written so far, before compression (what `recording.split_mb` bounds).
     pub(crate) fn bytes_written(&self) -> u64 {
         self.bytes
+    }
+
+    /// Bytes of messages written since the last [`RunWriter::flush`], before compression: what
+    /// a held output ([`RunWriter::hold_output`]) keeps in memory, about.
+    pub(crate) fn held_bytes(&self) -> u64 {
+        self.held_bytes
     }
 
     fn mcap_err(&self, e: mcap::McapError) -> RecordError {
@@ -328,6 +385,7 @@ impl<W: Write + Seek> RunWriter<W> {
     fn write_buf(&mut self, channel: usize, log_time: u64) -> Result<(), RecordError> {
         self.sequence = self.sequence.wrapping_add(1);
         self.bytes += self.buf.len() as u64;
+        self.held_bytes += self.buf.len() as u64;
         let header = MessageHeader {
             channel_id: self.channels.0[channel],
             sequence: self.sequence,
@@ -403,8 +461,20 @@ impl<W: Write + Seek> RunWriter<W> {
         self.flush()
     }
 
+    /// From now on, [`RunWriter::write_update`] closes the update's chunk but keeps its bytes
+    /// in memory until [`RunWriter::flush`]: the pipeline's recorder, which takes updates in
+    /// rounds, hands a round to the OS with one `write`. The page cache costs less per byte
+    /// in larger writes (on ext4, 300 MB written with `dd`: 0.15 s of system time in writes
+    /// of 15 kB, an A1 update; 0.08 s in 75 kB, 0.05 s in 256 kB), and that system time was a
+    /// quarter of the recorder's CPU (`perf`, A1 at full speed).
+    pub fn hold_output(&mut self) {
+        self.held = true;
+        self.passes.store(false, Ordering::Relaxed);
+    }
+
     /// `/update`, `/summary` and one `/rollout` per rollout, then a flush: after this returns,
-    /// the update survives a SIGKILL of this process.
+    /// the update survives a SIGKILL of this process (after the next [`RunWriter::flush`] if
+    /// the output is held).
     pub fn write_update(&mut self, u: &UpdateData<'_>) -> Result<(), RecordError> {
         let now = now_ns();
         let s = u.summary;
@@ -477,7 +547,7 @@ impl<W: Write + Seek> RunWriter<W> {
             msg.total_cost = u.costs.total(r);
             self.put(3, now, &msg)?;
         }
-        self.flush()
+        self.end_chunk()
     }
 
     /// `/task_change`: setting `name` became `value` before update `update`.
@@ -537,8 +607,17 @@ impl<W: Write + Seek> RunWriter<W> {
         self.put(5, now, &msg)
     }
 
-    /// Closes the current chunk and hands it to the OS.
+    /// Closes the current chunk and hands it, and any held before it, to the OS.
     pub fn flush(&mut self) -> Result<(), RecordError> {
+        self.passes.store(true, Ordering::Relaxed);
+        let flushed = self.mcap.flush().map_err(|e| self.mcap_err(e));
+        self.passes.store(!self.held, Ordering::Relaxed);
+        self.held_bytes = 0;
+        flushed
+    }
+
+    /// Closes the current chunk; hands it to the OS unless the output is held.
+    fn end_chunk(&mut self) -> Result<(), RecordError> {
         self.mcap.flush().map_err(|e| self.mcap_err(e))
     }
 
@@ -547,7 +626,7 @@ impl<W: Write + Seek> RunWriter<W> {
     pub fn finish(mut self) -> Result<W, RecordError> {
         self.mcap.finish().map_err(|e| self.mcap_err(e))?;
         let file = self.file.clone();
-        let mut w = self.mcap.into_inner();
+        let mut w = self.mcap.into_inner().inner;
         w.flush().map_err(|e| RecordError::io(file, e))?;
         Ok(w)
     }
@@ -578,6 +657,50 @@ pub(crate) fn versions() -> Vec<(String, String)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A held output keeps closed chunks from the file until the flush, which hands them all
+    /// over, readable; without the hold every chunk reaches the file as it closes.
+    #[test]
+    fn a_held_output_reaches_the_file_at_the_flush() {
+        let dir = std::env::temp_dir().join(format!("writer-held-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let len = |p: &Path| std::fs::metadata(p).unwrap().len();
+        let logs = |p: &Path| {
+            crate::read_recording(p)
+                .unwrap()
+                .logs
+                .into_iter()
+                .map(|l| l.message)
+                .collect::<Vec<_>>()
+        };
+        for held in [false, true] {
+            let path = dir.join(format!("held-{held}.mcap"));
+            let mut w = RunWriter::create(&path).unwrap();
+            if held {
+                w.hold_output();
+            }
+            for m in ["first", "second"] {
+                w.write_event(0, Event::Info, "test", 1, m).unwrap();
+                w.end_chunk().unwrap();
+            }
+            if held {
+                assert_eq!(len(&path), 0, "nothing written before the flush");
+                assert!(w.held_bytes() > 0);
+                w.flush().unwrap();
+                assert_eq!(w.held_bytes(), 0);
+            }
+            assert!(len(&path) > 0);
+            assert_eq!(logs(&path), ["first", "second"], "held: {held}");
+            // Still held after the flush.
+            let before = len(&path);
+            w.write_event(0, Event::Info, "test", 1, "third").unwrap();
+            w.end_chunk().unwrap();
+            assert_eq!(len(&path) > before, !held, "held: {held}");
+            w.finish().unwrap();
+            assert_eq!(logs(&path), ["first", "second", "third"]);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// `put_with_step_costs` writes the field by its number: it must be the generated code's.
     #[test]
