@@ -413,7 +413,11 @@ pub struct PipelineSection {
 }
 
 impl PipelineSection {
-    /// The largest `max_workers` the wire layout supports.
+    /// The largest `max_workers` a config may ask for. Not a bound of the wire layout: every
+    /// service is sized for `max_workers` (publishers, nodes, buffers: `wire::Limits`), so a
+    /// slip such as `max_workers = 10000` would have each process reserve ports and shared
+    /// memory for workers that never come. A machine running more than 256 rollout workers
+    /// of one run is not one this was written for.
     pub const WORKER_LIMIT: usize = 256;
 }
 
