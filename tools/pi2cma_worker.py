@@ -190,12 +190,17 @@ def _apply_settings(task, names, applied, refused, update, settings, previous):
         return
     off = [i for i in range(len(settings)) if not _same(applied[i], previous[i])]
     for i, error in _take(task, names, applied, previous, off)[:1]:
-        in_force = (
-            "a value in force before this update: the config's, or an earlier change the other "
-            "workers took"
-            if _same(settings[i], previous[i])
-            else "the value the update before ran with"
-        )
+        # A resumed run starts at the update after its recording's last: update 0 is a new
+        # run's first, which runs with the config's values.
+        if update == 0:
+            in_force = "the config's value, which the run starts from"
+        elif _same(settings[i], previous[i]):
+            in_force = (
+                "a value in force before this update: the config's, or an earlier change the "
+                "other workers took"
+            )
+        else:
+            in_force = "the value the update before ran with"
         # Refused as the config is (exit 78, not restarted): a restarted worker's task meets the
         # same value, and so does every other worker the rollouts go to.
         raise SettingRefused(

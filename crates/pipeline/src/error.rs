@@ -90,7 +90,7 @@ pub enum ProcessError {
     #[error(
         "update {update}: the task refused {setting} = {} ({reason}), {}: nothing to fall back to",
         tasks::value_text(*value),
-        in_force(*changed_by_update)
+        in_force(*update, *changed_by_update)
     )]
     SettingRefused {
         /// The update of the work item.
@@ -162,8 +162,12 @@ impl ProcessError {
     }
 }
 
-fn in_force(changed_by_update: bool) -> &'static str {
-    if changed_by_update {
+fn in_force(update: u64, changed_by_update: bool) -> &'static str {
+    // A resumed run starts at the update after its recording's last: update 0 is a new run's
+    // first, which runs with the config's values (a change scheduled at 0 falls back to them).
+    if update == 0 {
+        "the config's value, which the run starts from"
+    } else if changed_by_update {
         "the value the update before ran with"
     } else {
         "a value in force before this update (the config's, or an earlier change the other \

@@ -707,9 +707,22 @@ mod tests {
         let e = e.to_string();
         assert!(
             e.starts_with(
-                "update 0: the task refused y = 5 (task `target`: out of reach), a value in force \
-                 before this update"
-            ) && e.ends_with("nothing to fall back to"),
+                "update 0: the task refused y = 5 (task `target`: out of reach), the config's \
+                 value, which the run starts from: nothing to fall back to"
+            ),
+            "{e}"
+        );
+        // Later, in a worker that joins or restarts: in force, from the config or a change.
+        let (mut task, mut applied) = fresh();
+        let e = applied
+            .apply(&mut task, 4, &[0.3, 5.0], &[0.3, 5.0])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(
+                "the task refused y = 5 (task `target`: out of reach), a value in force before \
+                 this update (the config's, or an earlier change the other workers took)"
+            ),
             "{e}"
         );
         // The value before refused too.

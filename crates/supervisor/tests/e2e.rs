@@ -3745,7 +3745,7 @@ fn a_change_the_workers_refuse_is_not_taken_and_the_run_goes_on() {
             &config(&[("target_y = 0.70", "target_y = 7.0"), stop_at_first]),
             &[
                 "update 0: the task",
-                "a value in force before this update",
+                "the config's value, which the run starts from",
                 "nothing to fall back to",
                 "out of the arm's reach",
                 "refused the config, not restarted (exit status: 78",
@@ -4492,8 +4492,7 @@ fn a_python_task_that_fails_is_named_with_its_update_rollout_and_value() {
             "set",
             [
                 "update 0: the task's set('target_y', 0.7) raised ValueError: out of reach",
-                "(a value in force before this update: the config's, or an earlier change the \
-                 other workers took): nothing to fall back to",
+                "(the config's value, which the run starts from): nothing to fall back to",
             ],
         ),
     ] {
