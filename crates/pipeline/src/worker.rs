@@ -697,46 +697,38 @@ mod tests {
 
     #[test]
     fn a_refused_value_with_nothing_to_fall_back_to_stops_the_worker() {
+        let refusal = |update, settings: &[f64], previous: &[f64]| {
+            let (mut task, mut applied) = fresh();
+            applied
+                .apply(&mut task, update, settings, previous)
+                .unwrap_err()
+        };
         // The config's own value at the first update: previous = settings. Refused as the
         // config is (run_main exits with wire::EXIT_CONFIG_REFUSED): a restart meets the same.
-        let (mut task, mut applied) = fresh();
-        let e = applied
-            .apply(&mut task, 0, &[0.3, 5.0], &[0.3, 5.0])
-            .unwrap_err();
+        let e = refusal(0, &[0.3, 5.0], &[0.3, 5.0]);
         assert!(e.refuses_config(), "{e}");
-        let e = e.to_string();
-        assert!(
-            e.starts_with(
+        let expected = [
+            (
+                e.to_string(),
                 "update 0: the task refused y = 5 (task `target`: out of reach), the config's \
-                 value, which the run starts from: nothing to fall back to"
+                 value, which the run starts from: nothing to fall back to",
             ),
-            "{e}"
-        );
-        // Later, in a worker that joins or restarts: in force, from the config or a change.
-        let (mut task, mut applied) = fresh();
-        let e = applied
-            .apply(&mut task, 4, &[0.3, 5.0], &[0.3, 5.0])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains(
-                "the task refused y = 5 (task `target`: out of reach), a value in force before \
-                 this update (the config's, or an earlier change the other workers took)"
+            // Later, in a worker that joins or restarts: in force, from the config or a change.
+            (
+                refusal(4, &[0.3, 5.0], &[0.3, 5.0]).to_string(),
+                "update 4: the task refused y = 5 (task `target`: out of reach), a value in force \
+                 before this update (the config's, or an earlier change the other workers \
+                 took): nothing to fall back to",
             ),
-            "{e}"
-        );
-        // The value before refused too.
-        let (mut task, mut applied) = fresh();
-        let e = applied
-            .apply(&mut task, 4, &[0.3, 5.0], &[0.3, 3.0])
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains(
-                "the task refused y = 3 (task `target`: out of reach), the value the update \
-                 before ran with: nothing to fall back to"
+            // The value before refused too.
+            (
+                refusal(4, &[0.3, 5.0], &[0.3, 3.0]).to_string(),
+                "update 4: the task refused y = 3 (task `target`: out of reach), the value the \
+                 update before ran with: nothing to fall back to",
             ),
-            "{e}"
-        );
+        ];
+        for (e, text) in expected {
+            assert_eq!(e, text);
+        }
     }
 }
