@@ -360,6 +360,16 @@ with open(src, "rb") as f, open(dst, "wb") as o:
     w.finish()
 "#;
 
+/// [`TAMPER`] of `src` into `dst`, both in `dir`; its stderr, inherited, is in the test's output.
+fn tamper(dir: &Path, src: &str, dst: &str) {
+    let status = Command::new("python3")
+        .args(["-c", TAMPER, src, dst])
+        .current_dir(dir)
+        .status()
+        .expect("python3 starts");
+    assert!(status.success(), "the tampering script failed");
+}
+
 /// Given several files, `check_update.py` checks each and names every one that failed: it
 /// stopped at the first damaged file (`sys.exit` from its reader), so the files after it were
 /// never recomputed, and a missing file ended it with a traceback, as did a file that is not
@@ -369,13 +379,7 @@ fn check_update_checks_every_file_and_names_each_that_failed() {
     let dir = common::scratch("h3-check-update-several");
     pi2cma_run(&dir, &["--quiet", "--out", "."]);
     damage_a_step_cost(&dir.join("run.mcap"), &dir.join("damaged.mcap"));
-    let tamper = Command::new("python3")
-        .args(["-c", TAMPER, "run.mcap", "disagrees.mcap"])
-        .current_dir(&dir)
-        .status()
-        .expect("python3 starts");
-    // Its stderr, inherited, is in the test's output.
-    assert!(tamper.success(), "the tampering script failed");
+    tamper(&dir, "run.mcap", "disagrees.mcap");
     std::fs::write(dir.join("notes.mcap"), "not a recording\n").expect("write");
     std::fs::write(dir.join("empty.mcap"), "").expect("write");
     let files = [
@@ -468,5 +472,39 @@ fn check_update_agrees_with_a_run_whose_costs_collapse() {
     let (ok, text) = python_tool("check_update.py", &["run.mcap"], &dir);
     assert!(ok, "{text}");
     assert!(text.contains("40 updates: agrees within 1e-09"), "{text}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `tools/check_task_costs.py` rebuilds the DMP and the costs (Eq. 3, Eq. 4) from the paper and
+/// the README, which `check_update.py` takes from the recording and so cannot check: the
+/// via-point and T-ball costs of our runs agree with it, and a recording whose costs are not
+/// the task's (rollout 3's terminal cost raised by 1) is named.
+#[test]
+fn task_costs_agree_with_an_independent_dmp_and_cost() {
+    let dir = scratch("task-costs");
+    pi2cma_run(&dir, &["--quiet", "--out", "."]);
+    let tball = std::fs::read_to_string(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../config/tball.toml"),
+    )
+    .expect("config/tball.toml");
+    let tball = config_edit::edited(&tball, &[("updates = 40", "updates = 3")]);
+    std::fs::write(dir.join("tball.toml"), tball).expect("config");
+    pi2cma_run(&dir, &["tball.toml", "--quiet", "--out", "tball"]);
+    let (ok, text) = python_tool("check_task_costs.py", &["run.mcap", "tball/run.mcap"], &dir);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("run.mcap: via-point, 40 updates")
+            && text.contains("tball/run.mcap: tball, 3 updates")
+            && text.contains("2 recording(s): agree within 1e-09"),
+        "{text}"
+    );
+    tamper(&dir, "run.mcap", "tampered.mcap");
+    let (ok, text) = python_tool("check_task_costs.py", &["tampered.mcap"], &dir);
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("terminal=1.00e+00  >>> DISAGREES")
+            && text.contains("failed: tampered.mcap (disagrees)"),
+        "{text}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
