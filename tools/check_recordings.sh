@@ -134,5 +134,10 @@ variant tball-per-dimension-per-step tball 's/^\[optimizer\]$/[optimizer]\ncovar
 "$bin/mcap-tool" verify "$work/tball-per-dimension-per-step/run.mcap"
 python3 tools/check_update.py "${checked[@]}"
 done_stage
+begin "the DMP and task costs of every variant, recomputed by an independent NumPy implementation"
+# check_update.py takes the samples' costs from the recording: a wrong DMP or cost function
+# would pass it. tools/check_task_costs.py rebuilds both from the paper and the README.
+python3 tools/check_task_costs.py "${checked[@]}"
+done_stage
 
 echo "recordings: ${#passed[@]} passed, 0 failed"

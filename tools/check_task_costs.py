@@ -134,7 +134,7 @@ def check(path):
     initial = np.array(run.initial.mean, float)
     worst = {"initial mean": float(np.abs(dmp_.min_jerk_fit - initial).max()
                                    / max(np.abs(initial).max(), 1e-300)),
-             "step costs": 0.0, "terminal": 0.0}
+             "step costs": 0.0}
     for up in updates:
         k, p, n = up.rollouts, up.dim, up.steps
         samples = np.array(up.samples, float).reshape(k, p)
@@ -144,8 +144,11 @@ def check(path):
             q, terminal = costs(samples[r], settings)
             scale = max(np.abs(q).max(), np.abs(q_rec[r]).max(), 1e-300)
             worst["step costs"] = max(worst["step costs"], float(np.abs(q - q_rec[r]).max() / scale))
+            # T-ball's terminal cost needs the contact simulation: not recomputed, and not
+            # reported as if it had been.
             if terminal is not None:
-                worst["terminal"] = max(worst["terminal"], abs(terminal - up.cost_terminal[r]))
+                worst["terminal"] = max(worst.get("terminal", 0.0),
+                                        abs(terminal - up.cost_terminal[r]))
     return name, len(updates), worst
 
 
@@ -163,6 +166,8 @@ def main():
             failed.append(f"{path} ({e.what})")
             continue
         text = "  ".join(f"{k}={v:.2e}" for k, v in worst.items())
+        if "terminal" not in worst:
+            text += "  (terminal cost not recomputed)"
         bad = not all(v <= a.tol for v in worst.values())
         print(f"{path}: {name}, {count} updates: max rel diff {text}"
               + (f"  >>> DISAGREES beyond {a.tol:g}" if bad else ""))
