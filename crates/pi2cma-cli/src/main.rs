@@ -188,6 +188,7 @@ fn write_outputs(out: &Path, results: &[experiment::ConfigResult]) -> Result<Str
 }
 
 fn main() -> std::process::ExitCode {
+    record::fail_writes_past_file_size_limit();
     // Errors are for users: the chain of causes, without a backtrace.
     match run(Cli::parse()) {
         Ok(()) if INTERRUPTED.load(Ordering::SeqCst) => std::process::ExitCode::from(130),

@@ -93,6 +93,22 @@ pub fn being_written(path: &std::path::Path) -> bool {
         .is_ok_and(|f| matches!(f.try_lock_shared(), Err(std::fs::TryLockError::WouldBlock)))
 }
 
+/// Makes a write past the process's file size limit (`ulimit -f`, RLIMIT_FSIZE, which batch
+/// systems set) fail with `EFBIG`, which the writers report like a full disk: naming the file,
+/// what it holds and how to complete it. By default the kernel kills the writer with SIGXFSZ
+/// instead: `pi2cma run` vanished with the shell's "File size limit exceeded" and an unfinished
+/// file, and the pipeline's recorder died, was restarted into a new part that died the same
+/// way, five times, losing updates at each. Every process that writes recordings calls it at
+/// its start; the disposition is inherited across exec, so a process that starts programs of
+/// the user's (the supervisor) restores the default in them.
+pub fn fail_writes_past_file_size_limit() {
+    // SAFETY: sets one signal's disposition to SIG_IGN; no handler runs, nothing is shared.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+}
+
 /// The FileDescriptorSet of every schema (with `google/protobuf/timestamp.proto`), stored as the
 /// schema data of each channel.
 pub(crate) const DESCRIPTORS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/descriptors.bin"));

@@ -91,6 +91,10 @@ fn setting_name(s: &str) -> Result<String, String> {
 fn main() -> ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     let cli = Cli::parse();
+    // The supervisor recovers a dead recorder's parts; the recorder writes the recording.
+    if matches!(cli.command, Cmd::Run(_) | Cmd::Recorder { .. }) {
+        record::fail_writes_past_file_size_limit();
+    }
     let remote = |run: Option<String>, line: String| match supervisor::client(run.as_deref(), &line)
     {
         Ok(text) => {

@@ -3093,6 +3093,59 @@ fn a_killed_recorder_past_the_restart_limit_is_not_restarted_and_recover_complet
     assert_nothing_left(&run);
 }
 
+/// A recording that reaches the file size limit (`ulimit -f`, as batch systems set) is a full
+/// disk: the recorder says so, naming the file, and is not restarted into parts that meet the
+/// same limit; the file holds every update up to it. SIGXFSZ killed it before, silently ("died
+/// (signal: 25 (SIGXFSZ))"), five restarts each lost updates, and the run went on unrecorded.
+#[test]
+fn a_recorder_at_the_file_size_limit_says_so_and_is_not_restarted() {
+    let scratch = Scratch::new("fsize");
+    let cfg = write_config(
+        &scratch,
+        "fsize.toml",
+        &config(&[("updates = 40", "updates = 3000")]),
+    );
+    let path = scratch.path("fsize.mcap");
+    let id = run_id(27600);
+    // 4000 blocks (2 MB in sh's 512-byte blocks): the run's shared memory fits, the recording
+    // (about 15 kB per update) does not.
+    let out = Command::new("sh")
+        .args([
+            "-c",
+            "ulimit -f 4000; exec \"$0\" \"$@\"",
+            SUPERVISOR,
+            "run",
+        ])
+        .arg(&cfg)
+        .args(["--quiet", "--run-id", &id, "--record"])
+        .arg(&path)
+        .current_dir(&scratch.0)
+        .env("PI2CMA_RUN_DIR", scratch.runs())
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains(&format!(
+            "recorder failed: {}: MCAP: I/O error: File too large",
+            path.display()
+        )) && text.contains("recorder not restarted: it stopped at an error of its own")
+            && !text.contains("SIGXFSZ"),
+        "{text}"
+    );
+    assert_eq!(text.matches("[recorder] recording to").count(), 1, "{text}");
+    let fixed = scratch.path("fixed.mcap");
+    record::recover::recover(&path, &fixed).unwrap();
+    let (_, report) = record::recompute::read_and_verify(&fixed).unwrap();
+    assert!(
+        report.updates > 0 && report.mismatches.is_empty(),
+        "{report:?}"
+    );
+}
+
 /// A recorder not restarted (restart_limit = 0 here; a full disk in use) is started again by
 /// `supervisor record`: the recording goes on in a new part, the dead one is recovered, and the
 /// run ends with a complete recording (exit 0).

@@ -86,6 +86,7 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    record::fail_writes_past_file_size_limit();
     // Errors are for users: the chain of causes, without a backtrace (as `pi2cma` prints them).
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,

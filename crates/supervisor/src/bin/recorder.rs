@@ -12,6 +12,7 @@ struct Cli {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    record::fail_writes_past_file_size_limit();
     pipeline::run_main("recorder", || {
         record::pipeline_recorder::run_recorder(&cli.args)
     })

@@ -239,14 +239,18 @@ pub(super) fn sigbus_hint(status: ExitStatus, shm: Option<(u64, u64)>) -> Option
     ))
 }
 
-/// The child gets SIGKILL when the supervisor dies, however it dies.
+/// The child gets SIGKILL when the supervisor dies, however it dies, and SIGXFSZ's default.
 pub(super) fn die_with_parent(cmd: &mut Command) {
     let parent = std::process::id() as libc::pid_t;
     // SAFETY: the closure runs in the forked child before exec and only calls the
-    // async-signal-safe functions prctl, getppid and _exit; it allocates nothing.
+    // async-signal-safe functions signal, prctl, getppid and _exit; it allocates nothing.
     #[allow(unsafe_code)]
     unsafe {
         cmd.pre_exec(move || {
+            // The supervisor ignores SIGXFSZ (record::fail_writes_past_file_size_limit); a
+            // worker is the user's program, which gets the default (the recorder ignores it
+            // again itself).
+            libc::signal(libc::SIGXFSZ, libc::SIG_DFL);
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong) != 0 {
                 return Err(std::io::Error::last_os_error());
             }
