@@ -604,6 +604,29 @@ fn bytes(b: f64) -> String {
     }
 }
 
+/// Where a config's bytes stop being UTF-8, for the error. `read_to_string` said only "stream
+/// did not contain valid UTF-8", leaving the user to search the file for what a Latin-1 editor
+/// (`λ_min`, `° `) or a binary given by mistake put there.
+fn not_utf8(bytes: &[u8], e: std::str::Utf8Error) -> String {
+    let at = e.valid_up_to();
+    let before = &bytes[..at];
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let line_start = before
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map_or(0, |i| i + 1);
+    // Columns in characters, as the TOML parser's messages count them.
+    let column = String::from_utf8_lossy(&before[line_start..])
+        .chars()
+        .count()
+        + 1;
+    format!(
+        "not UTF-8 text, which TOML must be: byte {at} (0x{:02x}, line {line}, column {column}) \
+         is not valid UTF-8 (a file saved in another encoding, such as Latin-1, or not a config)",
+        bytes[at]
+    )
+}
+
 /// The built-in default: PI²-CMA on the paper's via-point task (the A1 run), episodic weighting.
 pub const DEFAULT_CONFIG: &str = include_str!("default.toml");
 
@@ -615,10 +638,13 @@ impl RunConfig {
 
     /// [`RunConfig::load`], and the file's text (which a recording keeps as it is).
     pub fn load_with_text(path: &Path) -> Result<(Self, String), ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+        let read = |reason: String| ConfigError::Read {
             file: path.to_path_buf(),
-            reason: e.to_string(),
-        })?;
+            reason,
+        };
+        let bytes = std::fs::read(path).map_err(|e| read(e.to_string()))?;
+        let text =
+            String::from_utf8(bytes).map_err(|e| read(not_utf8(e.as_bytes(), e.utf8_error())))?;
         Ok((Self::parse(&text, path)?, text))
     }
 
@@ -1810,6 +1836,30 @@ mod tests {
                 .unwrap()
                 .replace("[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.1\n", "")
         )
+    }
+
+    /// A config that is not UTF-8 is refused naming where: the line and column of the first
+    /// byte that is not, and the byte.
+    #[test]
+    fn a_config_that_is_not_utf8_names_the_line_column_and_byte() {
+        let dir = std::env::temp_dir().join(format!("p2c-latin1-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("latin1.toml");
+        // `# λ ≥ 0 °C` with the degree sign in Latin-1 (0xb0) after two UTF-8 characters.
+        let mut bytes = b"[run]\nname = \"A1\"\n# \xce\xbb \xe2\x89\xa5 0 ".to_vec();
+        bytes.extend_from_slice(b"\xb0C\n");
+        std::fs::write(&file, &bytes).unwrap();
+        let e = RunConfig::load(&file).unwrap_err().to_string();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(
+            e,
+            format!(
+                "{}: cannot read: not UTF-8 text, which TOML must be: byte 29 (0xb0, line 3, \
+                 column 9) is not valid UTF-8 (a file saved in another encoding, such as \
+                 Latin-1, or not a config)",
+                file.display()
+            )
+        );
     }
 
     #[test]
