@@ -682,28 +682,47 @@ impl RunConfig {
 
     /// What is valid but likely not meant, for the binaries to show as notes: a scheduled
     /// change at or past the end of a bounded run (it takes effect only in a run resumed with
-    /// more updates, so it is not an error).
+    /// more updates, so it is not an error), and one that a later entry replaces (the same
+    /// setting from the same update: the later as written is the one in force, which is how a
+    /// runtime `set` over a scheduled change is replayed, but a copied entry whose
+    /// `from_update` was not changed looks the same).
     pub fn notes(&self) -> Vec<String> {
-        let Some(updates) = self.run.updates else {
-            return Vec::new();
-        };
-        self.schedule
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| c.from_update >= updates)
-            .map(|(i, c)| {
-                format!(
-                    "{}: schedule[{i}].from_update = {} is not before the run's end ({}): {} = {} \
-                     takes effect only if the run is resumed with more updates",
-                    self.origin.display(),
-                    c.from_update,
-                    self.option_setting("updates", updates)
-                        .unwrap_or_else(|| format!("run.updates = {updates}")),
+        let file = self.origin.display();
+        let mut notes = Vec::new();
+        if let Some(updates) = self.run.updates {
+            for (i, c) in self.schedule.iter().enumerate() {
+                if c.from_update >= updates {
+                    notes.push(format!(
+                        "{file}: schedule[{i}].from_update = {} is not before the run's end ({}): \
+                         {} = {} takes effect only if the run is resumed with more updates",
+                        c.from_update,
+                        self.option_setting("updates", updates)
+                            .unwrap_or_else(|| format!("run.updates = {updates}")),
+                        c.set,
+                        num(c.value)
+                    ));
+                }
+            }
+        }
+        for (i, c) in self.schedule.iter().enumerate() {
+            let later = self.schedule[i + 1..]
+                .iter()
+                .position(|d| d.from_update == c.from_update && d.set == c.set);
+            if let Some(k) = later {
+                let j = i + 1 + k;
+                notes.push(format!(
+                    "{file}: schedule[{i}] ({} = {} from update {}) never takes effect: \
+                     schedule[{j}] sets {} = {} from the same update, and the later entry is \
+                     the one in force",
                     c.set,
-                    num(c.value)
-                )
-            })
-            .collect()
+                    num(c.value),
+                    c.from_update,
+                    c.set,
+                    num(self.schedule[j].value)
+                ));
+            }
+        }
+        notes
     }
 
     /// `--updates 5` when the command line set the `run` field `field` (to `value`): what a
@@ -2018,6 +2037,27 @@ mod tests {
             "{}",
             notes[0]
         );
+    }
+
+    /// Two entries that set one setting from the same update: the earlier never takes effect,
+    /// which is noted (valid: a replay of a runtime `set` over a scheduled change is written so).
+    #[test]
+    fn a_scheduled_change_replaced_at_its_update_is_noted() {
+        let twice = DEFAULT_CONFIG.replace(
+            "[[schedule]]",
+            "[[schedule]]\nfrom_update = 20\nset = \"viapoint\"\nvalue = 0.2\n\n[[schedule]]",
+        );
+        let notes = parse(&twice).unwrap().notes();
+        assert_eq!(
+            notes,
+            [
+                "test.toml: schedule[0] (viapoint = 0.2 from update 20) never takes effect: \
+              schedule[1] sets viapoint = 0.1 from the same update, and the later entry is the \
+              one in force"
+            ]
+        );
+        let apart = twice.replacen("from_update = 20", "from_update = 21", 1);
+        assert!(parse(&apart).unwrap().notes().is_empty());
     }
 
     /// A value of the wrong type is reported with its table, not only its line: `rollouts`,
