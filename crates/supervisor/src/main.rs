@@ -24,7 +24,8 @@ enum Cmd {
     },
     /// Changes the number of rollout workers of a running run, without a restart.
     Scale {
-        #[arg(long)]
+        // `-2` is a bad value, as for `run --workers`.
+        #[arg(long, allow_negative_numbers = true)]
         workers: usize,
         #[arg(long)]
         run: Option<String>,

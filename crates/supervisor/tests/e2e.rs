@@ -6042,6 +6042,29 @@ fn set_refuses_a_setting_name_that_is_not_one_word() {
     }
 }
 
+/// A negative number of workers is a bad value of `--workers`, named so. Clap took `-2` for an
+/// unknown option and advised `-- -2`, which would have made it the config file.
+#[test]
+fn a_negative_number_of_workers_is_a_bad_value_of_the_option() {
+    let scratch = Scratch::new("negative-workers");
+    for args in [
+        &["run", "--workers", "-2"][..],
+        &["scale", "--workers", "-2"],
+    ] {
+        let out = Command::new(SUPERVISOR)
+            .args(args)
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {text}");
+        assert!(
+            text.contains("invalid value '-2' for '--workers <WORKERS>'"),
+            "{args:?}: {text}"
+        );
+    }
+}
+
 /// A run that fails to start stops its recorder: the warning tells `recover` only of a file
 /// the recorder created (it pointed to a file that did not exist), and not of one it finished
 /// (a recorder that got to its stop in time: seen in CI after the recorder got faster).

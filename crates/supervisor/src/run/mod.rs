@@ -60,7 +60,9 @@ pub struct RunOptions {
     /// A run config (TOML); its `[pipeline]` section sets workers, limits and timeouts.
     pub config: Option<PathBuf>,
     /// Rollout workers to start with (overrides `pipeline.workers`).
-    #[arg(long)]
+    // `-2` is a bad value, not an unknown option (clap's tip for that, `-- -2`, would have
+    // made it the config file).
+    #[arg(long, allow_negative_numbers = true)]
     pub workers: Option<usize>,
     /// Fix the run id (16 hex digits) instead of drawing one.
     #[arg(long, value_parser = pipeline::parse_run_id)]
