@@ -6,7 +6,7 @@ use pi2cma::{
     CostMapping, CovarianceStructure, Distribution, EigenvalueBounds, Exploration, Hyperparameters,
     TemporalAveraging, Weighting,
 };
-use session::{CovarianceName, Method, RunConfig, TaskSection, WeightingName};
+use session::{CovarianceName, RunConfig, TaskSection};
 
 use crate::proto;
 
@@ -199,23 +199,13 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
 
     let o = &cfg.optimizer;
     let mut opt = Table::new();
-    let method = match o.method {
-        Method::Cem => "cem",
-        Method::Pi2 => "pi2",
-        Method::Pi2Decay => "pi2-decay",
-        Method::Pi2Cma => "pi2-cma",
-    };
-    opt.insert("method".into(), Value::String(method.into()));
+    opt.insert("method".into(), Value::String(o.method.name().into()));
     opt.insert("rollouts".into(), int(o.rollouts as u64));
     opt.insert(
         "evaluation_in_update".into(),
         Value::Boolean(o.evaluation_in_update),
     );
-    let weighting = match o.weighting {
-        WeightingName::Episodic => "episodic",
-        WeightingName::PerTimeStep => "per-time-step",
-    };
-    opt.insert("weighting".into(), Value::String(weighting.into()));
+    opt.insert("weighting".into(), Value::String(o.weighting.name().into()));
     if o.temporal_averaging.is_some() {
         let t = match cfg.weighting() {
             Weighting::PerTimeStep {

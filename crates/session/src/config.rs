@@ -170,6 +170,18 @@ pub enum Method {
     Pi2Cma,
 }
 
+impl Method {
+    /// The value of `optimizer.method` that selects it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Cem => "cem",
+            Method::Pi2 => "pi2",
+            Method::Pi2Decay => "pi2-decay",
+            Method::Pi2Cma => "pi2-cma",
+        }
+    }
+}
+
 /// `optimizer.weighting`: how costs become rollout probabilities ([`pi2cma::Weighting`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -179,6 +191,16 @@ pub enum WeightingName {
     /// `"per-time-step"`: probabilities per step from the cost-to-go (the paper's Algorithm 1),
     /// averaged over time as `temporal_averaging` says.
     PerTimeStep,
+}
+
+impl WeightingName {
+    /// The value of `optimizer.weighting` that selects it.
+    pub fn name(self) -> &'static str {
+        match self {
+            WeightingName::Episodic => "episodic",
+            WeightingName::PerTimeStep => "per-time-step",
+        }
+    }
 }
 
 /// `optimizer.covariance`: the shape of Σ.
@@ -825,44 +847,47 @@ impl RunConfig {
     /// K, P and N ([`RunConfig::memory_need`]), and only then is the task built.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let o = &self.optimizer;
-        let only = |field: &str, present: bool, applies_to: &str| -> Result<(), ConfigError> {
-            if present {
+        // A key of another method (or weighting) than the config's: named with its value and
+        // what the config has instead, so that it is clear which of the two to change.
+        let method = format!("method = \"{}\"", o.method.name());
+        let only = |field: &str, given: Option<String>, applies_to: &str, instead: &str| {
+            given.map_or(Ok(()), |value| {
                 Err(self.invalid(
                     &format!("optimizer.{field}"),
-                    "(set)",
-                    &format!("only applies to {applies_to}"),
+                    value,
+                    &format!("only applies to {applies_to}, not to {instead}: remove it"),
                 ))
-            } else {
-                Ok(())
-            }
+            })
         };
         let is_pi2 = o.method != Method::Cem;
+        let all_pi2 = "method pi2, pi2-decay, pi2-cma";
         only(
             "eliteness",
-            o.eliteness.is_some() && !is_pi2,
-            "method pi2, pi2-decay, pi2-cma",
+            o.eliteness.filter(|_| !is_pi2).map(num),
+            all_pi2,
+            &method,
         )?;
-        only("elites", o.elites.is_some() && is_pi2, "method cem")?;
-        only(
-            "decay",
-            o.decay.is_some() && o.method != Method::Pi2Decay,
-            "method pi2-decay",
-        )?;
+        let elites = o.elites.filter(|_| is_pi2).map(|e| e.to_string());
+        only("elites", elites, "method cem", &method)?;
+        let decay = o.decay.filter(|_| o.method != Method::Pi2Decay).map(num);
+        only("decay", decay, "method pi2-decay", &method)?;
         let bounded = matches!(o.method, Method::Pi2Cma | Method::Cem);
-        only(
-            "lambda_min",
-            o.lambda_min.is_some() && !bounded,
-            "method pi2-cma, cem",
-        )?;
-        only(
-            "lambda_max",
-            o.lambda_max.is_some() && !bounded,
-            "method pi2-cma, cem",
-        )?;
+        for (field, bound) in [("lambda_min", o.lambda_min), ("lambda_max", o.lambda_max)] {
+            let given = bound.filter(|_| !bounded).map(num);
+            only(field, given, "method pi2-cma, cem", &method)?;
+        }
+        let temporal = o
+            .temporal_averaging
+            .filter(|_| o.weighting == WeightingName::Episodic)
+            .map(|t| match t {
+                TemporalName::RemainingSteps => "\"remaining-steps\"",
+                TemporalName::BasisActivation => "\"basis-activation\"",
+            });
         only(
             "temporal_averaging",
-            o.temporal_averaging.is_some() && o.weighting == WeightingName::Episodic,
+            temporal.map(str::to_string),
             "weighting = \"per-time-step\"",
+            "weighting = \"episodic\"",
         )?;
         if is_pi2 && o.eliteness.is_none() {
             return Err(self.invalid(
@@ -2990,15 +3015,16 @@ mod tests {
                     "weighting = \"episodic\"\ntemporal_averaging = \"basis-activation\""
                 )]
             )),
-            "test.toml: optimizer.temporal_averaging = (set): only applies to weighting = \
-             \"per-time-step\""
+            "test.toml: optimizer.temporal_averaging = \"basis-activation\": only applies to \
+             weighting = \"per-time-step\", not to weighting = \"episodic\": remove it"
         );
         assert_eq!(
             error(&edit(
                 DEFAULT_CONFIG,
                 &[("eliteness = 15.0", "eliteness = 15.0\nelites = 3")]
             )),
-            "test.toml: optimizer.elites = (set): only applies to method cem"
+            "test.toml: optimizer.elites = 3: only applies to method cem, not to method = \
+             \"pi2-cma\": remove it"
         );
     }
 
