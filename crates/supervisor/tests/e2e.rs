@@ -2045,6 +2045,44 @@ fn bad_input_is_reported_with_its_cause_and_leaves_nothing_running() {
         );
         assert_nothing_left(&run);
     }
+    // A recorder there that cannot run (it is optional, but the one there is used), and a
+    // --bin-dir that is no directory: both refused before anything starts.
+    std::fs::remove_dir_all(&bins).unwrap();
+    std::fs::create_dir(&bins).unwrap();
+    for b in ["updater", "sampler", "rollout-worker"] {
+        std::os::unix::fs::symlink(here.join(b), bins.join(b)).unwrap();
+    }
+    std::fs::write(bins.join("recorder"), "#!/bin/sh\n").unwrap();
+    let not_a_dir = scratch.path("bins.toml");
+    std::fs::write(&not_a_dir, "").unwrap();
+    for (id, dir, expected) in [
+        (
+            27602,
+            &bins,
+            format!(
+                "binary `recorder`: {} is not an executable file (remove it",
+                bins.join("recorder").display()
+            ),
+        ),
+        (
+            27603,
+            &not_a_dir,
+            format!(
+                "--bin-dir {}: is not a directory; give the directory that holds updater, \
+                 sampler, rollout-worker",
+                not_a_dir.display()
+            ),
+        ),
+    ] {
+        let mut run = Run::start(&scratch, id, &["--bin-dir", dir.to_str().unwrap()]);
+        run.wait_exit(Duration::from_secs(10), 1);
+        let out = run.text();
+        assert!(
+            out.contains(&expected) && !out.contains("starting"),
+            "{out}"
+        );
+        assert_nothing_left(&run);
+    }
 
     // A task that returns NaN (fault injection).
     let nan = write_config(

@@ -94,6 +94,20 @@ impl Launcher {
 impl Binaries {
     fn find(bin_dir: Option<&Path>) -> anyhow::Result<Self> {
         if let Some(dir) = bin_dir {
+            // Else each binary was said to be missing: `--bin-dir a.toml` gave "missing binary
+            // `updater`: a.toml/updater does not exist".
+            if !dir.is_dir() {
+                let what = if dir.exists() {
+                    "is not a directory"
+                } else {
+                    "does not exist"
+                };
+                bail!(
+                    "--bin-dir {}: {what}; give the directory that holds {}",
+                    dir.display(),
+                    BINARIES.join(", ")
+                );
+            }
             for b in BINARIES {
                 let p = dir.join(b);
                 if !p.exists() {
@@ -110,6 +124,16 @@ impl Binaries {
                 if !executable_file(&p) {
                     bail!("binary `{b}`: {} is not an executable file", p.display());
                 }
+            }
+            // The recorder is optional there, but one that is there is the one that runs: it
+            // failed only once started, after the other processes' shared memory was made.
+            let recorder = dir.join(Role::Recorder.binary());
+            if recorder.exists() && !executable_file(&recorder) {
+                bail!(
+                    "binary `recorder`: {} is not an executable file (remove it to have the \
+                     supervisor's own executable record)",
+                    recorder.display()
+                );
             }
             return Ok(Self::InDir {
                 dir: dir.to_path_buf(),
