@@ -379,6 +379,36 @@ fn a_bad_option_value_is_reported_as_the_option() {
     );
 }
 
+/// A negative number is a bad value of its option. Clap took `-1` for an unknown option and
+/// advised `-- -1`, which would have made it the CONFIG (or the recording to analyse).
+#[test]
+fn a_negative_number_is_a_bad_value_of_its_option() {
+    let d = scratch("negative-options");
+    for (args, expected) in [
+        (
+            &["run", "--updates", "-1"][..],
+            "invalid value '-1' for '--updates <UPDATES>'",
+        ),
+        (
+            &["run", "--seed", "-1"],
+            "invalid value '-1' for '--seed <SEED>'",
+        ),
+        (
+            &["experiment", "a.toml", "--sessions", "-1"],
+            "invalid value '-1' for '--sessions <SESSIONS>'",
+        ),
+        (
+            &["analyze", "a.mcap", "--tolerance", "-0.1"],
+            "invalid value '-0.1' for '--tolerance <TOLERANCE>': -0.1: must be at least 0",
+        ),
+    ] {
+        let out = pi2cma(args, &d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+}
+
 #[test]
 fn unknown_option_is_rejected() {
     let out = pi2cma(&["run", "--lambda-min", "3"], &repo());

@@ -44,10 +44,10 @@ enum Command {
         /// Run config (TOML); the built-in default if omitted.
         config: Option<PathBuf>,
         /// Override run.seed.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
         /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         updates: Option<u64>,
         /// Directory for run.mcap, updates.csv, mean_curves.csv and fig2.svg; one that holds a
         /// recording is refused. Default: runs/latest, whose results (and analysis/) each run
@@ -72,7 +72,7 @@ enum Command {
         /// Run configs (TOML).
         #[arg(required = true)]
         configs: Vec<PathBuf>,
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         sessions: usize,
         /// Override the weighting mode of every config.
         #[arg(long, value_enum)]

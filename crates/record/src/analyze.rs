@@ -54,7 +54,7 @@ pub struct AnalyzeArgs {
     pub verify: bool,
     /// Re-convergence tolerance: a segment has converged once every later eval cost is within
     /// `tolerance` × (peak − lowest level) of its lowest level.
-    #[arg(long, default_value_t = 0.05, value_parser = parse_tolerance)]
+    #[arg(long, default_value_t = 0.05, value_parser = parse_tolerance, allow_negative_numbers = true)]
     pub tolerance: f64,
 }
 

@@ -6080,14 +6080,15 @@ fn set_refuses_a_setting_name_that_is_not_one_word() {
     }
 }
 
-/// A negative number of workers is a bad value of `--workers`, named so. Clap took `-2` for an
-/// unknown option and advised `-- -2`, which would have made it the config file.
+/// A negative number of workers (or updates) is a bad value of the option, named so. Clap took
+/// `-2` for an unknown option and advised `-- -2`, which would have made it the config file.
 #[test]
 fn a_negative_number_of_workers_is_a_bad_value_of_the_option() {
     let scratch = Scratch::new("negative-workers");
     for args in [
         &["run", "--workers", "-2"][..],
         &["scale", "--workers", "-2"],
+        &["run", "--updates", "-2"],
     ] {
         let out = Command::new(SUPERVISOR)
             .args(args)
@@ -6096,8 +6097,9 @@ fn a_negative_number_of_workers_is_a_bad_value_of_the_option() {
             .unwrap();
         let text = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {text}");
+        let option = format!("{} <{}>", args[1], args[1][2..].to_uppercase());
         assert!(
-            text.contains("invalid value '-2' for '--workers <WORKERS>'"),
+            text.contains(&format!("invalid value '-2' for '{option}'")),
             "{args:?}: {text}"
         );
     }

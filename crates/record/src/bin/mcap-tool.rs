@@ -32,13 +32,13 @@ enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
         /// Session seed; the config's `run.seed` without it.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
         /// Override `run.updates`.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         updates: Option<u64>,
         /// Override the task's `rollout_delay_ms` (via-point task only).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         rollout_delay_ms: Option<f64>,
         /// Where to write the MCAP.
         #[arg(long, short)]
@@ -78,7 +78,7 @@ enum Command {
         files: Vec<PathBuf>,
         #[arg(long, short)]
         out: PathBuf,
-        #[arg(long, default_value_t = 0.05, value_parser = analyze::parse_tolerance)]
+        #[arg(long, default_value_t = 0.05, value_parser = analyze::parse_tolerance, allow_negative_numbers = true)]
         tolerance: f64,
     },
     /// Rewrite a recording whose writer was killed into a complete, indexed file.

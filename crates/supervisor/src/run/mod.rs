@@ -92,7 +92,7 @@ pub struct RunOptions {
     #[arg(long, value_name = "FILE")]
     pub resume: Option<PathBuf>,
     /// Override run.updates (e.g. to go on with `--resume`); the recording's config shows it.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub updates: Option<u64>,
     /// Start (and later scale up) without checking that /dev/shm has room for the run. The
     /// check's estimate can be up to ~3 times what a run takes, so it may refuse a run that
