@@ -137,6 +137,20 @@ fn record_reports_a_bad_option_value_as_the_option() {
             &["--rollout-delay-ms=-1"][..],
             "--rollout-delay-ms -1: must be between 0 and 3600000",
         ),
+        // A negative number written apart is the option's value too, not an unknown option
+        // (clap's tip for that, `-- -1`, was no way to give it).
+        (
+            &["--rollout-delay-ms", "-1"][..],
+            "--rollout-delay-ms -1: must be between 0 and 3600000",
+        ),
+        (
+            &["--updates", "-3"][..],
+            "invalid value '-3' for '--updates <UPDATES>'",
+        ),
+        (
+            &["--seed", "-1"][..],
+            "invalid value '-1' for '--seed <SEED>'",
+        ),
     ] {
         let run = std::process::Command::new(env!("CARGO_BIN_EXE_mcap-tool"))
             .arg("record")
