@@ -36,7 +36,7 @@ enum Cmd {
         name: String,
         // Negative values are common (T-ball's tee_y = -0.53); without this clap took `-0.5`
         // for an option and told the user to write `-- -0.5`.
-        #[arg(allow_negative_numbers = true)]
+        #[arg(allow_negative_numbers = true, value_parser = setting_value)]
         value: f64,
         #[arg(long)]
         run: Option<String>,
@@ -87,6 +87,19 @@ fn setting_name(s: &str) -> Result<String, String> {
         ));
     }
     Ok(s.to_string())
+}
+
+/// A setting's value as typed, refused here if it is not a finite number: `1e400` was sent as
+/// `inf` and refused as `viapoint = inf: must be finite`, a value the user never typed.
+fn setting_value(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!(
+            "`{s}` is not a finite number (it reads as {v}); a setting's value must be finite"
+        ))
+    }
 }
 
 fn main() -> ExitCode {

@@ -6105,6 +6105,26 @@ fn a_negative_number_of_workers_is_a_bad_value_of_the_option() {
     }
 }
 
+/// A value that is not a finite number is refused as typed before any run is asked: `1e400`
+/// was sent as `inf`, and the run's refusal named `inf`.
+#[test]
+fn set_refuses_a_value_that_is_not_finite_as_typed() {
+    let scratch = Scratch::new("set-not-finite");
+    for value in ["1e400", "-1e999", "nan", "inf"] {
+        let out = Command::new(SUPERVISOR)
+            .args(["set", "viapoint", value])
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{value}: {text}");
+        assert!(
+            text.contains(&format!("`{value}` is not a finite number")),
+            "{value}: {text}"
+        );
+    }
+}
+
 /// A run that fails to start stops its recorder: the warning tells `recover` only of a file
 /// the recorder created (it pointed to a file that did not exist), and not of one it finished
 /// (a recorder that got to its stop in time: seen in CI after the recorder got faster).
