@@ -3184,6 +3184,36 @@ fn a_recorder_at_the_file_size_limit_says_so_and_is_not_restarted() {
     );
 }
 
+/// Processes killed by SIGXFSZ (a file size limit so low that the workers' shared memory files
+/// pass it) are said to have met the limit, with its size: `died (signal: 25 (SIGXFSZ))` alone
+/// said neither.
+#[test]
+fn a_process_killed_by_the_file_size_limit_is_said_to_have_met_it() {
+    let scratch = Scratch::new("xfsz");
+    let id = run_id(27604);
+    // 400 blocks of 512 bytes (sh's unit): 200 KiB, less than a worker's shared memory.
+    let out = Command::new("sh")
+        .args(["-c", "ulimit -f 400; exec \"$0\" \"$@\"", SUPERVISOR, "run"])
+        .args(["--quiet", "--no-record", "--run-id", &id])
+        .current_dir(&scratch.0)
+        .env("PI2CMA_RUN_DIR", scratch.runs())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    let deaths: Vec<&str> = text.lines().filter(|l| l.contains("(SIGXFSZ)")).collect();
+    assert!(!deaths.is_empty(), "{text}");
+    for l in deaths {
+        assert!(
+            l.contains(
+                "SIGXFSZ means it wrote past the file size limit (`ulimit -f`: 200 KiB); its \
+                 shared memory files count against it"
+            ),
+            "{l}"
+        );
+    }
+}
+
 /// A recorder not restarted (restart_limit = 0 here; a full disk in use) is started again by
 /// `supervisor record`: the recording goes on in a new part, the dead one is recovered, and the
 /// run ends with a complete recording (exit 0).

@@ -18,7 +18,9 @@ use wire::Control;
 use crate::shm::{self, SHM_DIR};
 
 use super::event_loop::{Outcome, Phase};
-use super::process::{die_with_parent, group_members, sigbus_hint, signal_group, Role};
+use super::process::{
+    die_with_parent, file_size_limit, group_members, sigbus_hint, signal_group, xfsz_hint, Role,
+};
 use super::recorder::recorder_restartable;
 use super::summary::pi2cma_program;
 use super::workers::{may_restart, restart_backoff};
@@ -305,10 +307,12 @@ impl Supervisor {
             &last,
             printed.map(|t| t.elapsed()),
         );
-        let cause = match sigbus_hint(
+        let hint = sigbus_hint(
             status,
             shm::space(Path::new(SHM_DIR)).map(|s| (s.free, s.total)),
-        ) {
+        )
+        .or_else(|| xfsz_hint(status, file_size_limit()));
+        let cause = match hint {
             Some(hint) => format!("{cause}; {hint}"),
             None => cause,
         };

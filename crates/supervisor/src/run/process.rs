@@ -263,6 +263,36 @@ pub(super) fn sigbus_hint(status: ExitStatus, shm: Option<(u64, u64)>) -> Option
     ))
 }
 
+/// What a child killed by SIGXFSZ ran into: a file size limit (`ulimit -f`, `limit` bytes; `None`
+/// when there is none or it cannot be read). `signal: 25 (SIGXFSZ)` alone did not say which file
+/// nor that iceoryx2's shared memory files, which a process sizes when it creates its ports,
+/// count against it like any file: a limit of a few hundred kB kills the workers at their start.
+pub(super) fn xfsz_hint(status: ExitStatus, limit: Option<u64>) -> Option<String> {
+    use std::os::unix::process::ExitStatusExt as _;
+    if status.signal() != Some(libc::SIGXFSZ) {
+        return None;
+    }
+    let limit = limit.map_or("the file size limit".to_string(), |l| {
+        format!("the file size limit (`ulimit -f`: {})", size(l))
+    });
+    Some(format!(
+        "SIGXFSZ means it wrote past {limit}; its shared memory files count against it as well \
+         as the recording: raise or remove the limit"
+    ))
+}
+
+/// The process's file size limit (RLIMIT_FSIZE) in bytes; `None` when unlimited.
+pub(super) fn file_size_limit() -> Option<u64> {
+    let mut r = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes the limits into `r`, which lives for the call.
+    #[allow(unsafe_code)]
+    let ok = unsafe { libc::getrlimit(libc::RLIMIT_FSIZE, &mut r) } == 0;
+    (ok && r.rlim_cur != libc::RLIM_INFINITY).then_some(r.rlim_cur)
+}
+
 /// The child gets SIGKILL when the supervisor dies, however it dies, and SIGXFSZ's default.
 pub(super) fn die_with_parent(cmd: &mut Command) {
     let parent = std::process::id() as libc::pid_t;
