@@ -24,7 +24,8 @@ mod shm;
 
 pub use control::{client, runs_dir};
 pub use run::{
-    default_recording, group_members, process_alive, run, RunOptions, EMPTY_PART_REMOVED,
+    default_recording, file_size_limit_note, group_members, process_alive, run, RunOptions,
+    EMPTY_PART_REMOVED,
 };
 
 /// Exit code of a run stopped by SIGINT/SIGTERM.

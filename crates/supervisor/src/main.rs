@@ -131,6 +131,9 @@ fn main() -> ExitCode {
             Ok(code) => ExitCode::from(code),
             Err(e) => {
                 eprintln!("[supervisor] error: {e:#}");
+                if let Some(note) = supervisor::file_size_limit_note(&e) {
+                    eprintln!("[supervisor] note: {note}");
+                }
                 ExitCode::FAILURE
             }
         },

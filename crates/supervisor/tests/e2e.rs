@@ -3202,6 +3202,34 @@ fn a_process_killed_by_the_file_size_limit_is_said_to_have_met_it() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(1), "{text}");
     let deaths: Vec<&str> = text.lines().filter(|l| l.contains("(SIGXFSZ)")).collect();
+    // So low that the supervisor's own ports fail (it ignores SIGXFSZ): iceoryx2's error
+    // (`InternalError`, `UnableToCreateDataSegment`) gets a note on the limit.
+    for blocks in ["4", "40"] {
+        let out = Command::new("sh")
+            .args(["-c", "ulimit -f \"$1\"; shift; exec \"$0\" \"$@\""])
+            .args([
+                SUPERVISOR,
+                blocks,
+                "run",
+                "--quiet",
+                "--no-record",
+                "--run-id",
+                &id,
+            ])
+            .current_dir(&scratch.0)
+            .env("PI2CMA_RUN_DIR", scratch.runs())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains(&format!(
+                "[supervisor] note: a file size limit is set (`ulimit -f`: {} KiB), and \
+                 iceoryx2's shared memory files count against it",
+                blocks.parse::<u64>().unwrap() / 2
+            )),
+            "ulimit -f {blocks}: {err}"
+        );
+    }
     assert!(!deaths.is_empty(), "{text}");
     for l in deaths {
         assert!(

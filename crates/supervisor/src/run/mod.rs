@@ -26,7 +26,7 @@ mod summary;
 mod task_changes;
 mod workers;
 
-pub use process::{group_members, process_alive};
+pub use process::{file_size_limit_note, group_members, process_alive};
 pub use recorder::EMPTY_PART_REMOVED;
 
 use std::collections::{BTreeMap, VecDeque};

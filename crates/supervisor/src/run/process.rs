@@ -281,6 +281,31 @@ pub(super) fn xfsz_hint(status: ExitStatus, limit: Option<u64>) -> Option<String
     ))
 }
 
+/// A note for a run that failed at iceoryx2 (a node, a service, a port: its shared memory
+/// files) while a file size limit is set: with the supervisor ignoring SIGXFSZ the failure is
+/// iceoryx2's `InternalError` or `UnableToCreateDataSegment`, which does not say why.
+pub fn file_size_limit_note(e: &anyhow::Error) -> Option<String> {
+    // The doorbell thread hands its error over as text (`iceoryx2 service …`).
+    let ipc = e.chain().any(|c| {
+        c.is::<wire::WireError>()
+            || matches!(
+                c.downcast_ref::<pipeline::ProcessError>(),
+                Some(pipeline::ProcessError::Port { .. })
+            )
+            || c.to_string().starts_with("iceoryx2 service")
+    });
+    let limit = file_size_limit().filter(|_| ipc)?;
+    Some(format!(
+        "a file size limit is set (`ulimit -f`: {}), and iceoryx2's shared memory files count \
+         against it: raise or remove the limit",
+        if limit < 1 << 10 {
+            format!("{limit} bytes")
+        } else {
+            size(limit)
+        }
+    ))
+}
+
 /// The process's file size limit (RLIMIT_FSIZE) in bytes; `None` when unlimited.
 pub(super) fn file_size_limit() -> Option<u64> {
     let mut r = libc::rlimit {
