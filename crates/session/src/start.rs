@@ -16,15 +16,23 @@ use tasks::{Task, TaskChange, TaskError, TaskSchedule};
 
 /// The schedule's changes due at update `u` of a run that resumes from `start`, if any: at the
 /// update it resumes at, those its recording does not override ([`Start::scheduled_at_start`]).
+/// Of two changes of one setting due at the same update only the later (as written) is one:
+/// the earlier never takes effect, and the in-process run recorded both as `/task_change`s,
+/// where the pipeline's updater lists the one in force.
 pub fn scheduled_at<'a>(
     schedule: &'a TaskSchedule,
     start: Option<&Start>,
     u: u64,
 ) -> Vec<&'a TaskChange> {
-    match start {
+    let due = match start {
         Some(s) if s.update == u => s.scheduled_at_start(schedule),
         _ => schedule.at(u).collect(),
-    }
+    };
+    due.iter()
+        .enumerate()
+        .filter(|&(i, c)| !due[i + 1..].iter().any(|d| d.name == c.name))
+        .map(|(_, c)| *c)
+        .collect()
 }
 
 /// The state a run resumes from.
@@ -245,6 +253,27 @@ fn setting_bits(settings: &[(String, f64)]) -> Vec<SettingBits> {
 mod tests {
     use super::*;
     use crate::bits;
+
+    /// Two scheduled changes of one setting at one update: only the later is due (with another
+    /// setting's change between them kept).
+    #[test]
+    fn of_two_changes_of_a_setting_at_one_update_the_later_is_due() {
+        let change = |name: &str, value| TaskChange {
+            from_update: 20,
+            name: name.into(),
+            value,
+        };
+        let schedule = TaskSchedule::new(vec![
+            change("viapoint", 0.2),
+            change("goal", 2.0),
+            change("viapoint", 0.1),
+        ]);
+        let due: Vec<(&str, f64)> = scheduled_at(&schedule, None, 20)
+            .iter()
+            .map(|c| (c.name.as_str(), c.value))
+            .collect();
+        assert_eq!(due, [("goal", 2.0), ("viapoint", 0.1)]);
+    }
 
     #[test]
     fn a_start_file_keeps_every_bit() {
