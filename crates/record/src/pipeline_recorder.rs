@@ -310,6 +310,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         };
         let _ = doorbell.timed_wait(|a| hold |= a.id == wire::HOLD, wait);
     };
+    let not_recorded = std::mem::take(&mut state.not_recorded);
+    let out_text = out.display().to_string();
     let written = state.finish(why)?;
     let cpu = process_cpu_seconds();
     // Per update only when there were updates: the CPU of a start and stop is not a rate.
@@ -329,7 +331,38 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         "recorded {written} updates to {to} ({cost}; {rounds} rounds, {holds} of them asked for \
          by a held updater)"
     );
+    if !not_recorded.is_empty() {
+        eprintln!(
+            "warning: {} not recorded ({}): their inputs never reached the recorder; the \
+             recording's /log says which (`mcap-tool info {out_text}`)",
+            plural(not_recorded.len(), "update"),
+            update_ranges(&not_recorded)
+        );
+    }
     Ok(())
+}
+
+fn plural(n: usize, what: &str) -> String {
+    format!("{n} {what}{}", if n == 1 { "" } else { "s" })
+}
+
+/// `3, 6..=8, 12` for updates 3, 6, 7, 8, 12 (ascending, as they are given up on).
+fn update_ranges(updates: &[u64]) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < updates.len() {
+        let mut j = i;
+        while j + 1 < updates.len() && updates[j + 1] == updates[j] + 1 {
+            j += 1;
+        }
+        parts.push(if j == i {
+            updates[i].to_string()
+        } else {
+            format!("{}..={}", updates[i], updates[j])
+        });
+        i = j + 1;
+    }
+    parts.join(", ")
 }
 
 /// Takes in every distribution waiting on `distribution`; `next_update` becomes the one after
@@ -415,6 +448,9 @@ struct WriterState {
     current_update: u64,
     written: u64,
     mismatches: u64,
+    /// Updates given up on ([`Assembler::skip_incomplete`]): named in the exit lines too, which
+    /// the user reads, not only in `/log`.
+    not_recorded: Vec<u64>,
     resumed_from: Option<String>,
     /// A restarted recorder's restart count ([`RecorderArgs::restart`]).
     restart: Option<u32>,
@@ -555,6 +591,7 @@ impl WriterState {
             current_update: start.map_or(0, |s| s.update),
             written: 0,
             mismatches: 0,
+            not_recorded: Vec::new(),
             resumed_from,
             restart: None,
             deferred: Vec::new(),
@@ -1123,6 +1160,7 @@ impl WriterState {
                 ),
             )?;
             self.writer.flush()?;
+            self.not_recorded.push(u);
             written(u)?;
         }
     }
@@ -1186,6 +1224,15 @@ mod tests {
 
     /// Whatever moment between the two drains the updater publishes a distribution and a
     /// worker its first cost at, the first distribution left has all its costs left.
+    #[test]
+    fn updates_not_recorded_are_named_as_ranges() {
+        assert_eq!(super::update_ranges(&[6]), "6");
+        assert_eq!(super::update_ranges(&[3, 6, 7, 8, 12]), "3, 6..=8, 12");
+        assert_eq!(super::update_ranges(&[6, 7, 8, 9, 10, 11]), "6..=11");
+        assert_eq!(super::plural(1, "update"), "1 update");
+        assert_eq!(super::plural(12, "update"), "12 updates");
+    }
+
     #[test]
     fn a_restarted_recorder_keeps_no_distribution_without_its_costs() {
         // (distribution update, costs' updates) the subscribers hold; `publish_after` is the
