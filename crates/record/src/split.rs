@@ -315,6 +315,14 @@ pub(crate) fn name_list(mut names: Vec<String>) -> String {
 /// non-empty file, or the parts of an earlier split recording, which count even when its first
 /// file has been moved away (a new recording would remove them). One message for every writer.
 pub fn refuse_overwrite(path: &Path, option: &str) -> Result<(), RecordError> {
+    fn looks_like_mcap(path: &Path) -> bool {
+        use std::io::Read as _;
+        let mut head = [0u8; 8];
+        let n = std::fs::File::open(path)
+            .and_then(|mut f| f.read(&mut head))
+            .unwrap_or(0);
+        crate::reader::could_be_mcap(&head[..n])
+    }
     // Its length is the directory's, not a recording's.
     if path.is_dir() {
         return Err(RecordError::invalid(
@@ -333,6 +341,16 @@ pub fn refuse_overwrite(path: &Path, option: &str) -> Result<(), RecordError> {
         .collect();
     let (what, is, it) = match (first, parts.as_slice()) {
         (None, []) => return Ok(()),
+        // Called a recording, a config given to `--record` by mistake read as a lost run.
+        (Some(bytes), []) if !looks_like_mcap(path) => {
+            return Err(RecordError::invalid(
+                path,
+                format!(
+                    "is there already ({option}), a file of {bytes} bytes that is not a \
+                     recording: a run records to a new file; give another name"
+                ),
+            ))
+        }
         (Some(bytes), []) => (format!("a recording of {bytes} bytes"), "is", "it"),
         (Some(bytes), _) => (
             format!(
@@ -736,6 +754,34 @@ mod tests {
             );
             assert!(e.contains(&expected), "{e}");
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_file_there_that_is_no_recording_is_not_called_one() {
+        let dir = std::env::temp_dir().join(format!("split-not-mcap-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = dir.join("A1.toml");
+        std::fs::write(&config, session::DEFAULT_CONFIG).unwrap();
+        let e = refuse_overwrite(&config, "--record")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}: is there already (--record), a file of {} bytes that is not a recording: a \
+                 run records to a new file; give another name",
+                config.display(),
+                session::DEFAULT_CONFIG.len()
+            )
+        );
+        // A recording is called one.
+        let recording = dir.join("r.mcap");
+        record(&recording, 1, None);
+        let e = refuse_overwrite(&recording, "--record")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(": a recording of "), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
