@@ -760,6 +760,53 @@ fn a_hung_worker_is_killed_and_restarted_and_the_result_stays_bit_identical() {
     assert_nothing_left(&run);
 }
 
+/// A worker an operator freezes (SIGSTOP: Ctrl-Z, an e-stop script) is not hung: `status`
+/// lists it as stopped by a signal (it listed it as running), and when it outlasts
+/// `rollout_timeout_ms` the kill says that it is stopped rather than "hung", which read as a
+/// fault of the task. The run goes on as if nothing had happened.
+#[test]
+fn a_worker_stopped_by_a_signal_is_shown_as_stopped_and_not_called_hung() {
+    let scratch = Scratch::new("sigstopped");
+    let text = config(&[
+        UNBOUNDED,
+        DELAYED,
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 1500",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "sigstopped.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 27800, &cfg, &result);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let victim = pid_of(&status, "worker-1");
+    signal(victim, "-STOP");
+    let shown = format!(
+        "worker-1 pid {victim} incarnation 0 (stopped by a signal: it runs nothing until `kill -CONT -- -{victim}`)"
+    );
+    let status = run.wait_status("worker-1 shown stopped", |s| s.contains(&shown));
+    assert!(
+        status.contains("3 running (target 3, max 16), 1 of them stopped by a signal"),
+        "{status}"
+    );
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output("worker-1 (pid ", end);
+    run.wait_output(", incarnation 1) is ready", end);
+    let out = run.text();
+    assert!(
+        out.lines().any(|l| l.contains(&format!(
+            "worker-1 (pid {victim}) is stopped by a signal (SIGSTOP, Ctrl-Z), not hung, but \
+             holds its rollouts as a hung worker does: no rollout done for"
+        )) && l.ends_with("; killing it")),
+        "{out}"
+    );
+    assert!(!out.contains(") hung: "), "{out}");
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 /// `rollout_timeout_ms` bounds one rollout, not a worker's chunk: a worker that sends the cost
 /// of its chunk's first rollout and hangs in the second is killed about one timeout after that
 /// cost, not after the timeout times the chunk's length from the hand-out (5 rollouts of 400 ms:
@@ -2866,13 +2913,29 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
     signal_all("-STOP");
     let end = Instant::now() + Duration::from_secs(30);
     run.wait_output("warning: no update for", end);
-    // The recorder has written everything: the warning does not blame it.
+    // The recorder has written everything: the warning does not blame it. Nor does it take
+    // the stopped workers for hung ones ("a worker may hang"): it names them.
+    let text = run.text();
+    let warning = text
+        .lines()
+        .find(|l| l.contains("warning: no update for"))
+        .unwrap();
     assert!(
-        run.text().contains(": a worker may hang ("),
-        "{}",
-        run.text()
+        warning.contains(
+            ": stopped by a signal (SIGSTOP, Ctrl-Z), which holds the run until they get SIGCONT"
+        ) && workers
+            .iter()
+            .all(|pid| warning.contains(&format!(" (pid {pid})"))),
+        "{warning}"
     );
     let (_, status) = run.ctl(&["status"]);
+    assert!(
+        status.contains("3 running (target 3, max 16), 3 of them stopped by a signal")
+            && workers.iter().all(|pid| status.contains(&format!(
+                " pid {pid} incarnation 0 (stopped by a signal: it runs nothing until `kill -CONT -- -{pid}`)"
+            ))),
+        "{status}"
+    );
     let age: f64 = status
         .split(", the last ")
         .nth(1)

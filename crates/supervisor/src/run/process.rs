@@ -207,9 +207,22 @@ fn stat_fields<T>(
 /// one of its own, and what it starts is in it unless it moves out). One read of each
 /// process's stat: its group and its state.
 pub fn group_members(group: u32) -> Vec<u32> {
+    group_in_state(group, |state| state != "Z")
+}
+
+/// The processes of process group `group` that a signal has stopped: state `T` (SIGSTOP, an
+/// operator's Ctrl-Z or e-stop script freezing the program) or `t` (a debugger's). Such a
+/// process is not hung and has not died: it holds what it holds until SIGCONT resumes it where
+/// it was, so what the supervisor says of a run that waits for it names it as stopped.
+pub(super) fn stopped_in_group(group: u32) -> Vec<u32> {
+    group_in_state(group, |state| state == "T" || state == "t")
+}
+
+/// The processes of process group `group` whose state (field 3 of their stat) `state` accepts.
+fn group_in_state(group: u32, state: impl Fn(&str) -> bool) -> Vec<u32> {
     let member = |pid: u32| {
-        stat_fields(pid, |state, after| {
-            Some(state != "Z" && group_field(after)? == group)
+        stat_fields(pid, |s, after| {
+            Some(state(s) && group_field(after)? == group)
         })
         .unwrap_or(false)
     };
@@ -398,5 +411,30 @@ mod tests {
         child.wait().expect("reap");
         assert_eq!(process_started(pid), None);
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn stopped_in_group_names_a_process_stopped_by_a_signal_until_it_is_continued() {
+        use std::os::unix::process::CommandExt;
+        let mut child = std::process::Command::new("sleep")
+            .arg("30")
+            .process_group(0)
+            .spawn()
+            .expect("spawn");
+        let pid = child.id();
+        let wait_for = |want: Vec<u32>| {
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while stopped_in_group(pid) != want && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            assert_eq!(stopped_in_group(pid), want);
+        };
+        wait_for(vec![]);
+        signal_group(pid, libc::SIGSTOP);
+        wait_for(vec![pid]);
+        signal_group(pid, libc::SIGCONT);
+        wait_for(vec![]);
+        child.kill().expect("kill");
+        child.wait().expect("reap");
     }
 }

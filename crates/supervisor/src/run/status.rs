@@ -7,7 +7,7 @@ use std::time::Duration;
 use wire::RunNote;
 
 use super::event_loop::Phase;
-use super::process::Role;
+use super::process::{stopped_in_group, Role};
 use super::{say, Supervisor};
 
 /// The update rate over the updater's last reports: updates over the time they took, the
@@ -89,6 +89,7 @@ impl Supervisor {
         };
         // The recorder's acknowledgements tell whether it is what holds the updater back.
         let _ = self.drain_recorder_acks();
+        let stopped = self.stopped_processes();
         let who = match self.recorder_written() {
             Some((last, Some(n))) if n > 0 && self.recorder_listening() => format!(
                 "the recorder has written only through update {last} ({n} behind the updater, \
@@ -97,6 +98,19 @@ impl Supervisor {
             // Before the first update there is no usual time to compare with, and rollouts of
             // seconds (a robot's, a slow simulator's) reach 10 s in the first update alone: a
             // run of 2 s rollouts was warned of a hanging worker at its first update.
+            // A process stopped by a signal (an operator's Ctrl-Z or e-stop script, SIGSTOP)
+            // was warned of as "a worker may hang", and `status` listed it as running.
+            _ if !stopped.is_empty() => format!(
+                "stopped by a signal (SIGSTOP, Ctrl-Z), which holds the run until {} get{} \
+                 SIGCONT (`kill -CONT -- -PID` resumes a process and what it started): {}",
+                if stopped.len() == 1 { "it" } else { "they" },
+                if stopped.len() == 1 { "s" } else { "" },
+                stopped
+                    .iter()
+                    .map(|(name, pid)| format!("{name} (pid {pid})"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
             _ if self.progress.is_none() => format!(
                 "a worker may hang, or the first update's {} rollouts take that long on {} \
                  worker{} ({timeout})",
@@ -141,6 +155,16 @@ impl Supervisor {
         )
     }
 
+    /// The processes of the run (name, pid) in whose process group a signal has stopped a
+    /// process (`process::stopped_in_group`).
+    pub(super) fn stopped_processes(&self) -> Vec<(String, u32)> {
+        self.procs
+            .iter()
+            .filter(|(&pid, _)| !stopped_in_group(pid).is_empty())
+            .map(|(&pid, p)| (p.role.name(), pid))
+            .collect()
+    }
+
     fn worker_count(&self) -> usize {
         self.procs
             .values()
@@ -157,8 +181,17 @@ impl Supervisor {
             self.started.elapsed().as_secs_f64()
         );
         let joined: Vec<(u32, u32)> = self.live_joined().collect();
+        let stopped = self.stopped_processes();
+        let stopped_workers = stopped
+            .iter()
+            .filter(|(_, pid)| {
+                self.procs
+                    .get(pid)
+                    .is_some_and(|p| matches!(p.role, Role::Worker(_)) && !p.stopping)
+            })
+            .count();
         s += &format!(
-            "workers: {} running (target {}, max {}){}, restarts {}\n",
+            "workers: {} running (target {}, max {}){}{}, restarts {}\n",
             self.worker_count(),
             self.target_workers,
             self.pipe.max_workers,
@@ -166,6 +199,10 @@ impl Supervisor {
                 format!(", and {} joined from outside", joined.len())
             } else {
                 String::new()
+            },
+            match stopped_workers {
+                0 => String::new(),
+                n => format!(", {n} of them stopped by a signal"),
             },
             self.total_restarts
         );
@@ -217,8 +254,13 @@ impl Supervisor {
             s += &format!("  worker-{w} pid {pid} (joined; not started by the supervisor)\n");
         }
         for (pid, p) in &self.procs {
+            let frozen = if stopped.iter().any(|(_, s)| s == pid) {
+                format!(" (stopped by a signal: it runs nothing until `kill -CONT -- -{pid}`)")
+            } else {
+                String::new()
+            };
             s += &format!(
-                "  {} pid {pid} incarnation {}{}{}\n",
+                "  {} pid {pid} incarnation {}{}{}{frozen}\n",
                 p.role.name(),
                 p.incarnation,
                 if p.ready { "" } else { " (starting)" },

@@ -10,7 +10,7 @@ use session::PipelineSection;
 use wire::{Overdue, RunNote};
 
 use super::event_loop::{Outcome, Phase};
-use super::process::{signal_group, still_runs, Role};
+use super::process::{signal_group, still_runs, stopped_in_group, Role};
 use super::{say, Supervisor};
 
 #[derive(Default)]
@@ -222,10 +222,11 @@ impl Supervisor {
     /// lost (reason HUNG) and restarts it like a crashed one.
     pub(super) fn kill_hung(&mut self, o: Overdue) {
         let per_rollout = self.pipe.rollout_timeout_ms.unwrap_or(0);
-        let why = format!(
-            "hung: no rollout done for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} (held {} rollout(s) of update {} for {} ms)",
+        let overdue = format!(
+            "no rollout done for {} ms, over pipeline.rollout_timeout_ms = {per_rollout} (held {} rollout(s) of update {} for {} ms)",
             o.stalled_ms, o.rollouts, o.update, o.held_ms
         );
+        let why = format!("hung: {overdue}");
         // Ours also when a scale-down has taken its slot away: asked to stop, a hung worker
         // does not, and would stay, holding its rollouts, until the run ends.
         let ours = self
@@ -245,6 +246,13 @@ impl Supervisor {
         if (p.stopping && self.phase == Phase::Stopping) || p.hung.is_some() {
             return; // going (the shutdown's timeout bounds it), or being killed
         }
+        // A worker an operator froze (SIGSTOP, Ctrl-Z) holds its rollouts as a hung one does,
+        // and is killed as one; "hung" alone read as a fault of the task.
+        let why = if stopped_in_group(pid).is_empty() {
+            why
+        } else {
+            format!("is stopped by a signal (SIGSTOP, Ctrl-Z), not hung, but holds its rollouts as a hung worker does: {overdue}")
+        };
         say(&format!(
             "worker-{} (pid {pid}) {why}; killing it",
             o.worker
