@@ -2262,6 +2262,44 @@ fn the_progress_lines_show_no_faster_rate_than_the_updates_had() {
     );
 }
 
+/// A run stopped between slow updates (a robot's) shows each update's progress line once: the
+/// stopping updater's last report, of no new update, printed the line before it again (`update
+/// 4/12 … 2 workers` then `update 4/12 …`), as if update 4 had been made twice. A run of one
+/// worker says `1 worker`, not `1 workers`.
+#[test]
+fn a_stopped_run_shows_each_updates_progress_line_once() {
+    let scratch = Scratch::new("progress-once");
+    let slow = (
+        "viapoint_weight = 1000.0",
+        "viapoint_weight = 1000.0\nrollout_delay_ms = 100.0",
+    );
+    let cfg = write_config(&scratch, "once.toml", &config(&[UNBOUNDED, slow]));
+    let args = [cfg.to_str().unwrap(), "--workers", "1", "--no-record"];
+    let mut run = Run::start(&scratch, 27801, &args);
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output("update 2/∞", end);
+    // Updates of 1.5 s: the stop's report comes after the second a line waits for, before
+    // update 3.
+    std::thread::sleep(Duration::from_millis(1100));
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    let out = run.text();
+    let shown: Vec<&str> = out
+        .lines()
+        .filter_map(|l| l.strip_prefix("[supervisor] update ")?.split('/').next())
+        .collect();
+    let mut once = shown.clone();
+    once.dedup();
+    assert_eq!(shown, once, "{out}");
+    assert!(
+        out.lines()
+            .any(|l| l.ends_with("updater, sampler and 1 worker"))
+            && out.contains("  1 worker")
+            && !out.contains("1 workers"),
+        "{out}"
+    );
+}
+
 /// The recording's /log has the run's start after every process's announcement, as they
 /// happened: the supervisor sends START once all have announced themselves. The recorder took
 /// in the supervisor's messages before the announcements of the same round, and logged the

@@ -20,6 +20,7 @@ use crate::{EXIT_INTERRUPTED, EXIT_RECORDING_UNFINISHED};
 use super::children::Proc;
 use super::ports::{spawn_bell, Ports};
 use super::process::{signal_group, Role};
+use super::status::plural;
 use super::task_changes::{PendingSet, SET_REPLY_WAIT};
 use super::{say, Event, Supervisor};
 
@@ -121,14 +122,15 @@ impl Supervisor {
         .context("cannot install the SIGINT/SIGTERM handler")?;
         control::serve(&self.run_dir, self.tx.clone())?;
         say(&format!(
-            "run {} ({}): starting {}updater, sampler and {} workers",
+            "run {} ({}): starting {}updater, sampler and {} worker{}",
             wire::run_id_hex(self.run_id),
             self.cfg.run.name,
             match &self.recording {
                 Some(r) => format!("recorder (to {}), ", r.path.display()),
                 None => String::new(),
             },
-            self.target_workers
+            self.target_workers,
+            plural(self.target_workers as u64)
         ));
         let loop_result = self.event_loop(&rx);
         bell_stop.store(true, Ordering::Relaxed);

@@ -141,7 +141,8 @@ struct Supervisor {
     /// ([`UpdateRate`]), and the reports it is taken from.
     rate: f64,
     rates: UpdateRate,
-    last_shown: Option<Instant>,
+    /// When the last progress line was shown, and the update it showed.
+    last_shown: Option<(Instant, u64)>,
     /// When the newest update arrived (when the run started, before the first: a first
     /// update that never comes is a stall too), and whether the silence since was reported.
     last_update_at: Option<Instant>,

@@ -204,9 +204,12 @@ impl Supervisor {
             let due = tenth
                 || self
                     .last_shown
-                    .is_none_or(|t| t.elapsed() >= Duration::from_secs(1));
-            if !self.quiet && due {
-                self.last_shown = Some(Instant::now());
+                    .is_none_or(|(t, _)| t.elapsed() >= Duration::from_secs(1));
+            // A report without a new update (the stopping updater's last) repeated the line
+            // before it, as if an update had been made twice.
+            let shown = self.last_shown.is_some_and(|(_, u)| u == p.updates);
+            if !self.quiet && due && !shown {
+                self.last_shown = Some((Instant::now(), p.updates));
                 say(&self.progress_line());
             }
         }

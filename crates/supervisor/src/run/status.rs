@@ -144,7 +144,8 @@ impl Supervisor {
         let workers = if self.phase == Phase::Stopping {
             String::new()
         } else {
-            format!("  {} workers", self.worker_count())
+            let n = self.worker_count();
+            format!("  {n} worker{}", plural(n as u64))
         };
         format!(
             "update {}/{of}  eval cost {}  λ now {}  {}{workers}",
