@@ -241,6 +241,9 @@ pub fn info_for(rec: &Recording, program: &str) -> String {
             t.slowest_update + 1
         );
     }
+    if let Some(line) = rollout_times_text(&rec.digest.worker_times.summaries()) {
+        let _ = writeln!(s, "  {line}");
+    }
     for c in &rec.task_changes {
         let _ = writeln!(
             s,
@@ -351,6 +354,44 @@ pub fn update_times(rec: &Recording) -> Option<UpdateTimes> {
     })
 }
 
+/// Workers listed one by one in [`rollout_times_text`]; with more, the fastest and slowest.
+const ROLLOUT_TIME_WORKERS_LISTED: usize = 4;
+
+/// The info line of how long rollouts took, per worker, from the recorded start and end times
+/// (each worker's own clock). The time per update alone did not tell a robot's 0.5 s rollouts
+/// on 2 workers from 1 s rollouts on 4, nor a worker whose rollouts grew slower (a robot whose
+/// arm wears, a simulator on a loaded machine) from one that waited for work.
+fn rollout_times_text(workers: &[crate::digest::WorkerSummary]) -> Option<String> {
+    let one = |w: &crate::digest::WorkerSummary| {
+        format!(
+            "{} median {:.3} ms (mean {:.3} ms, {} rollout{})",
+            w.worker,
+            w.median,
+            w.mean,
+            w.count,
+            if w.count == 1 { "" } else { "s" }
+        )
+    };
+    let listed = if workers.len() <= ROLLOUT_TIME_WORKERS_LISTED {
+        workers.iter().map(one).collect::<Vec<_>>().join(", ")
+    } else {
+        let by_median = |a: &&crate::digest::WorkerSummary, b: &&crate::digest::WorkerSummary| {
+            a.median.total_cmp(&b.median)
+        };
+        let fastest = workers.iter().min_by(by_median)?;
+        let slowest = workers.iter().max_by(by_median)?;
+        format!(
+            "{} workers, the fastest {}, the slowest {}",
+            workers.len(),
+            one(fastest),
+            one(slowest)
+        )
+    };
+    (!workers.is_empty()).then(|| {
+        format!("time per rollout (its start to its end, as its worker timed it): {listed}")
+    })
+}
+
 pub(super) fn describe_hp(hp: &proto::Hyperparameters) -> String {
     let mapping = match proto::CostMapping::try_from(hp.mapping) {
         Ok(proto::CostMapping::Exponential) => format!("h = {}", hp.eliteness),
@@ -428,6 +469,54 @@ mod tests {
         assert!(info(&r)
             .contains("median 0.010 ms, 90 % within 0.020 ms, slowest 0.020 ms (update 1 to 2)"));
         assert_eq!(update_times(&timed(&[(0, 0)])), None);
+    }
+
+    #[test]
+    fn info_gives_each_workers_time_per_rollout() {
+        let mut r = Recording::default();
+        r.digest.add_update(&proto::Update::default());
+        // worker-0: 500, 502, 510 ms; worker-1: 1000 ms once.
+        for (k, (worker, ms)) in [("worker-0", 500), ("worker-1", 1000), ("worker-0", 502)]
+            .into_iter()
+            .chain([("worker-0", 510)])
+            .enumerate()
+        {
+            let start_ns = 1_000_000_000 * (k as u64 + 1);
+            r.digest.add_rollout(&proto::Rollout {
+                rollout: k as u32,
+                worker: worker.into(),
+                start_ns,
+                end_ns: start_ns + ms * 1_000_000,
+                ..Default::default()
+            });
+        }
+        let s = info(&r);
+        assert!(
+            s.contains(
+                "  time per rollout (its start to its end, as its worker timed it): worker-0 \
+                 median 502.000 ms (mean 504.000 ms, 3 rollouts), worker-1 median 1000.000 ms \
+                 (mean 1000.000 ms, 1 rollout)\n"
+            ),
+            "{s}"
+        );
+        // Past 4 workers, the fastest and the slowest.
+        for (w, ms) in [(2, 200), (3, 300), (4, 400)] {
+            r.digest.add_rollout(&proto::Rollout {
+                worker: format!("worker-{w}"),
+                start_ns: 1,
+                end_ns: 1 + ms * 1_000_000,
+                ..Default::default()
+            });
+        }
+        let s = info(&r);
+        assert!(
+            s.contains(
+                "timed it): 5 workers, the fastest worker-2 median 200.000 ms (mean 200.000 ms, \
+                 1 rollout), the slowest worker-1 median 1000.000 ms"
+            ),
+            "{s}"
+        );
+        assert!(!info(&Recording::default()).contains("time per rollout"));
     }
 
     #[test]
