@@ -209,6 +209,46 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
     }
 }
 
+/// How long a command waits for the supervisor's reply.
+const REPLY_WAIT: Duration = Duration::from_secs(10);
+
+/// The supervisor's reply on `stream`, until EOF. A supervisor stopped by a signal (Ctrl-Z in
+/// its terminal: its children lead process groups of their own and go on) still takes the
+/// connection but does not answer; the command waited 10 s and said `Resource temporarily
+/// unavailable (os error 11)`. It is now looked for while waiting, and named.
+fn read_reply(stream: &mut UnixStream, dir: &Path) -> anyhow::Result<String> {
+    use std::io::{ErrorKind, Read};
+    let pid = crate::run::supervisor_pid(dir).ok().flatten();
+    let end = std::time::Instant::now() + REPLY_WAIT;
+    stream.set_read_timeout(Some(Duration::from_millis(200)))?;
+    let mut reply = Vec::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        match stream.read(&mut buf) {
+            Ok(0) => return Ok(String::from_utf8_lossy(&reply).into_owned()),
+            Ok(n) => reply.extend_from_slice(&buf[..n]),
+            Err(e) if e.kind() == ErrorKind::Interrupted => {}
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                let who = pid.map_or("the run's supervisor".to_string(), |pid| {
+                    format!("the run's supervisor (pid {pid})")
+                });
+                if let Some(pid) = pid.filter(|&pid| crate::run::process_stopped(pid)) {
+                    bail!(
+                        "{who} is stopped by a signal (Ctrl-Z in its terminal, SIGSTOP) and \
+                         answers no command until it is continued (`fg` in its terminal, or \
+                         `kill -CONT {pid}`); the run's processes go on meanwhile, but none is \
+                         restarted, scaled or stopped"
+                    );
+                }
+                if std::time::Instant::now() >= end {
+                    bail!("{who} did not answer within {} s", REPLY_WAIT.as_secs());
+                }
+            }
+            Err(e) => return Err(e).context("reading the supervisor's reply"),
+        }
+    }
+}
+
 /// Sends one command to a running supervisor and returns its reply.
 pub fn client(run: Option<&str>, command: &str) -> anyhow::Result<String> {
     let dir = find_run(run)?;
@@ -219,10 +259,8 @@ pub fn client(run: Option<&str>, command: &str) -> anyhow::Result<String> {
             path.display()
         )
     })?;
-    stream.set_read_timeout(Some(Duration::from_secs(10)))?;
     writeln!(stream, "{command}")?;
-    let mut reply = String::new();
-    std::io::Read::read_to_string(&mut stream, &mut reply)?;
+    let reply = read_reply(&mut stream, &dir)?;
     match reply.split_once('\n') {
         Some(("ok", text)) => Ok(text.to_string()),
         Some(("error", text)) => bail!("{text}"),

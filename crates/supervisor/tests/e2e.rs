@@ -2262,6 +2262,33 @@ fn the_progress_lines_show_no_faster_rate_than_the_updates_had() {
     );
 }
 
+/// A supervisor stopped by a signal (Ctrl-Z in its terminal; its children lead process groups
+/// of their own and go on) takes a command's connection but cannot answer: the command said so,
+/// naming what to do, instead of `Resource temporarily unavailable (os error 11)` after 10 s.
+#[test]
+fn a_command_to_a_stopped_supervisor_says_it_is_stopped() {
+    let scratch = Scratch::new("ctl-stopped");
+    let cfg = write_config(&scratch, "ctl.toml", &config(&[UNBOUNDED, DELAYED]));
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 27802, &cfg, &result);
+    run.wait_status("an update", |s| updates_in(s) >= 1);
+    let pid = run.child.id();
+    signal(pid, "-STOP");
+    let (ok, reply) = run.ctl(&["status"]);
+    signal(pid, "-CONT");
+    assert!(
+        !ok && reply.contains(&format!(
+            "the run's supervisor (pid {pid}) is stopped by a signal (Ctrl-Z in its terminal, \
+             SIGSTOP) and answers no command until it is continued (`fg` in its terminal, or \
+             `kill -CONT {pid}`)"
+        )),
+        "{reply}"
+    );
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    assert_nothing_left(&run);
+}
+
 /// A run stopped between slow updates (a robot's) shows each update's progress line once: the
 /// stopping updater's last report, of no new update, printed the line before it again (`update
 /// 4/12 … 2 workers` then `update 4/12 …`), as if update 4 had been made twice. A run of one

@@ -158,15 +158,18 @@ pub(super) fn sweep_orphaned_ipc(own: u64) -> Vec<(String, usize)> {
         .collect()
 }
 
+/// The pid of the supervisor of the run in `run_dir`, from its pid file: `Ok(None)` if the
+/// file holds no pid, `Err` if it cannot be read (not written yet, or removed).
+pub(crate) fn supervisor_pid(run_dir: &Path) -> std::io::Result<Option<u32>> {
+    std::fs::read_to_string(run_dir.join(PID_FILE)).map(|pid| pid.trim().parse().ok())
+}
+
 fn run_abandoned(run_dir: &Path) -> bool {
     if control::serving(run_dir) {
         return false;
     }
-    match std::fs::read_to_string(run_dir.join(PID_FILE)) {
-        Ok(pid) => match pid.trim().parse::<u32>() {
-            Ok(pid) => !process_alive(pid),
-            Err(_) => false,
-        },
+    match supervisor_pid(run_dir) {
+        Ok(pid) => pid.is_some_and(|pid| !process_alive(pid)),
         Err(_) => std::fs::metadata(run_dir)
             .and_then(|m| m.modified())
             .is_ok_and(|t| t.elapsed().is_ok_and(|age| age > Duration::from_secs(60))),

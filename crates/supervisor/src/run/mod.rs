@@ -26,6 +26,7 @@ mod summary;
 mod task_changes;
 mod workers;
 
+pub(crate) use process::process_stopped;
 pub use process::{file_size_limit_note, group_members, process_alive};
 pub use recorder::EMPTY_PART_REMOVED;
 
@@ -44,6 +45,7 @@ use crate::shm;
 use crate::EXIT_RECORDING_UNFINISHED;
 
 use children::{Proc, Spawned};
+pub(crate) use cleanup::supervisor_pid;
 use cleanup::{note_recording, sweep_abandoned_runs, sweep_orphaned_ipc, PID_FILE};
 pub(crate) use cleanup::{unfinished_recording, unfinished_text};
 use event_loop::{Outcome, Phase};

@@ -215,7 +215,17 @@ pub fn group_members(group: u32) -> Vec<u32> {
 /// process is not hung and has not died: it holds what it holds until SIGCONT resumes it where
 /// it was, so what the supervisor says of a run that waits for it names it as stopped.
 pub(super) fn stopped_in_group(group: u32) -> Vec<u32> {
-    group_in_state(group, |state| state == "T" || state == "t")
+    group_in_state(group, stopped_state)
+}
+
+/// Whether process `pid` is stopped by a signal (see [`stopped_in_group`]).
+pub(crate) fn process_stopped(pid: u32) -> bool {
+    stat_fields(pid, |state, _| Some(stopped_state(state))).unwrap_or(false)
+}
+
+/// A process state (field 3 of its stat) of one stopped by a signal, or by a debugger.
+fn stopped_state(state: &str) -> bool {
+    state == "T" || state == "t"
 }
 
 /// The processes of process group `group` whose state (field 3 of their stat) `state` accepts.
@@ -430,10 +440,13 @@ mod tests {
             assert_eq!(stopped_in_group(pid), want);
         };
         wait_for(vec![]);
+        assert!(!process_stopped(pid));
         signal_group(pid, libc::SIGSTOP);
         wait_for(vec![pid]);
+        assert!(process_stopped(pid));
         signal_group(pid, libc::SIGCONT);
         wait_for(vec![]);
+        assert!(!process_stopped(pid));
         child.kill().expect("kill");
         child.wait().expect("reap");
     }
