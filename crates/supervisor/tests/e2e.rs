@@ -2995,6 +2995,11 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
     );
     let (_, status) = run.ctl(&["status"]);
     assert!(
+        status.contains("\nstalled: no update for ")
+            && status.contains(" s, where they came every "),
+        "{status}"
+    );
+    assert!(
         status.contains("3 running (target 3, max 16), 3 of them stopped by a signal")
             && workers.iter().all(|pid| status.contains(&format!(
                 " pid {pid} incarnation 0 (stopped by a signal: it runs nothing until `kill -CONT -- -{pid}`)"

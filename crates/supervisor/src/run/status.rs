@@ -307,6 +307,21 @@ impl Supervisor {
             }
             None => s += "updates: 0\n",
         }
+        // The rate above is that of the updates before a stall: with slow rollouts it read as
+        // a run going on while the output had warned that none had come for minutes.
+        if self.stall_reported {
+            if let Some(at) = self.last_update_at {
+                s += &format!(
+                    "stalled: no update for {:.0} s{} (see the warning in the run's output)\n",
+                    at.elapsed().as_secs_f64(),
+                    if self.rate > 0.0 {
+                        format!(", where they came every {}", interval_text(1.0 / self.rate))
+                    } else {
+                        String::new()
+                    }
+                );
+            }
+        }
         s
     }
 }
