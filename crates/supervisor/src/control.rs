@@ -213,8 +213,7 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
 const REPLY_WAIT: Duration = Duration::from_secs(10);
 
 /// The supervisor's reply on `stream`, until EOF. A supervisor stopped by a signal (Ctrl-Z in
-/// its terminal: its children lead process groups of their own and go on) still takes the
-/// connection but does not answer; the command waited 10 s and said `Resource temporarily
+/// its terminal, SIGSTOP) still takes the connection but does not answer; the command waited 10 s and said `Resource temporarily
 /// unavailable (os error 11)`. It is now looked for while waiting, and named.
 fn read_reply(stream: &mut UnixStream, dir: &Path) -> anyhow::Result<String> {
     use std::io::{ErrorKind, Read};
@@ -234,10 +233,10 @@ fn read_reply(stream: &mut UnixStream, dir: &Path) -> anyhow::Result<String> {
                 });
                 if let Some(pid) = pid.filter(|&pid| crate::run::process_stopped(pid)) {
                     bail!(
-                        "{who} is stopped by a signal (Ctrl-Z in its terminal, SIGSTOP) and \
-                         answers no command until it is continued (`fg` in its terminal, or \
-                         `kill -CONT {pid}`); the run's processes go on meanwhile, but none is \
-                         restarted, scaled or stopped"
+                        "{who} is stopped by a signal (Ctrl-Z in its terminal, which suspends \
+                         the run's processes with it; SIGSTOP, which leaves them running \
+                         unsupervised) and answers no command until it is continued (`fg` in \
+                         its terminal, or `kill -CONT {pid}`)"
                     );
                 }
                 if std::time::Instant::now() >= end {

@@ -2262,8 +2262,8 @@ fn the_progress_lines_show_no_faster_rate_than_the_updates_had() {
     );
 }
 
-/// A supervisor stopped by a signal (Ctrl-Z in its terminal; its children lead process groups
-/// of their own and go on) takes a command's connection but cannot answer: the command said so,
+/// A supervisor stopped by a signal (here SIGSTOP, which leaves its children running) takes a
+/// command's connection but cannot answer: the command said so,
 /// naming what to do, instead of `Resource temporarily unavailable (os error 11)` after 10 s.
 #[test]
 fn a_command_to_a_stopped_supervisor_says_it_is_stopped() {
@@ -2279,13 +2279,18 @@ fn a_command_to_a_stopped_supervisor_says_it_is_stopped() {
     assert!(
         !ok && reply.contains(&format!(
             "the run's supervisor (pid {pid}) is stopped by a signal (Ctrl-Z in its terminal, \
-             SIGSTOP) and answers no command until it is continued (`fg` in its terminal, or \
-             `kill -CONT {pid}`)"
+             which suspends the run's processes with it; SIGSTOP, which leaves them running \
+             unsupervised) and answers no command until it is continued (`fg` in its terminal, \
+             or `kill -CONT {pid}`)"
         )),
         "{reply}"
     );
+    // Continued, it hears its doorbell again: the SIGSTOP/SIGCONT interrupted the doorbell
+    // thread's wait, which ended the thread, and the stop then waited for the recorder's
+    // acknowledgement until a deadline (`still waiting for worker-0 … to stop`).
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
+    assert!(!run.text().contains("still waiting"), "{}", run.text());
     assert_nothing_left(&run);
 }
 

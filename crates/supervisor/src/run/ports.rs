@@ -257,6 +257,11 @@ pub(super) fn spawn_bell(
                             break;
                         }
                     }
+                    // A signal (the supervisor stopped by Ctrl-Z or SIGSTOP and continued, a
+                    // handler run on this thread) interrupts the wait: it ended this thread,
+                    // and the supervisor, woken by its deadlines only, took seconds to see the
+                    // recorder's acknowledgements and to stop its workers.
+                    Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => {}
                     Err(_) => break,
                 }
             }
