@@ -919,8 +919,12 @@ fn a_hung_worker_that_was_scaled_down_is_still_killed() {
     assert!(!supervisor::process_alive(victim));
     run.wait_exit(Duration::from_secs(60), 0);
     let out = run.text();
+    // Stopped (SIGSTOP) to hang, and killed as a hung worker is; the line says it was stopped.
     assert!(
-        out.contains(&format!("worker-3 (pid {victim}) hung")),
+        out.contains(&format!(
+            "worker-3 (pid {victim}) is stopped by a signal (SIGSTOP, Ctrl-Z), not hung, but \
+             holds its rollouts as a hung worker does: no rollout done for"
+        )),
         "{out}"
     );
     assert!(!out.contains("not started by this supervisor"), "{out}");
