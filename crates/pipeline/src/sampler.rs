@@ -97,6 +97,10 @@ const DEAD_SCAN: Duration = Duration::from_secs(1);
 /// (the updater keeps a rollout's first cost).
 const HELD_BACK_RELEASE: Duration = Duration::from_millis(100);
 
+/// A longer time between two overdue checks (which come at least every `wait_loop` tick, 0.1
+/// s) means the sampler was not running: see the check.
+const OVERDUE_CHECK_GAP: Duration = Duration::from_secs(1);
+
 type Inbox = (Publisher<Service, [f64], WorkHeader>, Notifier<Service>);
 
 struct Assignment {
@@ -174,6 +178,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
     let mut finished = false;
     let mut beyond = OncePerWorker::default();
     let mut last_scan = Instant::now();
+    let mut last_overdue_check = Instant::now();
     // PI2CMA_TRACE=1: one line per distribution, request and chunk (µs since start).
     let trace = std::env::var_os("PI2CMA_TRACE").is_some();
     let t0 = std::time::Instant::now();
@@ -359,6 +364,18 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         // after their Ready messages are read: a sampler that was not scheduled for a while (or
         // stopped) would otherwise find the chunks its workers finished meanwhile overdue.
         if let Some(per_rollout) = rollout_timeout {
+            // Time the sampler did not run for is not the workers' to account for: a run
+            // suspended with Ctrl-Z (the supervisor stops every process) or a machine that
+            // slept had them stopped as well, and each worker holding a chunk was found
+            // overdue, killed and restarted, at once when the run was continued. After such a
+            // gap each held chunk's timeout counts afresh.
+            let now = Instant::now();
+            if now.duration_since(last_overdue_check) > OVERDUE_CHECK_GAP {
+                for a in workers.values_mut().filter_map(|w| w.assignment.as_mut()) {
+                    a.progress = now;
+                }
+            }
+            last_overdue_check = now;
             for (&worker, w) in workers.iter_mut() {
                 let Some(a) = &w.assignment else { continue };
                 let stalled = a.progress.elapsed();

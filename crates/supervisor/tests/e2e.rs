@@ -2298,6 +2298,76 @@ fn a_command_to_a_stopped_supervisor_says_it_is_stopped() {
     assert_nothing_left(&run);
 }
 
+/// The state of process `pid` (field 3 of its stat: `T` when stopped by a signal).
+fn process_state(pid: u32) -> String {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|s| Some(s.rsplit_once(')')?.1.split_whitespace().next()?.to_string()))
+        .unwrap_or_default()
+}
+
+/// Ctrl-Z in the terminal of `supervisor run` (SIGTSTP) suspends the whole run: the children
+/// lead process groups of their own, which the terminal's Ctrl-Z does not reach, so it stopped
+/// the supervisor alone and the run went on unsupervised. Continued (`fg`), the run goes on
+/// with no worker taken for hung (the sampler's clock ran on while it was stopped, and every
+/// worker in a rollout was past `rollout_timeout_ms`) and ends with the same bits.
+#[test]
+fn ctrl_z_suspends_the_whole_run_and_fg_continues_it_without_restarts() {
+    let scratch = Scratch::new("ctrl-z");
+    let text = config(&[
+        UNBOUNDED,
+        DELAYED,
+        (
+            "max_workers = 16",
+            "max_workers = 16\nrollout_timeout_ms = 400",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "ctrl-z.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 27803, &cfg, &result);
+    let status = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let supervisor = run.child.id();
+    let mut pids: Vec<u32> = pids_in(&status).into_iter().map(|(_, pid)| pid).collect();
+    pids.push(supervisor);
+    signal(supervisor, "-TSTP");
+    let end = Instant::now() + Duration::from_secs(10);
+    while pids.iter().any(|&pid| process_state(pid) != "T") {
+        assert!(
+            Instant::now() < end,
+            "not all stopped: {:?}\n{}",
+            pids.iter()
+                .map(|&p| (p, process_state(p)))
+                .collect::<Vec<_>>(),
+            run.text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Longer than the rollout timeout, and than the gap the sampler takes for its own stop.
+    std::thread::sleep(Duration::from_millis(1500));
+    signal(supervisor, "-CONT");
+    run.wait_output("continued after ", end + Duration::from_secs(2));
+    let before = updates_in(&run.ctl_ok(&["status"]));
+    let status = run.wait_status("updates going on", |s| updates_in(s) >= before + 3);
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    let out = run.text();
+    assert!(
+        status.contains(", restarts 0\n")
+            && !out.contains(" hung")
+            && !out.contains("still waiting"),
+        "{status}\n{out}"
+    );
+    assert!(
+        out.contains(&format!(
+            "Ctrl-Z: the run is suspended, its 6 processes with the supervisor; `fg` (or `kill \
+             -CONT {supervisor}`) continues them"
+        )),
+        "{out}"
+    );
+    assert_bit_identical(&text, &result);
+    assert_nothing_left(&run);
+}
+
 /// A run stopped between slow updates (a robot's) shows each update's progress line once: the
 /// stopping updater's last report, of no new update, printed the line before it again (`update
 /// 4/12 … 2 workers` then `update 4/12 …`), as if update 4 had been made twice. A run of one

@@ -120,6 +120,7 @@ impl Supervisor {
             let _ = tx.send(Event::Signal);
         })
         .context("cannot install the SIGINT/SIGTERM handler")?;
+        super::suspend::forward_sigtstp(self.tx.clone())?;
         control::serve(&self.run_dir, self.tx.clone())?;
         say(&format!(
             "run {} ({}): starting {}updater, sampler and {} worker{}",
@@ -573,6 +574,34 @@ impl Supervisor {
         Ok(())
     }
 
+    /// Ctrl-Z: stops every child's process group, then the supervisor; once the supervisor is
+    /// continued (`fg`), continues them. The time it was suspended counts towards no stall.
+    fn suspend(&mut self) {
+        let groups: Vec<u32> = self.procs.keys().copied().collect();
+        for &pid in &groups {
+            signal_group(pid, libc::SIGSTOP);
+        }
+        say(&format!(
+            "Ctrl-Z: the run is suspended, its {} processes with the supervisor; `fg` (or `kill \
+             -CONT {}`) continues them",
+            groups.len(),
+            std::process::id()
+        ));
+        let suspended = Instant::now();
+        super::suspend::stop_self();
+        for &pid in &groups {
+            signal_group(pid, libc::SIGCONT);
+        }
+        let paused = suspended.elapsed();
+        if let Some(t) = self.last_update_at.as_mut() {
+            *t += paused;
+        }
+        say(&format!(
+            "continued after {:.1} s: the run goes on",
+            paused.as_secs_f64()
+        ));
+    }
+
     fn handle(&mut self, ev: Event) -> anyhow::Result<()> {
         match ev {
             Event::Bell => Ok(()),
@@ -587,6 +616,10 @@ impl Supervisor {
                     }
                     self.begin_stop();
                 }
+                Ok(())
+            }
+            Event::Suspend => {
+                self.suspend();
                 Ok(())
             }
             Event::Command((Cmd::Set(name, value), reply)) => {

@@ -23,6 +23,7 @@ mod process;
 mod recorder;
 mod status;
 mod summary;
+mod suspend;
 mod task_changes;
 mod workers;
 
@@ -112,9 +113,14 @@ pub fn default_recording(run_name: &str, run_id: u64) -> PathBuf {
 
 /// Messages into the supervisor's event loop.
 pub enum Event {
-    Exited { pid: u32, status: ExitStatus },
+    Exited {
+        pid: u32,
+        status: ExitStatus,
+    },
     Command(Request),
     Signal,
+    /// Ctrl-Z (SIGTSTP): suspend the run ([`suspend`]).
+    Suspend,
     Bell,
 }
 
