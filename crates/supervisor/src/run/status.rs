@@ -356,9 +356,20 @@ pub(super) fn reading(v: f64) -> String {
 }
 
 /// An update rate as the progress lines, `status` and the summary show it: whole updates per
-/// second from 10 on, else two significant digits. Rollouts of seconds (a robot's, a slow
-/// simulator's) make updates of tens of seconds, which `{:.0}` printed as `0 updates/s`.
+/// second from 10 on, two significant digits down to 1, and below one update a second the
+/// time per update (`11 s per update`). Rollouts of seconds (a robot's, a slow simulator's)
+/// make updates of tens of seconds, which `{:.0}` printed as `0 updates/s` and two digits as
+/// `0.091 updates/s`, which the reader had to invert.
 pub(super) fn rate_text(per_s: f64) -> String {
+    if per_s > 0.0 && per_s < 1.0 {
+        let secs = 1.0 / per_s;
+        // Two significant digits below 10 s (`1.5 s`), whole seconds above.
+        return if format!("{secs:.1}").parse::<f64>().is_ok_and(|s| s < 10.0) {
+            format!("{secs:.1} s per update")
+        } else {
+            format!("{secs:.0} s per update")
+        };
+    }
     let digits = |r: f64| {
         if r >= 10.0 || r <= 0.0 || !r.is_finite() {
             0
@@ -433,10 +444,13 @@ mod tests {
         assert_eq!(rate_text(12.4), "12 updates/s");
         assert_eq!(rate_text(9.74), "9.7 updates/s");
         assert_eq!(rate_text(1.0), "1.0 updates/s");
-        // 2 s rollouts, 5 per worker: an update every 10 s.
-        assert_eq!(rate_text(0.0998), "0.10 updates/s");
+        // Below one a second, the time per update.
+        assert_eq!(rate_text(0.69), "1.4 s per update");
+        // 2 s rollouts, 5 per worker: an update every 10 s (9.98 s rounds to 10, whole).
+        assert_eq!(rate_text(0.1002), "10 s per update");
+        assert_eq!(rate_text(0.2), "5.0 s per update");
         // A robot's episode of minutes.
-        assert_eq!(rate_text(0.00123), "0.0012 updates/s");
+        assert_eq!(rate_text(0.00123), "813 s per update");
         assert_eq!(rate_text(0.0), "0 updates/s");
     }
 

@@ -315,7 +315,7 @@ mod tests {
     fn a_run_that_ran_no_update_says_so_instead_of_a_rate() {
         assert_eq!(pace_text(0, 0.0), "(none ran)");
         assert_eq!(pace_text(40, 0.004173), "in 4.173 ms (9585 updates/s)");
-        assert_eq!(pace_text(3, 30.0), "in 30.000 s (0.10 updates/s)");
+        assert_eq!(pace_text(3, 30.0), "in 30.000 s (10 s per update)");
     }
 
     #[test]
