@@ -621,14 +621,22 @@ impl<W: Write + Seek> RunWriter<W> {
         self.mcap.flush().map_err(|e| self.mcap_err(e))
     }
 
-    /// Writes the summary section and indexes and flushes the destination; the file is then
-    /// complete.
-    pub fn finish(mut self) -> Result<W, RecordError> {
+    /// Writes the summary section and indexes and flushes the destination (held output too);
+    /// the file is then complete.
+    pub fn finish(mut self) -> Result<(), RecordError> {
+        // The `mcap` writer's last act is a flush of the destination.
+        self.passes.store(true, Ordering::Relaxed);
         self.mcap.finish().map_err(|e| self.mcap_err(e))?;
-        let file = self.file.clone();
-        let mut w = self.mcap.into_inner().inner;
-        w.flush().map_err(|e| RecordError::io(file, e))?;
-        Ok(w)
+        Ok(())
+    }
+}
+
+impl<W: Write + Seek> Drop for RunWriter<W> {
+    /// The `mcap` writer, dropped next, finishes the file (an error path that did not call
+    /// [`RunWriter::finish`]); its closing flush must reach the destination even with the
+    /// output held, or the held updates and the summary would be dropped with the buffer.
+    fn drop(&mut self) {
+        self.passes.store(true, Ordering::Relaxed);
     }
 }
 
@@ -698,6 +706,18 @@ mod tests {
             assert_eq!(len(&path) > before, !held, "held: {held}");
             w.finish().unwrap();
             assert_eq!(logs(&path), ["first", "second", "third"]);
+            // Dropped without `finish` (an error path), held output and summary still land.
+            let path = dir.join(format!("dropped-{held}.mcap"));
+            let mut w = RunWriter::create(&path).unwrap();
+            if held {
+                w.hold_output();
+            }
+            w.write_event(0, Event::Info, "test", 1, "held").unwrap();
+            w.end_chunk().unwrap();
+            drop(w);
+            let r = crate::read_recording(&path).unwrap();
+            assert!(r.indexed, "held: {held}");
+            assert_eq!(r.logs.len(), 1, "held: {held}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
     }
