@@ -463,8 +463,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // then never applies it, though the reply to `supervisor set` named the update it was due
     // at. It is in neither the result file nor the recording, so say so rather than drop it.
     // A change overridden by a later one of its setting would not have applied either.
-    let overridden = |i: usize| runtime[i + 1..].iter().any(|d| d.name == runtime[i].name);
-    for (_, c) in runtime.iter().enumerate().filter(|(i, _)| !overridden(*i)) {
+    for c in tasks::not_replaced(&runtime) {
         println!(
             "task change {} = {} due from update {} not applied: the run stopped before that \
              update (after --resume, give it again with `supervisor set`)",

@@ -311,7 +311,6 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         let _ = doorbell.timed_wait(|a| hold |= a.id == wire::HOLD, wait);
     };
     let not_recorded = std::mem::take(&mut state.not_recorded);
-    let out_text = out.display().to_string();
     let written = state.finish(why)?;
     let cpu = process_cpu_seconds();
     // Per update only when there were updates: the CPU of a start and stop is not a rate.
@@ -334,9 +333,10 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     if !not_recorded.is_empty() {
         eprintln!(
             "warning: {} not recorded ({}): their inputs never reached the recorder; the \
-             recording's /log says which (`mcap-tool info {out_text}`)",
+             recording's /log says which (`mcap-tool info {}`)",
             plural(not_recorded.len(), "update"),
-            update_ranges(&not_recorded)
+            update_ranges(&not_recorded),
+            out.display()
         );
     }
     Ok(())

@@ -227,6 +227,16 @@ pub enum TemporalName {
     BasisActivation,
 }
 
+impl TemporalName {
+    /// The value of `optimizer.temporal_averaging` that selects it.
+    pub fn name(self) -> &'static str {
+        match self {
+            TemporalName::RemainingSteps => "remaining-steps",
+            TemporalName::BasisActivation => "basis-activation",
+        }
+    }
+}
+
 /// The update rule. Method-specific keys are rejected for the other methods, so a setting that
 /// would be silently ignored is an error instead.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -879,13 +889,10 @@ impl RunConfig {
         let temporal = o
             .temporal_averaging
             .filter(|_| o.weighting == WeightingName::Episodic)
-            .map(|t| match t {
-                TemporalName::RemainingSteps => "\"remaining-steps\"",
-                TemporalName::BasisActivation => "\"basis-activation\"",
-            });
+            .map(|t| format!("\"{}\"", t.name()));
         only(
             "temporal_averaging",
-            temporal.map(str::to_string),
+            temporal,
             "weighting = \"per-time-step\"",
             "weighting = \"episodic\"",
         )?;

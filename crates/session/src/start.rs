@@ -28,11 +28,7 @@ pub fn scheduled_at<'a>(
         Some(s) if s.update == u => s.scheduled_at_start(schedule),
         _ => schedule.at(u).collect(),
     };
-    due.iter()
-        .enumerate()
-        .filter(|&(i, c)| !due[i + 1..].iter().any(|d| d.name == c.name))
-        .map(|(_, c)| *c)
-        .collect()
+    tasks::not_replaced(&due).copied().collect()
 }
 
 /// The state a run resumes from.

@@ -213,11 +213,15 @@ fn find_run(run: Option<&str>) -> anyhow::Result<PathBuf> {
 const REPLY_WAIT: Duration = Duration::from_secs(10);
 
 /// The supervisor's reply on `stream`, until EOF. A supervisor stopped by a signal (Ctrl-Z in
-/// its terminal, SIGSTOP) still takes the connection but does not answer; the command waited 10 s and said `Resource temporarily
-/// unavailable (os error 11)`. It is now looked for while waiting, and named.
+/// its terminal, SIGSTOP) still takes the connection but does not answer; the command waited
+/// 10 s and said `Resource temporarily unavailable (os error 11)`. It is now looked for while
+/// waiting, and named.
 fn read_reply(stream: &mut UnixStream, dir: &Path) -> anyhow::Result<String> {
     use std::io::{ErrorKind, Read};
     let pid = crate::run::supervisor_pid(dir).ok().flatten();
+    let who = pid.map_or("the run's supervisor".to_string(), |pid| {
+        format!("the run's supervisor (pid {pid})")
+    });
     let end = std::time::Instant::now() + REPLY_WAIT;
     stream.set_read_timeout(Some(Duration::from_millis(200)))?;
     let mut reply = Vec::new();
@@ -228,9 +232,6 @@ fn read_reply(stream: &mut UnixStream, dir: &Path) -> anyhow::Result<String> {
             Ok(n) => reply.extend_from_slice(&buf[..n]),
             Err(e) if e.kind() == ErrorKind::Interrupted => {}
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
-                let who = pid.map_or("the run's supervisor".to_string(), |pid| {
-                    format!("the run's supervisor (pid {pid})")
-                });
                 if let Some(pid) = pid.filter(|&pid| crate::run::process_stopped(pid)) {
                     bail!(
                         "{who} is stopped by a signal (Ctrl-Z in its terminal, which suspends \

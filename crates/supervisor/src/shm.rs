@@ -51,8 +51,11 @@ pub(crate) fn space(dir: &Path) -> Option<Space> {
     })
 }
 
+/// `512 bytes`, `12 KiB`, `64.0 MiB`, `1.5 GiB`.
 pub(crate) fn size(bytes: u64) -> String {
-    if bytes < 1 << 20 {
+    if bytes < 1 << 10 {
+        format!("{bytes} bytes")
+    } else if bytes < 1 << 20 {
         format!("{} KiB", bytes >> 10)
     } else if bytes < 1 << 30 {
         format!("{:.1} MiB", bytes as f64 / f64::from(1 << 20))
@@ -255,6 +258,15 @@ fn suggested_size(need: u64, space: &Space) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_read_in_their_unit() {
+        // A file size limit of a few blocks was "0 KiB"; the supervisor's note said bytes.
+        assert_eq!(size(512), "512 bytes");
+        assert_eq!(size(12 << 10), "12 KiB");
+        assert_eq!(size(64 << 20), "64.0 MiB");
+        assert_eq!(size(3 << 29), "1.5 GiB");
+    }
 
     fn tball_large(free: u64) -> (RunSizes<'static>, Space) {
         let run = RunSizes {

@@ -167,6 +167,16 @@ pub fn set_all<N: AsRef<str>>(task: &mut dyn Task, settings: &[(N, f64)]) -> Res
     }
 }
 
+/// Those of `changes` (in the order they were given) that no later change of the same setting
+/// replaces: of two changes of a setting due at one update, the later is the one in force.
+pub fn not_replaced<C: std::borrow::Borrow<TaskChange>>(changes: &[C]) -> impl Iterator<Item = &C> {
+    changes.iter().enumerate().filter_map(move |(i, c)| {
+        let name = &c.borrow().name;
+        let replaced = changes[i + 1..].iter().any(|d| &d.borrow().name == name);
+        (!replaced).then_some(c)
+    })
+}
+
 /// [`set_all`]'s rounds, returning what is still refused after a round that took none: the
 /// index of each such setting in `settings`, with its refusal (empty when all were taken). A
 /// pipeline worker takes an update's changes so and keeps the refused ones' earlier values.

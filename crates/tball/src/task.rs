@@ -231,14 +231,7 @@ impl Tball {
     /// shoulder, plus the bat's and the ball's radii. Whatever the tee's x and y, a higher ball
     /// is never hit.
     fn highest_reachable_ball(&self) -> f64 {
-        let c = &self.config;
-        c.shoulder[2]
-            + c.upper_arm
-            + c.forearm
-            + c.hand
-            + c.bat_length
-            + c.bat_radius
-            + c.ball_radius
+        self.config.shoulder[2] + self.farthest_reachable_tee()
     }
 
     /// The farthest the tee can be from the shoulder, horizontally, for the bat to touch the

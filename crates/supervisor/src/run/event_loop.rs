@@ -386,10 +386,6 @@ impl Supervisor {
         }
     }
 
-    /// Names the processes the stop has waited for longer than [`STOP_WAIT_SAID`], once each:
-    /// with a long `shutdown_timeout_ms` (a robot's episode) the stop said nothing until the
-    /// timeout, and a second Ctrl-C, pressed at a supervisor that looked hung, killed the
-    /// recorder too.
     /// When the stop's wait for `p` is to be said ([`Self::say_stop_waits`]), if it is to be:
     /// one rule for the saying and for the event loop's wake-ups, which woke at once, over and
     /// over, for a process SIGKILLed and not yet reaped.
@@ -398,6 +394,10 @@ impl Supervisor {
         says.then_some(p.asked_at?).map(|t| t + STOP_WAIT_SAID)
     }
 
+    /// Names the processes the stop has waited for longer than [`STOP_WAIT_SAID`], once each:
+    /// with a long `shutdown_timeout_ms` (a robot's episode) the stop said nothing until the
+    /// timeout, and a second Ctrl-C, pressed at a supervisor that looked hung, killed the
+    /// recorder too.
     fn say_stop_waits(&mut self) {
         let now = Instant::now();
         let due: Vec<u32> = self

@@ -321,11 +321,7 @@ pub fn file_size_limit_note(e: &anyhow::Error) -> Option<String> {
     Some(format!(
         "a file size limit is set (`ulimit -f`: {}), and iceoryx2's shared memory files count \
          against it: raise or remove the limit",
-        if limit < 1 << 10 {
-            format!("{limit} bytes")
-        } else {
-            size(limit)
-        }
+        size(limit)
     ))
 }
 

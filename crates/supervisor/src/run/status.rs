@@ -362,28 +362,23 @@ pub(super) fn reading(v: f64) -> String {
 /// `0.091 updates/s`, which the reader had to invert.
 pub(super) fn rate_text(per_s: f64) -> String {
     if per_s > 0.0 && per_s < 1.0 {
-        let secs = 1.0 / per_s;
-        // Two significant digits below 10 s (`1.5 s`), whole seconds above.
-        return if format!("{secs:.1}").parse::<f64>().is_ok_and(|s| s < 10.0) {
-            format!("{secs:.1} s per update")
-        } else {
-            format!("{secs:.0} s per update")
-        };
+        format!("{} s per update", two_digits_below_ten(1.0 / per_s))
+    } else if per_s > 0.0 && per_s.is_finite() {
+        format!("{} updates/s", two_digits_below_ten(per_s))
+    } else {
+        format!("{per_s:.0} updates/s")
     }
-    let digits = |r: f64| {
-        if r >= 10.0 || r <= 0.0 || !r.is_finite() {
-            0
-        } else {
-            // 2 significant digits: 1 decimal from 1 on, 2 from 0.1 on, ...
-            (1.0 - r.log10().floor()).max(1.0) as usize
-        }
-    };
-    // Counted again on the rounded value: 0.0998 rounds to 0.100, which is 0.10.
-    let d = digits(per_s);
-    let d = format!("{per_s:.d$}")
-        .parse()
-        .map_or(d, |r| digits(r).min(d));
-    format!("{per_s:.d$} updates/s")
+}
+
+/// `x` (≥ 1) with one decimal below 10, two significant digits, and whole from 10 on; judged on
+/// the rounded value, so that 9.96 is `10`, not `10.0`.
+fn two_digits_below_ten(x: f64) -> String {
+    let one_decimal = format!("{x:.1}");
+    if one_decimal.parse::<f64>().is_ok_and(|r| r < 10.0) {
+        one_decimal
+    } else {
+        format!("{x:.0}")
+    }
 }
 
 /// A time between updates as the stall warning shows it: in seconds, in milliseconds below
@@ -443,6 +438,7 @@ mod tests {
         assert_eq!(rate_text(1191.4), "1191 updates/s");
         assert_eq!(rate_text(12.4), "12 updates/s");
         assert_eq!(rate_text(9.74), "9.7 updates/s");
+        assert_eq!(rate_text(9.96), "10 updates/s");
         assert_eq!(rate_text(1.0), "1.0 updates/s");
         // Below one a second, the time per update.
         assert_eq!(rate_text(0.69), "1.4 s per update");
