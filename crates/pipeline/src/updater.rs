@@ -133,6 +133,10 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     // The flags of the distribution waiting to be published (the optimizer's current one); it
     // waits while the recorder's back-pressure holds it back.
     let mut to_publish: Option<u32> = None;
+    // `supervisor stop --after-update`: the next distribution is the last, published with
+    // `FINAL | STOPPED`, once the update under way is done.
+    let mut stop_after = false;
+    const STOP: u32 = DistributionHeader::FINAL | DistributionHeader::STOPPED;
     // (the supervisor's number of the last task change taken, the update it takes effect
     // from), echoed in `Progress`; a `Cell` because `report` reads it while the control loop
     // sets it.
@@ -261,6 +265,26 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 Control::RECORDER_BACK if started.is_some() => {
                     let u = optimizer.update_index();
                     recorder.attach_if_running(u, u + u64::from(to_publish.is_none()))
+                }
+                Control::STOP_AFTER_UPDATE if started.is_some() && !stop_after => {
+                    stop_after = true;
+                    let u = optimizer.update_index();
+                    match to_publish {
+                        // Held back by the recorder: no rollout of it has begun, and its
+                        // distribution, with the changes due at it, is where a resumed run
+                        // goes on.
+                        Some(0) => {
+                            to_publish = Some(STOP);
+                            println!("stop requested: the run stops before update {u}, which has not begun");
+                            report(&optimizer, &task.settings(), last_eval, done_at, Progress::FINAL)?;
+                        }
+                        // The run's last update is done already: it ends as it would have.
+                        Some(_) => {}
+                        None => println!(
+                            "stop requested: the run stops after update {u}, the one under way, once \
+                             its rollouts are done"
+                        ),
+                    }
                 }
                 Control::SET_TASK => {
                     let change = TaskChange {
@@ -418,8 +442,35 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
             done_at = t0.elapsed();
             let next = optimizer.update_index();
             let done = cfg.run.updates.is_some_and(|n| next >= n);
-            if done {
-                complete = true;
+            // The last update of a bounded run publishes no changes: none runs after it. A
+            // run stopped on request goes on from `next` when resumed, with them.
+            if !done {
+                for c in schedule.at(next) {
+                    apply(&mut *task, c, "schedule", &mut recorded)?;
+                }
+                for c in runtime.drain(..) {
+                    apply(
+                        &mut *task,
+                        &TaskChange {
+                            from_update: next,
+                            ..c
+                        },
+                        "runtime",
+                        &mut recorded,
+                    )?;
+                }
+                if let Some(before) = &previous {
+                    drop_unchanged(&mut recorded, next, &setting_names, before);
+                }
+            }
+            if done || stop_after {
+                complete = done;
+                if !done {
+                    println!(
+                        "stopping as requested: update {u} was the last; the run goes on from \
+                         update {next} when resumed"
+                    );
+                }
                 report(
                     &optimizer,
                     &task.settings(),
@@ -427,25 +478,12 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     done_at,
                     Progress::FINAL,
                 )?;
-                to_publish = Some(DistributionHeader::FINAL);
+                to_publish = Some(if done {
+                    DistributionHeader::FINAL
+                } else {
+                    STOP
+                });
                 continue;
-            }
-            for c in schedule.at(next) {
-                apply(&mut *task, c, "schedule", &mut recorded)?;
-            }
-            for c in runtime.drain(..) {
-                apply(
-                    &mut *task,
-                    &TaskChange {
-                        from_update: next,
-                        ..c
-                    },
-                    "runtime",
-                    &mut recorded,
-                )?;
-            }
-            if let Some(before) = &previous {
-                drop_unchanged(&mut recorded, next, &setting_names, before);
             }
             to_publish = Some(0);
             // Every PROGRESS_INTERVAL, and at every tenth of a bounded run (so short runs show

@@ -445,6 +445,9 @@ struct WriterState {
     pid: u32,
     started: bool,
     final_update: Option<u64>,
+    /// The `FINAL` distribution is `STOPPED`: its update, which did not run, is where a resumed
+    /// run goes on, with its settings.
+    stopped: bool,
     current_update: u64,
     written: u64,
     mismatches: u64,
@@ -585,6 +588,7 @@ impl WriterState {
             pid: std::process::id(),
             started: false,
             final_update: None,
+            stopped: false,
             // What comes before the first distribution (the processes' announcements, the
             // supervisor's START) happens at the update the run starts at: a resumed run's
             // logged it at update 0, which its recording does not hold.
@@ -631,8 +635,9 @@ impl WriterState {
             // All the settings the update was to run with: a `set` that overrode a scheduled
             // change back to the value in force is no change above, and `--resume` would
             // apply the schedule's change again without them. The FINAL distribution's update
-            // does not run, and its settings hold no change due at it.
-            if self.final_update != Some(u) {
+            // does not run, and its settings hold no change due at it, unless the run stopped
+            // there on request: then they are what it goes on with.
+            if self.final_update != Some(u) || self.stopped {
                 let settings: Vec<(&str, f64)> = self
                     .names
                     .iter()
@@ -752,6 +757,20 @@ impl WriterState {
                 self.report_dropped()?;
                 if h.flags & DistributionHeader::FINAL != 0 {
                     self.final_update = Some(h.update);
+                    self.stopped = h.flags & DistributionHeader::STOPPED != 0;
+                    if self.stopped {
+                        self.log(
+                            Event::Info,
+                            "updater",
+                            0,
+                            &format!(
+                                "run stopped before update {} as asked (`supervisor stop \
+                                 --after-update`): no rollout of it ran; a resumed run goes on \
+                                 from it",
+                                h.update
+                            ),
+                        )?;
+                    }
                 }
             }
             Msg::Control(c) => match c.kind {

@@ -15,6 +15,8 @@ pub enum Command {
     Scale(usize),
     Set(String, f64),
     Stop,
+    /// `stop --after-update`.
+    StopAfterUpdate,
     Record,
 }
 
@@ -24,6 +26,7 @@ impl Command {
         match parts.as_slice() {
             ["status"] => Ok(Self::Status),
             ["stop"] => Ok(Self::Stop),
+            ["stop", "after-update"] => Ok(Self::StopAfterUpdate),
             ["record"] => Ok(Self::Record),
             ["scale", n] => n
                 .parse()

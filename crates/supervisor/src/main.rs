@@ -49,6 +49,12 @@ enum Cmd {
     },
     /// Stops a running run (exit code 0, with its summary).
     Stop {
+        /// Let the update under way finish first (every one of its rollouts; none is thrown
+        /// away), then stop: `supervisor run --resume RECORDING` goes on with the next. Without
+        /// it, the rollouts of the unfinished update are run again when resumed. A plain `stop`
+        /// afterwards stops at once.
+        #[arg(long)]
+        after_update: bool,
         #[arg(long)]
         run: Option<String>,
     },
@@ -140,7 +146,15 @@ fn main() -> ExitCode {
         Cmd::Status { run } => remote(run, "status".into()),
         Cmd::Scale { workers, run } => remote(run, format!("scale {workers}")),
         Cmd::Set { name, value, run } => remote(run, format!("set {name} {value:?}")),
-        Cmd::Stop { run } => remote(run, "stop".into()),
+        Cmd::Stop { run, after_update } => remote(
+            run,
+            if after_update {
+                "stop after-update"
+            } else {
+                "stop"
+            }
+            .into(),
+        ),
         Cmd::Record { run } => remote(run, "record".into()),
         Cmd::Updater { args } => pipeline::run_main("updater", || pipeline::updater::main(&args)),
         Cmd::Sampler { process } => {

@@ -6883,3 +6883,112 @@ fn a_change_at_update_0_is_recorded_as_in_process() {
         run.text()
     );
 }
+
+/// `supervisor stop --after-update`, for rollouts that take a robot seconds: the update under
+/// way finishes, every one of its rollouts, and no rollout of the next begins (the task counts
+/// the rollouts it ran); the recording ends with that update and says where a resumed run goes
+/// on, a `set` given in it is kept for the next, and `--resume` ends exactly where the run
+/// without the stop does. A plain `stop` would have thrown the update's finished rollouts away.
+#[test]
+fn stop_after_update_finishes_the_update_under_way_and_resumes_to_the_uninterrupted_result() {
+    let scratch = Scratch::new("stop-after-update");
+    let ran = scratch.path("ran");
+    let text = python_task_config(
+        &scratch,
+        "counted",
+        r#"class Task(reach_worker.Reach):
+    def rollout(self, theta):
+        time.sleep(0.03)
+        with open(os.environ.get("RAN_LOG", os.devnull), "a") as f:
+            f.write("rollout\n")
+        return super().rollout(theta)"#,
+        &[("updates = 80", "updates = 14")],
+    );
+    let cfg = write_config(&scratch, "reach.toml", &text);
+    let (first, result) = (scratch.path("first.mcap"), scratch.path("first.toml"));
+    let mut run = Run::start_with_env(
+        &scratch,
+        28000,
+        &[
+            cfg.to_str().unwrap(),
+            "--record",
+            first.to_str().unwrap(),
+            "--result",
+            result.to_str().unwrap(),
+        ],
+        &[("RAN_LOG", ran.to_str().unwrap())],
+    );
+    run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let set = run.ctl_ok(&["set", "target_y", "0.74"]);
+    let reply = run.ctl_ok(&["stop", "--after-update"]);
+    assert!(
+        reply.contains("stopping after the update under way"),
+        "{reply}"
+    );
+    let again = run.ctl_ok(&["stop", "--after-update"]);
+    assert!(again.contains("already"), "{again}");
+    run.wait_exit(Duration::from_secs(60), 0);
+    let out = run.text();
+    let last: u64 = out
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("[updater] stopping as requested: update ")?
+                .split_once(' ')?
+                .0
+                .parse()
+                .ok()
+        })
+        .unwrap_or_else(|| panic!("the updater did not say where it stopped:\n{out}"));
+    assert!((3..13).contains(&last), "{out}");
+    let from = takes_effect_from(&set);
+    assert!(
+        from <= last + 1,
+        "set from {from}, stopped after {last}\n{out}"
+    );
+    let said = format!(
+        "stopped on request after update {last} (`supervisor stop --after-update`): no rollout \
+         was thrown away; `supervisor run --resume {}` goes on with update {}",
+        first.display(),
+        last + 1
+    );
+    assert!(out.contains(&said), "{out}");
+    // Every rollout run is in a recorded update: none of the stopped update's was lost, none
+    // of the next one's began.
+    let rec = record::read_recording(&first).unwrap();
+    assert!(rec.indexed, "{out}");
+    assert_eq!(update_indices(&rec), (0..=last).collect::<Vec<_>>());
+    assert_recomputes(&rec);
+    let executions = std::fs::read_to_string(&ran).unwrap().lines().count() as u64;
+    assert_eq!(executions, 10 * (last + 1), "{out}");
+    assert_eq!(RunResult::read(&result).unwrap().updates, last + 1);
+
+    // Resumed: it goes on with the next update, with the change, to the end of the run without
+    // the stop.
+    let (resumed_rec, resumed) = (scratch.path("resumed.mcap"), scratch.path("resumed.toml"));
+    let mut again = Run::start(
+        &scratch,
+        28001,
+        &[
+            "--resume",
+            first.to_str().unwrap(),
+            "--quiet",
+            "--record",
+            resumed_rec.to_str().unwrap(),
+            "--result",
+            resumed.to_str().unwrap(),
+        ],
+    );
+    again.wait_exit(Duration::from_secs(60), 0);
+    let said = format!("resumed at update {} from {}", last + 1, first.display());
+    assert!(again.text().contains(&said), "{}", again.text());
+    let r = record::read_recording(&resumed_rec).unwrap();
+    assert_eq!(update_indices(&r), (last + 1..14).collect::<Vec<_>>());
+    let reference =
+        format!("{text}\n[[schedule]]\nfrom_update = {from}\nset = \"target_y\"\nvalue = 0.74\n");
+    let (_, _, uninterrupted) = run_to_its_end(&scratch, 28002, &reference);
+    let (mean, cov) = RunResult::read(&resumed).unwrap().exact().unwrap();
+    let (mean0, cov0) = uninterrupted.exact().unwrap();
+    assert_eq!(bits(&mean), bits(&mean0));
+    assert_eq!(bits(&cov), bits(&cov0));
+    assert_nothing_left(&again);
+}

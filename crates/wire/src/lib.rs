@@ -175,6 +175,7 @@ pub struct DistributionHeader {
     /// N.
     pub steps: u32,
     /// [`DistributionHeader::FINAL`]: no update follows; the sampler hands out no more work.
+    /// With it, [`DistributionHeader::STOPPED`]: the run stops here on request.
     pub flags: u32,
     /// Valid entries of `settings`.
     pub settings_len: u32,
@@ -194,6 +195,11 @@ impl DistributionHeader {
     /// In `flags`: a bounded run's last update is done. This is the final distribution, which
     /// the recorder keeps as the run's result; no rollouts are drawn from it.
     pub const FINAL: u32 = 1;
+    /// In `flags`, with [`Self::FINAL`]: the run stops here on request (`supervisor stop
+    /// --after-update`, [`Control::STOP_AFTER_UPDATE`]) before its last update: this update
+    /// does not run, and its settings are the ones it was to run with (the changes due at it
+    /// applied), which a resumed run goes on with.
+    pub const STOPPED: u32 = 2;
 }
 
 /// Header of a `work/<w>` sample. Payload: θ, P `f64`s.
@@ -635,6 +641,11 @@ impl Control {
     /// connected to it, so a worker that joined while the recorder was stalled would take its
     /// last costs and its announcement with it.
     pub const RECORDER_SYNC: u32 = 7;
+    /// Finish the update under way (every one of its rollouts), then publish the next
+    /// distribution with [`DistributionHeader::FINAL`] | [`DistributionHeader::STOPPED`] and
+    /// exit (updater): a stop that throws away no rollout, for rollouts that take a robot
+    /// seconds each. A distribution held back (its rollouts not begun) is published so at once.
+    pub const STOP_AFTER_UPDATE: u32 = 8;
 
     /// [`Self::RECORDER_SYNC`] number `seq`.
     pub fn recorder_sync(run_id: u64, seq: u64) -> Self {

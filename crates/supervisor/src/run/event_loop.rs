@@ -536,7 +536,8 @@ impl Supervisor {
                     // After a complete run it exits by itself once it has written the final
                     // update; SIGTERM (which finishes the file with everything received)
                     // only if it has not done so within half the shutdown timeout.
-                    let complete = self.outcome == Some(Outcome::Complete);
+                    let complete =
+                        self.outcome == Some(Outcome::Complete) || self.stop_after_update;
                     let half = Duration::from_millis(self.pipe.shutdown_timeout_ms / 2);
                     let rec = self.recording.as_mut().expect("a recorder has a recording");
                     let due = *rec.term_at.get_or_insert_with(|| {
@@ -649,6 +650,45 @@ impl Supervisor {
         }
     }
 
+    /// `supervisor stop --after-update`: the updater finishes the update under way and ends the
+    /// run with a `FINAL | STOPPED` distribution, whose update a resumed run begins with; the
+    /// updater's exit then stops the rest in order. Before the run has started there is no
+    /// rollout to keep: a plain stop.
+    fn stop_after_update(&mut self) -> Result<String, String> {
+        if self.phase == Phase::Stopping {
+            return Err("the run is stopping already".into());
+        }
+        if self.stop_after_update {
+            return Ok(
+                "stopping after the update under way already (`supervisor stop` stops at \
+                       once)"
+                    .into(),
+            );
+        }
+        if self.phase != Phase::Running {
+            if self.outcome.is_none() {
+                self.outcome = Some(Outcome::Stopped);
+            }
+            self.begin_stop();
+            return Ok("stopping (the run had not started: no update under way)".into());
+        }
+        let msg = Control::plain(self.run_id, Control::STOP_AFTER_UPDATE);
+        self.send_control(msg, true).map_err(|e| format!("{e:#}"))?;
+        self.stop_after_update = true;
+        if self.outcome.is_none() {
+            self.outcome = Some(Outcome::Stopped);
+        }
+        let at = self
+            .progress
+            .map_or(self.start.as_ref().map_or(0, |s| s.update), |p| p.updates);
+        let what = format!(
+            "stopping after the update under way (update {at} at the last report) once all its \
+             rollouts are done; `supervisor stop` stops at once"
+        );
+        say(&what);
+        Ok(what)
+    }
+
     fn command(&mut self, cmd: Cmd) -> Result<String, String> {
         match cmd {
             Cmd::Status => {
@@ -660,9 +700,11 @@ impl Supervisor {
                 if self.outcome.is_none() {
                     self.outcome = Some(Outcome::Stopped);
                 }
+                self.stop_after_update = false;
                 self.begin_stop();
                 Ok("stopping".into())
             }
+            Cmd::StopAfterUpdate => self.stop_after_update(),
             Cmd::Scale(n) => {
                 if self.phase == Phase::Stopping {
                     return Err("the run is stopping".into());

@@ -142,6 +142,9 @@ struct Supervisor {
     phase: Phase,
     phase_deadline: Option<Instant>,
     outcome: Option<Outcome>,
+    /// `supervisor stop --after-update` was asked (and no plain `stop` since): the updater
+    /// ends the run after the update under way with a `FINAL | STOPPED` distribution.
+    stop_after_update: bool,
     killed: bool,
     started: Instant,
     progress: Option<Progress>,
@@ -412,6 +415,7 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         recording,
         phase_deadline: None,
         outcome: None,
+        stop_after_update: false,
         killed: false,
         started: Instant::now(),
         progress: None,

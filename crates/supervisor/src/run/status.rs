@@ -175,11 +175,16 @@ impl Supervisor {
 
     pub(super) fn status(&self) -> String {
         let mut s = format!(
-            "run {} ({}), {:?} for {:.1} s\n",
+            "run {} ({}), {:?} for {:.1} s{}\n",
             wire::run_id_hex(self.run_id),
             self.cfg.run.name,
             self.phase,
-            self.started.elapsed().as_secs_f64()
+            self.started.elapsed().as_secs_f64(),
+            if self.stop_after_update && self.phase == Phase::Running {
+                "; stopping after the update under way (`supervisor stop --after-update`)"
+            } else {
+                ""
+            }
         );
         let joined: Vec<(u32, u32)> = self.live_joined().collect();
         let stopped = self.stopped_processes();

@@ -28,7 +28,7 @@ impl Supervisor {
             _ => Ok(()),
         };
         remove_run(&self.run_dir, self.run_id);
-        if let Some(r) = result {
+        if let Some(r) = &result {
             let of = self
                 .cfg
                 .run
@@ -115,6 +115,30 @@ impl Supervisor {
         }
         match &self.outcome {
             Some(Outcome::Complete) => say("finished"),
+            // The update under way was the run's last: it ended as it would have.
+            Some(Outcome::Stopped)
+                if self.stop_after_update && result.as_ref().is_some_and(|r| r.complete) =>
+            {
+                say("finished (the update under way at `supervisor stop --after-update` was the run's last)")
+            }
+            Some(Outcome::Stopped) if self.stop_after_update => {
+                let updates = result.as_ref().map_or(0, |r| r.updates);
+                let last = match updates.checked_sub(1) {
+                    Some(last) => format!("after update {last}"),
+                    None => "before its first update".into(),
+                };
+                let go_on = match &self.recording {
+                    Some(rec) => format!(
+                        "`supervisor run --resume {}` goes on with update {updates}",
+                        rec.path.display()
+                    ),
+                    None => "run without a recording, it cannot be resumed".into(),
+                };
+                say(&format!(
+                    "stopped on request {last} (`supervisor stop --after-update`): no rollout \
+                     was thrown away; {go_on}"
+                ));
+            }
             Some(Outcome::Stopped) => say("stopped on request"),
             Some(Outcome::Interrupted) => say("interrupted"),
             Some(Outcome::Failed(reason)) => say(&format!("failed: {reason}")),
