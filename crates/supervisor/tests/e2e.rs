@@ -6992,3 +6992,71 @@ fn stop_after_update_finishes_the_update_under_way_and_resumes_to_the_uninterrup
     assert_eq!(bits(&cov), bits(&cov0));
     assert_nothing_left(&again);
 }
+
+/// `supervisor stop --after-update` while a stalled recorder holds the updater back: the
+/// distribution held back has not begun (no rollout of it was handed out), so the run stops
+/// before it at once, and a resumed run begins with it and ends where the in-process run does.
+#[test]
+fn stop_after_update_with_the_next_distribution_held_back_stops_before_it() {
+    let scratch = Scratch::new("stop-after-update-held");
+    let text = config(&[UNBOUNDED, DELAYED]);
+    let cfg = write_config(&scratch, "held.toml", &text);
+    let (first, result) = (scratch.path("first.mcap"), scratch.path("first.toml"));
+    let mut run = start_recorded(&scratch, 28003, &cfg, &first, &result);
+    let status = run.wait_status("3 updates", |s| updates_in(s) >= 3);
+    let recorder = pid_of(&status, "recorder");
+    signal(recorder, "-STOP");
+    // Held back: the updates stop coming.
+    let end = Instant::now() + Duration::from_secs(30);
+    let mut seen = updates_in(&run.ctl_ok(&["status"]));
+    loop {
+        std::thread::sleep(Duration::from_millis(500));
+        let now = updates_in(&run.ctl_ok(&["status"]));
+        if now == seen {
+            break;
+        }
+        assert!(Instant::now() < end, "the updater was never held back");
+        seen = now;
+    }
+    run.ctl_ok(&["stop", "--after-update"]);
+    let said = "[updater] stop requested: the run stops before update ";
+    run.wait_output(said, end);
+    signal(recorder, "-CONT");
+    run.wait_exit(Duration::from_secs(30), 0);
+    let out = run.text();
+    let held: u64 = out
+        .lines()
+        .find_map(|l| l.strip_prefix(said)?.split_once(',')?.0.parse().ok())
+        .unwrap();
+    assert!(held > 3, "{out}");
+    let rec = record::read_recording(&first).unwrap();
+    assert_eq!(update_indices(&rec), (0..held).collect::<Vec<_>>(), "{out}");
+    assert_recomputes(&rec);
+    assert!(out.contains(&format!(
+        "stopped on request after update {} (`supervisor stop --after-update`)",
+        held - 1
+    )));
+
+    let resumed = scratch.path("resumed.toml");
+    let updates = (held + 3).to_string();
+    let mut again = Run::start(
+        &scratch,
+        28004,
+        &[
+            "--resume",
+            first.to_str().unwrap(),
+            "--updates",
+            &updates,
+            "--quiet",
+            "--no-record",
+            "--result",
+            resumed.to_str().unwrap(),
+        ],
+    );
+    again.wait_exit(Duration::from_secs(60), 0);
+    let (mean, cov) = RunResult::read(&resumed).unwrap().exact().unwrap();
+    let (mean0, cov0) = in_process(&text, held + 3);
+    assert_eq!(bits(&mean), bits(&mean0));
+    assert_eq!(bits(&cov), bits(&cov0));
+    assert_nothing_left(&again);
+}
