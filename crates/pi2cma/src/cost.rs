@@ -113,6 +113,11 @@ impl CostBatch {
         self.filled.iter().all(|f| *f)
     }
 
+    /// How many rollouts have been filled.
+    pub fn filled(&self) -> usize {
+        self.filled.iter().filter(|f| **f).count()
+    }
+
     /// The rollouts not filled yet, ascending.
     pub fn missing(&self) -> impl Iterator<Item = usize> + '_ {
         self.filled

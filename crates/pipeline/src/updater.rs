@@ -143,6 +143,9 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
     let changes = std::cell::Cell::new((0u64, 0u64));
     // (refused changes so far, the last one's setting index, value and update), in `Progress`.
     let refusals = std::cell::Cell::new((0u32, 0u32, 0.0f64, 0u64));
+    // (rollouts of the update under way whose costs are in, those reported), for `Progress`:
+    // with rollouts of seconds, `status` shows how far an update has got.
+    let rollouts_done = std::cell::Cell::new((0u32, 0u32));
     // What is in force from the start: a resumed run's settings, and the scheduled changes of
     // its first update.
     if let Some(start) = &start {
@@ -219,6 +222,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
      -> anyhow::Result<()> {
         let values: Vec<f64> = settings.iter().map(|(_, v)| *v).collect();
         let (packed, len) = wire::pack_settings(&values);
+        let (done, _) = rollouts_done.get();
+        rollouts_done.set((done, done));
         iox(
             progress_pub.send_copy(Progress {
                 run_id: ctx.run_id,
@@ -235,6 +240,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 last_refused_setting: refusals.get().1,
                 last_refused_value: refusals.get().2,
                 last_refused_update: refusals.get().3,
+                rollouts_done: rollouts_done.get().0,
+                rollouts: k_total as u32,
             }),
             "send progress",
         )?;
@@ -321,7 +328,8 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
         let Some(t0) = started else {
             return Ok(Flow::Continue);
         };
-        if unreported && last_progress.elapsed() >= PROGRESS_INTERVAL {
+        let (done, reported) = rollouts_done.get();
+        if (unreported || done != reported) && last_progress.elapsed() >= PROGRESS_INTERVAL {
             last_progress = Instant::now();
             unreported = false;
             report(&optimizer, &task.settings(), last_eval, done_at, 0)?;
@@ -392,6 +400,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                     after_reruns(&e, tried)
                 );
             }
+            rollouts_done.set((batch.filled() as u32, rollouts_done.get().1));
             let issue =
                 reruns_unissued > 0 && recorder.may_rerun(u, u64::from(reruns_unissued), &ctx)?;
             if let (true, Some(requests)) = (issue, &rerun_requests) {
@@ -420,6 +429,7 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                 .tell(&batch)
                 .map_err(|e| anyhow!("update {u}: {e}"))?;
             batch.clear();
+            rollouts_done.set((0, rollouts_done.get().1));
             reruns.clear();
             // A rerun held back while a twin completed the rollout is not wanted any more.
             reruns_unissued = 0;

@@ -3034,7 +3034,7 @@ fn a_worker_that_outlasts_the_shutdown_timeout_is_killed_alone_and_the_recording
 
 /// A run that stops making updates (a worker stopped with SIGSTOP, no rollout timeout) is
 /// reported after at least 10 s, `status` shows how long ago the last update was, and the
-/// supervisor says so when updates go on.
+/// supervisor says so when the run goes on.
 #[test]
 fn a_run_without_updates_is_reported_and_its_age_shown() {
     let scratch = Scratch::new("stall");
@@ -3093,7 +3093,7 @@ fn a_run_without_updates_is_reported_and_its_age_shown() {
         .unwrap_or_else(|| panic!("{status}"));
     assert!(age >= 10.0, "{status}");
     signal_all("-CONT");
-    run.wait_output("updates go on: update", end);
+    run.wait_output("the run goes on: ", end);
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
     let rec = record::read_recording(&scratch.recording("A1", 708)).unwrap();
@@ -3131,7 +3131,7 @@ fn a_stopped_recorder_is_named_in_the_stall_warning() {
         "{warning}"
     );
     signal(recorder, "-CONT");
-    run.wait_output("updates go on: update", end);
+    run.wait_output("the run goes on: ", end);
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
     assert_nothing_left(&run);
@@ -3156,7 +3156,7 @@ fn the_last_updates_before_a_stall_are_reported() {
     run.wait_status("the 5 updates before the hang", |s| updates_in(s) == 5);
     run.ctl_ok(&["stop"]);
     run.wait_exit(Duration::from_secs(20), 0);
-    assert!(!run.text().contains("updates go on"), "{}", run.text());
+    assert!(!run.text().contains("the run goes on"), "{}", run.text());
     assert_nothing_left(&run);
 }
 
@@ -7059,4 +7059,58 @@ fn stop_after_update_with_the_next_distribution_held_back_stops_before_it() {
     assert_eq!(bits(&mean), bits(&mean0));
     assert_eq!(bits(&cov), bits(&cov0));
     assert_nothing_left(&again);
+}
+
+/// With rollouts that take a robot seconds, an update takes minutes: `status` shows how many of
+/// its rollouts are done, and an update under way for longer than 10 s gets a line of its own
+/// when that number changes (before, nothing was said between two updates' lines, and a first
+/// update of 15 one-second rollouts was warned of at 10 s as `a worker may hang`).
+#[test]
+fn the_rollouts_done_of_a_long_update_are_shown() {
+    let scratch = Scratch::new("under-way");
+    let text = config(&[
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 1000.0",
+        ),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "long.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start(
+        &scratch,
+        28005,
+        &[
+            cfg.to_str().unwrap(),
+            "--no-record",
+            "--result",
+            result.to_str().unwrap(),
+        ],
+    );
+    let status = run.wait_status("2 rollouts done", |s| {
+        s.contains("update 1/40 under way: 2 of 15 rollouts done, for ")
+    });
+    assert!(status.contains("updates: 0 of 40"), "{status}");
+    let end = Instant::now() + Duration::from_secs(30);
+    run.wait_output("[supervisor] update 1/40 under way: ", end);
+    let out = run.text();
+    let line = out
+        .lines()
+        .find(|l| l.starts_with("[supervisor] update 1/40 under way: "))
+        .unwrap();
+    let done: u32 = line
+        .split(": ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    // About 10 s in, at 1 s a rollout.
+    assert!((9..=12).contains(&done), "{line}");
+    assert!(!out.contains("no update finished yet"), "{out}");
+    // Rollouts coming in are no stall, though the update takes longer than the 10 s after
+    // which a first update without rollouts is warned of.
+    assert!(!out.contains("warning: no update for"), "{out}");
+    run.ctl_ok(&["stop"]);
+    run.wait_exit(Duration::from_secs(20), 0);
+    assert_nothing_left(&run);
 }

@@ -357,7 +357,7 @@ pub const ROLLOUT_DONE_INTERVAL: std::time::Duration = std::time::Duration::from
 /// and its answer to each runtime task change ([`Progress::TASK_CHANGE`]).
 #[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
 #[repr(C)]
-#[type_name("pi2cma.Progress.v4")]
+#[type_name("pi2cma.Progress.v5")]
 pub struct Progress {
     /// The run.
     pub run_id: u64,
@@ -393,6 +393,11 @@ pub struct Progress {
     pub last_refused_value: f64,
     /// The update whose rollout refused it.
     pub last_refused_update: u64,
+    /// Rollouts of the update under way (update `updates`) whose costs the updater has, of
+    /// `rollouts`: with rollouts that take seconds, how far an update has got.
+    pub rollouts_done: u32,
+    /// The rollouts of an update (K, and the evaluation rollout if it is one of them).
+    pub rollouts: u32,
 }
 
 impl Progress {
@@ -1460,7 +1465,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<Ready>(), 32);
         assert_eq!(std::mem::size_of::<Lifecycle>(), 24);
         assert_eq!(std::mem::size_of::<Control>(), 32 + MAX_NAME + 24);
-        assert_eq!(std::mem::size_of::<Progress>(), 88 + 8 * MAX_SETTINGS);
+        assert_eq!(std::mem::size_of::<Progress>(), 96 + 8 * MAX_SETTINGS);
         assert_eq!(std::mem::size_of::<RecorderAck>(), 32);
         assert_eq!(std::mem::size_of::<Overdue>(), 56);
         assert_eq!(std::mem::size_of::<RunNote>(), 16 + MAX_NOTE);

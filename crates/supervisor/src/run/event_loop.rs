@@ -196,7 +196,7 @@ impl Supervisor {
         let mut d: Vec<Instant> = self.slots.values().filter_map(|s| s.restart_at).collect();
         d.extend(self.phase_deadline);
         if self.phase == Phase::Running && !self.stall_reported {
-            d.extend(self.last_update_at.map(|t| t + self.stall_after()));
+            d.extend(self.quiet_since().map(|t| t + self.stall_after()));
         }
         if self.phase == Phase::Stopping {
             d.extend(self.recording.as_ref().and_then(|r| r.term_at));
@@ -594,7 +594,10 @@ impl Supervisor {
             signal_group(pid, libc::SIGCONT);
         }
         let paused = suspended.elapsed();
-        if let Some(t) = self.last_update_at.as_mut() {
+        for t in [&mut self.last_update_at, &mut self.last_rollout_at]
+            .into_iter()
+            .flatten()
+        {
             *t += paused;
         }
         say(&format!(
@@ -678,12 +681,11 @@ impl Supervisor {
         if self.outcome.is_none() {
             self.outcome = Some(Outcome::Stopped);
         }
-        let at = self
-            .progress
-            .map_or(self.start.as_ref().map_or(0, |s| s.update), |p| p.updates);
         let what = format!(
-            "stopping after the update under way (update {at} at the last report) once all its \
-             rollouts are done; `supervisor stop` stops at once"
+            "stopping after the update under way{} once all its rollouts are done; `supervisor \
+             stop` stops at once",
+            self.under_way()
+                .map_or(String::new(), |line| format!(" ({line})"))
         );
         say(&what);
         Ok(what)

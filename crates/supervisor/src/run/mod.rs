@@ -157,6 +157,11 @@ struct Supervisor {
     /// When the newest update arrived (when the run started, before the first: a first
     /// update that never comes is a stall too), and whether the silence since was reported.
     last_update_at: Option<Instant>,
+    /// When the updater last reported a rollout of the update under way done: with rollouts of
+    /// seconds, what shows a run going on between updates (`check_stall`).
+    last_rollout_at: Option<Instant>,
+    /// (update, rollouts done) of the last line on the update under way (`under_way_due`).
+    under_way_shown: (u64, u32),
     stall_reported: bool,
     /// Workers that announced themselves without being started here: pid → (slot, start time;
     /// see [`process_started`](process::process_started)).
@@ -423,6 +428,8 @@ pub fn run(opts: &RunOptions) -> anyhow::Result<u8> {
         rates: UpdateRate::default(),
         last_shown: None,
         last_update_at: None,
+        under_way_shown: (0, 0),
+        last_rollout_at: None,
         stall_reported: false,
         joined: BTreeMap::new(),
         joined_checked: Instant::now(),

@@ -172,11 +172,29 @@ impl Supervisor {
             // A report's settings are those of its next update, `updates`.
             self.unreflected_sets
                 .retain(|(_, _, _, from)| from.is_none_or(|f| f > p.updates));
+            let rollout_done = self.progress.is_some_and(|prev| {
+                prev.updates == p.updates && p.rollouts_done > prev.rollouts_done
+            });
+            if rollout_done && p.flags & Progress::FINAL == 0 {
+                if self.stall_reported {
+                    say(&format!(
+                        "the run goes on: {} of {} rollouts of update {} done, after {:.1} s \
+                         without progress",
+                        p.rollouts_done,
+                        p.rollouts,
+                        p.updates + 1,
+                        self.quiet_since()
+                            .map_or(0.0, |t| t.elapsed().as_secs_f64())
+                    ));
+                    self.stall_reported = false;
+                }
+                self.last_rollout_at = Some(Instant::now());
+            }
             if self.progress.is_none_or(|prev| p.updates > prev.updates) {
                 // A stopping updater's last report is no news of updates going on.
                 if self.stall_reported && p.flags & Progress::FINAL == 0 {
                     say(&format!(
-                        "updates go on: update {} after {:.1} s without one",
+                        "the run goes on: update {} after {:.1} s without one",
                         p.updates,
                         self.last_update_at
                             .map_or(0.0, |t| t.elapsed().as_secs_f64())
@@ -185,6 +203,13 @@ impl Supervisor {
                 self.last_update_at = Some(Instant::now());
                 self.stall_reported = false;
             }
+            // Reports also come while an update runs (its rollouts done): no new update, no
+            // update line.
+            let first = self.start.as_ref().map_or(0, |s| s.update);
+            let news = p.flags & Progress::FINAL != 0
+                || self
+                    .progress
+                    .map_or(p.updates > first, |prev| p.updates > prev.updates);
             if self.rates.is_empty() {
                 // A resumed run counts its updates from where it resumed.
                 self.rates
@@ -208,14 +233,36 @@ impl Supervisor {
             // A report without a new update (the stopping updater's last) repeated the line
             // before it, as if an update had been made twice.
             let shown = self.last_shown.is_some_and(|(_, u)| u == p.updates);
-            if !self.quiet && due && !shown {
+            if !self.quiet && due && !shown && news {
                 self.last_shown = Some((Instant::now(), p.updates));
                 say(&self.progress_line());
+            } else if !self.quiet && self.under_way_due(&p) {
+                if let Some(line) = self.under_way() {
+                    self.last_shown = Some((Instant::now(), p.updates));
+                    self.under_way_shown = (p.updates, p.rollouts_done);
+                    say(&line);
+                }
             }
         }
         Ok(())
     }
 }
+
+impl Supervisor {
+    /// Whether the update under way gets a line of its own: it has taken longer than
+    /// [`UNDER_WAY_LINE`], its rollouts done changed since its last line, and no line was
+    /// shown for that long. Updates that take seconds say nothing for minutes otherwise.
+    fn under_way_due(&self, p: &Progress) -> bool {
+        let long = |t: Instant| t.elapsed() >= UNDER_WAY_LINE;
+        p.rollouts_done > 0
+            && self.under_way_shown != (p.updates, p.rollouts_done)
+            && self.last_update_at.is_some_and(long)
+            && self.last_shown.is_none_or(|(t, _)| long(t))
+    }
+}
+
+/// How long an update runs before its rollouts done so far are shown, and how often.
+const UNDER_WAY_LINE: Duration = Duration::from_secs(10);
 
 /// A thread that waits on the supervisor's doorbell and turns each ring into [`Event::Bell`].
 pub(super) fn spawn_bell(

@@ -2,9 +2,9 @@
 //! `supervisor status` text, the stall warning, and how numbers read in them. It is not the
 //! summary at the end of a run (`summary`).
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use wire::RunNote;
+use wire::{Progress, RunNote};
 
 use super::event_loop::Phase;
 use super::process::{stopped_in_group, Role};
@@ -59,12 +59,18 @@ impl Supervisor {
         Duration::from_secs_f64((20.0 * usual).clamp(10.0, 86_400.0))
     }
 
-    /// A run without updates for [`Self::stall_after`] is reported once (until updates go on):
+    /// Since when the run has shown no progress: its last update, or a rollout of the update
+    /// under way done after it.
+    pub(super) fn quiet_since(&self) -> Option<Instant> {
+        self.last_update_at.max(self.last_rollout_at)
+    }
+
+    /// A run without updates (nor rollouts done) for [`Self::stall_after`] is reported once (until the run goes on):
     /// a hung worker without `rollout_timeout_ms`, a stopped recorder that holds the updater
     /// (named as such when its acknowledgements lag the updates), a robot waiting for its
     /// operator. Nothing is killed; `status` shows the age as well.
     pub(super) fn check_stall(&mut self) {
-        let Some(at) = self.last_update_at else {
+        let Some(at) = self.quiet_since() else {
             return;
         };
         if self.phase != Phase::Running || self.stall_reported || at.elapsed() < self.stall_after()
@@ -120,10 +126,21 @@ impl Supervisor {
             ),
             _ => format!("a worker may hang ({timeout})"),
         };
-        let text = format!(
-            "no update for {:.0} s {since}: {who}; `supervisor status` shows the processes",
-            at.elapsed().as_secs_f64(),
-        );
+        // Rollouts done since the last update: the update under way has stopped going on.
+        let text = match (self.last_rollout_at, self.progress) {
+            (Some(r), Some(p)) if self.last_update_at.is_none_or(|u| r > u) => format!(
+                "no rollout done for {:.0} s (update {}: {} of {} rollouts done): {who}; \
+                 `supervisor status` shows the processes",
+                r.elapsed().as_secs_f64(),
+                p.updates + 1,
+                p.rollouts_done,
+                p.rollouts
+            ),
+            _ => format!(
+                "no update for {:.0} s {since}: {who}; `supervisor status` shows the processes",
+                at.elapsed().as_secs_f64(),
+            ),
+        };
         say(&format!("warning: {text}"));
         self.note(RunNote::WARNING, &text);
     }
@@ -154,6 +171,29 @@ impl Supervisor {
             reading(p.lambda),
             rate_text(self.rate),
         )
+    }
+
+    /// `update 26/40 under way: 7 of 15 rollouts done, for 12.3 s`: how far the update under
+    /// way has got, which with rollouts of seconds is the only news for minutes. None while
+    /// the run is not running or its last update is done.
+    pub(super) fn under_way(&self) -> Option<String> {
+        let p = self.progress?;
+        if self.phase != Phase::Running || p.flags & Progress::FINAL != 0 || p.rollouts == 0 {
+            return None;
+        }
+        let of = self
+            .cfg
+            .run
+            .updates
+            .map_or("∞".to_string(), |n| n.to_string());
+        Some(format!(
+            "update {}/{of} under way: {} of {} rollouts done, for {:.1} s",
+            p.updates + 1,
+            p.rollouts_done,
+            p.rollouts,
+            self.last_update_at
+                .map_or(0.0, |t| t.elapsed().as_secs_f64())
+        ))
     }
 
     /// The processes of the run (name, pid) in whose process group a signal has stopped a
@@ -309,6 +349,9 @@ impl Supervisor {
                     reading(p.lambda),
                     settings
                 );
+                if let Some(line) = self.under_way() {
+                    s += &format!("{line}\n");
+                }
             }
             None => s += "updates: 0\n",
         }

@@ -56,7 +56,7 @@ pub fn rust_structs() -> Vec<RustStruct> {
         Progress {
             run_id, updates, elapsed_ns, eval_cost, lambda, flags, settings_len, settings,
             last_change_seq, last_change_from, refused, last_refused_setting,
-            last_refused_value, last_refused_update,
+            last_refused_value, last_refused_update, rollouts_done, rollouts,
         }
         RecorderAck { run_id, next_update, taken, synced }
         Lifecycle { run_id, pid, role, worker, incarnation }
