@@ -1387,7 +1387,10 @@ fn scaling_1_to_4_to_2_workers_mid_run_keeps_the_result_bit_identical() {
     assert!(!ok && reply.contains("max_workers = 16"), "{reply}");
     // To 0: refused, saying how to pause a run instead.
     let (ok, reply) = run.ctl(&["scale", "--workers", "0"]);
-    assert!(!ok && reply.contains("`supervisor stop`"), "{reply}");
+    assert!(
+        !ok && reply.contains("`supervisor stop --after-update`"),
+        "{reply}"
+    );
     run.wait_exit(Duration::from_secs(60), 0);
     assert_eq!(RunResult::read(&result).unwrap().updates, 120);
     assert_bit_identical(&text, &result);

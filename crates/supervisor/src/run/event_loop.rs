@@ -715,8 +715,9 @@ impl Supervisor {
                     // What a user who asks for 0 wants is a pause: that is a stop and a resume.
                     return Err(
                         "cannot scale to 0 workers: a run needs at least 1 (to pause it, \
-                                `supervisor stop`; `supervisor run CONFIG --resume RECORDING` \
-                                later goes on where it stopped, bit for bit)"
+                                `supervisor stop --after-update`, which lets the update under \
+                                way finish; `supervisor run --resume RECORDING` later goes on \
+                                where it stopped, bit for bit)"
                             .into(),
                     );
                 }
