@@ -282,8 +282,12 @@ pub fn main(args: &UpdaterArgs) -> anyhow::Result<()> {
                         // goes on.
                         Some(0) => {
                             to_publish = Some(STOP);
-                            println!("stop requested: the run stops before update {u}, which has not begun");
-                            report(&optimizer, &task.settings(), last_eval, done_at, Progress::FINAL)?;
+                            println!(
+                                "stop requested: the run stops before update {u}, which has not \
+                                 begun"
+                            );
+                            let settings = task.settings();
+                            report(&optimizer, &settings, last_eval, done_at, Progress::FINAL)?;
                         }
                         // The run's last update is done already: it ends as it would have.
                         Some(_) => {}
