@@ -359,14 +359,19 @@ impl Supervisor {
         // a run going on while the output had warned that none had come for minutes.
         if self.stall_reported {
             if let Some(at) = self.last_update_at {
+                let rollout = self.last_rollout_at.filter(|&r| r > at);
                 s += &format!(
-                    "stalled: no update for {:.0} s{} (see the warning in the run's output)\n",
+                    "stalled: no update for {:.0} s{}{} (see the warning in the run's output)\n",
                     at.elapsed().as_secs_f64(),
                     if self.rate > 0.0 {
                         format!(", where they came every {}", interval_text(1.0 / self.rate))
                     } else {
                         String::new()
-                    }
+                    },
+                    rollout.map_or(String::new(), |r| format!(
+                        ", and no rollout done for {:.0} s",
+                        r.elapsed().as_secs_f64()
+                    ))
                 );
             }
         }
