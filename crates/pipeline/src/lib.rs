@@ -29,6 +29,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::{DegradationAction, DegradationCause, DegradationInfo};
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2_bb_posix::signal::SignalHandler;
@@ -236,16 +237,68 @@ impl<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> Ports<P, H>
     for PortFactory<Service, P, H>
 {
     fn subscriber(&self, name: &str) -> Result<Subscriber<Service, P, H>, ProcessError> {
+        let port = format!("{name} subscriber");
         iox(
-            self.subscriber_builder().create(),
-            &format!("{name} subscriber"),
+            self.subscriber_builder()
+                .set_degradation_handler(failed_connections(&port, "publisher"))
+                .create(),
+            &port,
         )
     }
     fn publisher(&self, name: &str) -> Result<Publisher<Service, P, H>, ProcessError> {
+        let port = format!("{name} publisher");
         iox(
-            self.publisher_builder().create(),
-            &format!("{name} publisher"),
+            self.publisher_builder()
+                .set_degradation_handler(failed_connections(&port, "subscriber"))
+                .create(),
+            &port,
         )
+    }
+}
+
+/// The degradation handler of every port: says on stderr, once per pair of ports, that `port`
+/// could not connect to a `peer` (iceoryx2's own warning is below the log level every process
+/// sets, so a failed connection, after which nothing the peer sends reaches this port, was
+/// silent). It happens when a publisher's data segment is gone before a subscriber first
+/// looked, e.g. a worker that died and was cleaned up while the recorder was stalled.
+fn failed_connections(
+    port: &str,
+    peer: &'static str,
+) -> impl Fn(DegradationCause, &DegradationInfo) -> DegradationAction + Send + 'static {
+    let port = port.to_string();
+    let said = std::sync::Mutex::new(std::collections::HashSet::new());
+    move |cause, info| {
+        let pair = (info.sender_port_id, info.receiver_port_id);
+        // A poisoned set only means a report was cut short: say it again rather than never.
+        let first = said.lock().map_or(true, |mut s| s.insert(pair));
+        if first {
+            let line = degradation_line(&port, peer, &cause, info);
+            #[cfg(test)]
+            tests::REPORTED.with(|r| r.borrow_mut().push(line.clone()));
+            eprintln!("{line}");
+        }
+        DegradationAction::Ignore
+    }
+}
+
+fn degradation_line(
+    port: &str,
+    peer: &str,
+    cause: &DegradationCause,
+    info: &DegradationInfo,
+) -> String {
+    let (sender, receiver) = (info.sender_port_id, info.receiver_port_id);
+    let ports = format!("(sender port {sender:#x}, receiver port {receiver:#x})");
+    match cause {
+        DegradationCause::FailedToEstablishConnection => format!(
+            "warning: the {port} cannot connect to a {peer} {ports}: nothing sent between them \
+             reaches the receiver (is the sender's data segment in /dev/shm gone? a process that \
+             died and was cleaned up before this one looked leaves it so)"
+        ),
+        DegradationCause::ConnectionCorrupted => format!(
+            "warning: the {port} has a corrupted connection to a {peer} {ports}: what was sent \
+             on it may be lost"
+        ),
     }
 }
 
@@ -569,6 +622,76 @@ pub fn scan_nodes(node: &Node<Service>) -> NodeScan {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    thread_local! {
+        /// The lines [`failed_connections`] printed on this thread.
+        pub(crate) static REPORTED: std::cell::RefCell<Vec<String>> =
+            const { std::cell::RefCell::new(Vec::new()) };
+    }
+
+    fn shm_files(run_id: u64) -> std::collections::BTreeSet<std::path::PathBuf> {
+        let prefix = wire::file_prefix(run_id);
+        std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+            .map(|e| e.path())
+            .collect()
+    }
+
+    fn remove_run(run_id: u64) {
+        let _ = std::fs::remove_dir_all(wire::iceoryx_root(run_id));
+        for f in shm_files(run_id) {
+            let _ = std::fs::remove_file(f);
+        }
+    }
+
+    /// A publisher whose data segment is gone before a subscriber first looks (what a worker
+    /// that died and was cleaned up while the recorder was stalled leaves): the subscriber
+    /// cannot connect, and nothing the publisher sent reaches it. iceoryx2 only warns, below
+    /// the log level the processes set; the port says so itself, once.
+    #[test]
+    fn a_subscriber_that_cannot_connect_to_a_publisher_says_so_once() {
+        let run_id = 0x7100;
+        remove_run(run_id);
+        let limits = Limits {
+            max_workers: 2,
+            rollouts: 4,
+            dim: 2,
+            steps: 3,
+        };
+        let worker = wire::node(run_id, "worker-0.1").unwrap();
+        let worker_costs = wire::costs(&worker, run_id, &limits).unwrap();
+        let before = shm_files(run_id);
+        let publisher = worker_costs.publisher("costs").unwrap();
+        let segments: Vec<_> = shm_files(run_id).difference(&before).cloned().collect();
+        assert!(
+            !segments.is_empty(),
+            "the publisher made no file in /dev/shm"
+        );
+        for f in &segments {
+            std::fs::remove_file(f).unwrap();
+        }
+        let recorder = wire::node(run_id, wire::process::RECORDER).unwrap();
+        let subscriber = wire::costs(&recorder, run_id, &limits)
+            .unwrap()
+            .subscriber("costs")
+            .unwrap();
+        for _ in 0..3 {
+            assert!(!subscriber.has_samples().unwrap());
+        }
+        let reported = REPORTED.with(|r| r.take());
+        assert_eq!(reported.len(), 1, "{reported:#?}");
+        assert!(
+            reported[0].starts_with(
+                "warning: the costs subscriber cannot connect to a publisher (sender port 0x"
+            ),
+            "{}",
+            reported[0]
+        );
+        drop((subscriber, publisher, recorder, worker_costs, worker));
+        remove_run(run_id);
+    }
 
     const MAX: Duration = Duration::from_micros(200);
 
