@@ -587,6 +587,9 @@ def _serve(make_task, args):
     pid = os.getpid()
     lifecycle.send_copy(Lifecycle(run_id=run_id, pid=pid, role=ROLE_WORKER, worker=w, incarnation=inc))
     supervisor_bell.notify_with_custom_event_id(WAKE)
+    # The sampler gives this worker work once the recorder has connected to it (it echoes the
+    # announcement on `joined`): ring the recorder rather than wait for its tick.
+    bell("recorder").notify_with_custom_event_id(WAKE)
 
     def publish_ready(chunk, flags=0):
         ready.send_copy(Ready(run_id=run_id, chunk=chunk, worker=w, incarnation=inc, pid=pid, flags=flags))

@@ -261,7 +261,7 @@ impl<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend> Ports<P, H>
 /// sets, so a failed connection, after which nothing the peer sends reaches this port, was
 /// silent). It happens when a publisher's data segment is gone before a subscriber first
 /// looked, e.g. a worker that died and was cleaned up while the recorder was stalled.
-fn failed_connections(
+pub(crate) fn failed_connections(
     port: &str,
     peer: &'static str,
 ) -> impl Fn(DegradationCause, &DegradationInfo) -> DegradationAction + Send + 'static {
@@ -471,6 +471,13 @@ pub fn announce_ready(
     )?;
     let notifier = ctx.notifier(wire::process::SUPERVISOR)?;
     iox(notifier.notify_with_custom_event_id(wire::WAKE), "notify")?;
+    if role == wire::role::WORKER {
+        // The sampler gives a worker work once the recorder has connected to it, which it
+        // does when it takes in this announcement: ring it rather than wait for its tick. The
+        // recorder may not exist.
+        let recorder = ctx.notifier(wire::process::RECORDER)?;
+        let _ = recorder.notify_with_custom_event_id(wire::WAKE);
+    }
     Ok(Announced {
         _publisher: publisher,
     })

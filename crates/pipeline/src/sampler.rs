@@ -11,7 +11,8 @@
 //! (a cost sent, reported with [`Ready::ROLLOUT_DONE`]) for longer than
 //! `pipeline.rollout_timeout_ms` is reported to the supervisor (`overdue`), which kills and
 //! restarts it. A rollout the updater asks for again (on `reruns`: its costs were not finite)
-//! goes back to the front of the queue.
+//! goes back to the front of the queue. A new worker incarnation gets work only once the
+//! recorder, if there is one, has connected to it (`Joins`).
 
 use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -148,6 +149,9 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("distribution")?;
     let ready = wire::ready(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("ready")?;
     let control = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
+    let joined_service = wire::joined(&ctx.node, ctx.run_id, &ctx.limits)?;
+    let joined = joined_service.subscriber("joined")?;
+    let mut joins = Joins::default();
     let rerun_requests = match ctx.config.run.nonfinite_reruns {
         0 => None,
         _ => Some(wire::reruns(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("reruns")?),
@@ -194,8 +198,11 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
             if m.run_id != ctx.run_id {
                 continue;
             }
-            if m.kind == Control::WORKER_LOST {
-                lost.push((m.worker, m.incarnation));
+            match m.kind {
+                Control::WORKER_LOST => lost.push((m.worker, m.incarnation)),
+                Control::RECORDER_LOST => joins.recorder_lost = true,
+                Control::RECORDER_BACK => joins.recorder_lost = false,
+                _ => {}
             }
         }
         if last_scan.elapsed() >= DEAD_SCAN {
@@ -232,6 +239,7 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                 }
                 requeue(w.assignment, &current, &mut pending, &mut held_back);
                 idle.retain(|i| *i != worker);
+                joins.waiting.remove(&worker);
             }
         }
         // The newest distribution starts a new update.
@@ -356,7 +364,29 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
                         },
                     );
                     idle.retain(|i| *i != r.worker);
-                    idle.push_back(r.worker);
+                    let recorder = joined_service.dynamic_config().number_of_publishers() > 0;
+                    if joins.must_wait(r.worker, r.incarnation, recorder) {
+                        joins.wait(&r);
+                    } else {
+                        joins.waiting.remove(&r.worker);
+                        idle.push_back(r.worker);
+                    }
+                }
+            }
+        }
+        // Incarnations the recorder has connected to (echoed on `joined`) may have work now.
+        while let Some(sample) = iox(joined.receive(), "receive joined")? {
+            let j = *sample.payload();
+            if j.run_id == ctx.run_id && j.role == wire::role::WORKER {
+                joins.joined(j.worker, j.incarnation);
+            }
+        }
+        // Asked only while a worker waits: the round is the sampler's hot path.
+        if !joins.waiting.is_empty() {
+            let recorder = joined_service.dynamic_config().number_of_publishers() > 0;
+            for worker in joins.released(recorder, Instant::now()) {
+                if workers.contains_key(&worker) && !idle.contains(&worker) {
+                    idle.push_back(worker);
                 }
             }
         }
@@ -435,8 +465,8 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         // does. A worker that holds an overdue chunk (one that joined by itself and hung: not
         // the supervisor's to kill) does not count: it takes no share.
         let available = workers
-            .values()
-            .filter(|w| w.overdue_chunk.is_none())
+            .iter()
+            .filter(|(id, w)| w.overdue_chunk.is_none() && !joins.waiting.contains_key(id))
             .count();
         let share = chunk_len(pending.len(), available, per_rollout);
         // Plan the round first: whether it empties the queue goes into every chunk's header
@@ -522,6 +552,88 @@ pub fn main(args: &ProcessArgs) -> anyhow::Result<()> {
         Ok(Flow::Continue)
     })?;
     Ok(())
+}
+
+/// How long a worker incarnation may wait for the recorder to connect to it before the sampler
+/// says so: a running recorder does within one of its rounds (a millisecond; at most
+/// `wait_loop`'s tick when idle).
+const JOIN_WAIT_SAID: Duration = Duration::from_secs(2);
+
+/// The worker incarnations the recorder has connected to, and those waiting for it to. iceoryx2
+/// keeps what a departed publisher sent only for the subscribers that had connected to it, and
+/// a subscriber connects when it next looks: a worker that joined while the recorder was
+/// stalled (stopped, a write held by a slow disk, starved of CPU), worked and crashed took its
+/// costs with it, and their updates were not recorded. So a new incarnation gets work only once
+/// the recorder has echoed its announcement on `joined` (or a later incarnation's of its slot)
+/// — unless there is no recorder to wait for: `joined` has no publisher (`--no-record`, one
+/// not yet started, a dead one cleaned up), or the supervisor reported it lost.
+#[derive(Debug, Default)]
+struct Joins {
+    /// Per slot, the newest incarnation echoed.
+    echoed: BTreeMap<u32, u32>,
+    /// Per slot, the incarnation waiting: (incarnation, pid, since, said).
+    waiting: BTreeMap<u32, (u32, u32, Instant, bool)>,
+    /// The supervisor reported the recorder gone and not restarted (until RECORDER_BACK).
+    recorder_lost: bool,
+}
+
+impl Joins {
+    fn joined(&mut self, worker: u32, incarnation: u32) {
+        let e = self.echoed.entry(worker).or_insert(incarnation);
+        *e = (*e).max(incarnation);
+    }
+
+    fn connected(echoed: &BTreeMap<u32, u32>, worker: u32, incarnation: u32) -> bool {
+        echoed.get(&worker).is_some_and(|&e| e >= incarnation)
+    }
+
+    /// Whether incarnation `incarnation` of slot `worker`, asking for work for the first
+    /// time, must wait; `recorder`: `joined` has a publisher.
+    fn must_wait(&self, worker: u32, incarnation: u32, recorder: bool) -> bool {
+        recorder && !self.recorder_lost && !Self::connected(&self.echoed, worker, incarnation)
+    }
+
+    fn wait(&mut self, r: &Ready) {
+        self.waiting
+            .insert(r.worker, (r.incarnation, r.pid, Instant::now(), false));
+    }
+
+    /// The slots whose incarnation may have work now; says on stderr which have waited
+    /// longer than [`JOIN_WAIT_SAID`], and when they no longer do.
+    fn released(&mut self, recorder: bool, now: Instant) -> Vec<u32> {
+        let mut out = Vec::new();
+        let no_recorder = !recorder || self.recorder_lost;
+        for (&worker, (incarnation, pid, since, said)) in &mut self.waiting {
+            let waited = now.duration_since(*since);
+            let connected = Self::connected(&self.echoed, worker, *incarnation);
+            if connected || no_recorder {
+                if *said {
+                    let why = if connected {
+                        "the recorder has connected to it"
+                    } else {
+                        "there is no recorder to wait for"
+                    };
+                    eprintln!(
+                        "worker-{worker} (pid {pid}) gets work after {:.1} s: {why}",
+                        waited.as_secs_f64()
+                    );
+                }
+                out.push(worker);
+            } else if !*said && waited >= JOIN_WAIT_SAID {
+                *said = true;
+                eprintln!(
+                    "worker-{worker} (pid {pid}) has waited {:.1} s for the recorder to connect \
+                     to it and gets no work until it has (so that its costs are recorded even \
+                     if it crashes): is the recorder stalled?",
+                    waited.as_secs_f64()
+                );
+            }
+        }
+        for w in &out {
+            self.waiting.remove(w);
+        }
+        out
+    }
 }
 
 /// Rollouts of the current update that a lost worker reported sent. Their costs almost always
@@ -634,6 +746,43 @@ fn open_inbox(ctx: &Context, worker: u32) -> anyhow::Result<Inbox> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn ready(worker: u32, incarnation: u32) -> Ready {
+        Ready {
+            worker,
+            incarnation,
+            pid: 7,
+            ..Ready::default()
+        }
+    }
+
+    /// A new incarnation waits for the recorder's echo of it or of a later incarnation of its
+    /// slot, and not at all without a recorder or once the supervisor reported it lost.
+    #[test]
+    fn a_worker_waits_for_the_recorders_echo_only_while_there_is_a_recorder() {
+        let mut joins = Joins::default();
+        assert!(!joins.must_wait(0, 1, false), "no recorder");
+        assert!(joins.must_wait(0, 1, true));
+        joins.wait(&ready(0, 1));
+        joins.wait(&ready(1, 0));
+        let now = Instant::now();
+        assert!(joins.released(true, now).is_empty());
+        joins.joined(0, 2);
+        joins.joined(1, 0);
+        assert_eq!(joins.released(true, now), [0, 1]);
+        assert!(!joins.must_wait(0, 2, true));
+        assert!(joins.must_wait(0, 3, true));
+        joins.wait(&ready(0, 3));
+        assert_eq!(
+            joins.released(false, now),
+            [0],
+            "the recorder's publisher is gone"
+        );
+        joins.recorder_lost = true;
+        assert!(!joins.must_wait(2, 0, true));
+        joins.recorder_lost = false;
+        assert!(joins.must_wait(2, 0, true));
+    }
 
     #[test]
     fn a_distribution_of_another_length_than_the_runs_is_an_error() {

@@ -146,6 +146,7 @@ fn slot<T: Task>(
             .publisher_builder()
             .initial_max_slice_len(steps)
             .allocation_strategy(AllocationStrategy::Static)
+            .set_degradation_handler(crate::failed_connections("costs publisher", "subscriber"))
             .create(),
         "costs publisher",
     )?;

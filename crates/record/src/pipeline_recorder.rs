@@ -17,6 +17,11 @@
 //! [`wire::HOLD`], and the recorder acknowledges at the end of its round and rings
 //! `wake/updater`.
 //!
+//! A worker's announcement on `lifecycle` makes it connect to every `costs` publisher there is
+//! and echo the announcement on `joined`: the sampler gives the worker work only then, so that
+//! iceoryx2 keeps what the worker sends for this process even if it crashes while this
+//! process is stalled (at its start it echoes every worker node alive; see [`wire::joined`]).
+//!
 //! One thread: drain every subscriber (distributions first), recompute each complete update
 //! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k)),
 //! log a mismatch with the distribution the updater published as an `error` event on `/log`,
@@ -110,6 +115,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     let updater_bell = ctx.notifier(wire::process::UPDATER)?;
     let supervisor_bell = ctx.notifier(wire::process::SUPERVISOR)?;
     let acks = wire::recorded(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("recorded")?;
+    let joined = wire::joined(&ctx.node, ctx.run_id, &ctx.limits)?.publisher("joined")?;
+    let sampler_bell = ctx.notifier(wire::process::SAMPLER)?;
 
     let mut writer = match cli.part {
         Some(part) => RunFiles::continue_in_part(&out, part)?,
@@ -138,6 +145,26 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
             &mut || Ok(iox(dist_sub.receive(), "receive distribution")?.is_some()),
         )?;
     }
+    // Workers that announced themselves before this process's `lifecycle` subscriber existed
+    // (a restarted recorder; one started after its workers) are never heard of here, and the
+    // sampler holds a new incarnation until it is echoed on `joined`: every worker node alive
+    // now is, once connected to. (A worker whose node exists but whose `costs` publisher does
+    // not yet is echoed too early, and again, truly, when its announcement comes.)
+    iox(costs_sub.has_samples(), "costs subscriber")?;
+    iox(lifecycle_sub.has_samples(), "lifecycle subscriber")?;
+    let alive = ctx.scan_nodes().alive.unwrap_or_default();
+    let workers: Vec<wire::Lifecycle> = alive
+        .iter()
+        .filter_map(|n| wire::parse_worker_node_name(n))
+        .map(|(worker, incarnation)| wire::Lifecycle {
+            run_id: ctx.run_id,
+            pid: 0,
+            role: wire::role::WORKER,
+            worker,
+            incarnation,
+        })
+        .collect();
+    echo_joined(&joined, &sampler_bell, &workers)?;
     let _announced = announce_ready(&ctx, ROLE_RECORDER, 0, cli.restart.unwrap_or(0))?;
     let out = match cli.part {
         Some(part) => crate::part_path(&out, part),
@@ -218,10 +245,21 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
                 state.handle(Msg::Control(c))?;
             }
         }
+        let mut workers: Vec<wire::Lifecycle> = Vec::new();
         while let Some(s) = iox(lifecycle_sub.receive(), "receive lifecycle")? {
             if s.payload().run_id == ctx.run_id {
+                if s.payload().role == wire::role::WORKER {
+                    workers.push(*s.payload());
+                }
                 state.handle(Msg::Lifecycle(*s.payload()))?;
             }
+        }
+        if !workers.is_empty() {
+            // A worker opens `costs` before it announces itself: connecting now means that what
+            // it sends is kept for this process even if it crashes before the next round. The
+            // sampler gives it work only after the echo.
+            iox(costs_sub.has_samples(), "costs subscriber")?;
+            echo_joined(&joined, &sampler_bell, &workers)?;
         }
         for c in after_start {
             state.handle(Msg::Control(c))?;
@@ -363,6 +401,24 @@ fn update_ranges(updates: &[u64]) -> String {
         i = j + 1;
     }
     parts.join(", ")
+}
+
+/// Says on `joined` that this process is connected to the publishers of `workers` (their
+/// announcements) and rings the sampler, which holds them until then. Not fatal if the sampler
+/// is gone: the run may be ending.
+fn echo_joined(
+    joined: &iceoryx2::port::publisher::Publisher<wire::Service, wire::Lifecycle, ()>,
+    sampler_bell: &iceoryx2::port::notifier::Notifier<wire::Service>,
+    workers: &[wire::Lifecycle],
+) -> anyhow::Result<()> {
+    if workers.is_empty() {
+        return Ok(());
+    }
+    for w in workers {
+        iox(joined.send_copy(*w), "send joined")?;
+    }
+    let _ = sampler_bell.notify_with_custom_event_id(wire::WAKE);
+    Ok(())
 }
 
 /// Takes in every distribution waiting on `distribution`; `next_update` becomes the one after

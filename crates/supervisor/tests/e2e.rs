@@ -1463,6 +1463,48 @@ fn workers_scaled_up_and_down_while_the_recorder_is_stopped_are_all_recorded() {
     assert_nothing_left(&run);
 }
 
+/// Issue #4: iceoryx2 keeps what a departed publisher sent only for subscribers that had
+/// connected to it, and a subscriber connects when it next looks. A worker that joined while
+/// the recorder was stopped, sent costs and was killed took them with it: "update N not
+/// recorded: the costs of rollouts […] never reached the recorder". RECORDER_SYNC covers
+/// workers the supervisor stops, not crashes. The sampler now hands a worker incarnation no
+/// work until the recorder says it has connected to it (`joined`).
+#[test]
+fn workers_that_crash_while_the_recorder_is_stopped_lose_no_update() {
+    let scratch = Scratch::new("crash-stopped-recorder");
+    let text = config(&[
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 7.0",
+        ),
+        ("workers = 3", "workers = 1"),
+    ]);
+    let cfg = write_config(&scratch, "crash.toml", &text);
+    let result = scratch.path("result.toml");
+    let mut run = Run::start_quiet(&scratch, 27900, &cfg, &result);
+    let s = run.wait_status("2 updates", |s| updates_in(s) >= 2);
+    let recorder = pid_of(&s, "recorder");
+    signal(recorder, "-STOP");
+    // The first incarnation was connected to before the stop; the second joins during it.
+    let mut victim = pid_of(&s, "worker-0");
+    for _ in 0..2 {
+        // About three updates' rollouts, if it is given work.
+        std::thread::sleep(Duration::from_millis(300));
+        signal(victim, "-9");
+        let s = run.wait_status("worker-0 restarted", |s| {
+            s.contains("worker-0 pid") && !s.contains(&format!("pid {victim} "))
+        });
+        victim = pid_of(&s, "worker-0");
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    signal(recorder, "-CONT");
+    run.wait_exit(Duration::from_secs(120), 0);
+    assert_eq!(RunResult::read(&result).unwrap().updates, 40);
+    let rec = record::read_recording(&scratch.recording("A1", 27900)).unwrap();
+    assert_recorded(&rec, 40);
+    assert_nothing_left(&run);
+}
+
 /// N = 20 001 steps (K = 15): the 16 MiB budget of the cost buffers holds less than three
 /// updates' costs, and the recorder's lag bound came out as 1 update. But the recorder writes
 /// update u only once it has the distribution of u + 1, which a bound of 1 held back: the run

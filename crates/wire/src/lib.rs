@@ -24,6 +24,7 @@
 //! | `progress` | [`Progress`] | – | updater → supervisor |
 //! | `recorded` | [`RecorderAck`] | – | recorder → updater, supervisor |
 //! | `lifecycle` | [`Lifecycle`] | – | every process → supervisor, recorder |
+//! | `joined` | [`Lifecycle`] | – | recorder → sampler |
 //! | `control` | [`Control`] | – | supervisor → sampler, updater, recorder |
 //! | `reruns` | `[u32]`: rejected executions per rollout (K) | [`RerunHeader`] | updater → sampler (only with `run.nonfinite_reruns` > 0) |
 //! | `overdue` | [`Overdue`] | – | sampler → supervisor |
@@ -94,6 +95,13 @@
 //! sends [`Control::RECORDER_SYNC`] and waits (at most half of `pipeline.shutdown_timeout_ms`)
 //! for an acknowledgement whose `synced` has reached it: the recorder has then connected to
 //! the worker's ports, and iceoryx2 keeps what the worker sent for it after the worker exits.
+//! A worker that crashes cannot be held so; instead the recorder, whenever it takes in a
+//! worker's announcement on `lifecycle`, connects to every publisher there is and echoes the
+//! announcement on `joined` (ringing `wake/sampler`), and so it does at its start for every
+//! worker node alive then. The sampler hands a worker incarnation no work until `joined` has
+//! echoed it (or a later incarnation of its slot), unless `joined` has no publisher (no
+//! recorder, or a dead one cleaned up) or the supervisor reported [`Control::RECORDER_LOST`]:
+//! whatever the worker then sends is kept for the recorder even if the worker crashes.
 //!
 //! A worker that holds a chunk and sends no cost for longer than `pipeline.rollout_timeout_ms`
 //! (it reports the rollouts it finishes within a chunk with [`Ready::ROLLOUT_DONE`]) is
@@ -742,6 +750,7 @@ pub(crate) enum PubSub {
     Notes,
     Control,
     Reruns,
+    Joined,
 }
 
 /// What a publish-subscribe service is opened with, besides its types: the most publishers,
@@ -805,6 +814,8 @@ impl Limits {
             PubSub::Control => (2, 4, 2 * w + 16, self.nodes()),
             // A sample is the whole state of the update's reruns: the newest is all it takes.
             PubSub::Reruns => (2, 2, 4, self.nodes()),
+            // One echo per worker incarnation; a later one of a slot stands for the earlier.
+            PubSub::Joined => (2, 2, 2 * w + 8, self.nodes()),
         };
         PubSubSettings {
             publishers,
@@ -1312,6 +1323,17 @@ pub fn lifecycle(
     l: &Limits,
 ) -> Result<FixedService<Lifecycle>, WireError> {
     fixed_service(node, run_id, "lifecycle", l.settings(PubSub::Lifecycle))
+}
+
+/// `joined`: 2 publishers (the recorder; a dead predecessor until cleaned), 2 subscribers (the
+/// sampler), a buffer of 2·max_workers + 8. The recorder echoes a worker's [`Lifecycle`]
+/// announcement here once it has connected to that worker's publishers (see "The recorder").
+pub fn joined(
+    node: &Node<Service>,
+    run_id: u64,
+    l: &Limits,
+) -> Result<FixedService<Lifecycle>, WireError> {
+    fixed_service(node, run_id, "joined", l.settings(PubSub::Joined))
 }
 
 /// `overdue`: 2 publishers (the sampler), 2 subscribers (the supervisor), a buffer of

@@ -166,6 +166,7 @@ impl Limits {
             (PubSub::Control, size_of::<Control>(), 1, 2 + rec),
             (PubSub::Overdue, size_of::<Overdue>(), 1, 1),
             (PubSub::Notes, size_of::<RunNote>(), 1, rec),
+            (PubSub::Joined, size_of::<Lifecycle>(), rec, 1),
         ];
         let mut small_segments = 0;
         for (kind, size, publishers, subscribers) in small {

@@ -189,6 +189,7 @@ fn the_readme_table_gives_every_service_with_its_name_and_types() {
         open!(progress(&node, run, l)),
         open!(recorded(&node, run, l)),
         open!(lifecycle(&node, run, l)),
+        open!(joined(&node, run, l)),
         open!(control(&node, run, l)),
         open!(reruns(&node, run, l)),
         open!(notes(&node, run, l)),
