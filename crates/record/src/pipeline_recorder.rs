@@ -700,7 +700,8 @@ impl WriterState {
                     .map(String::as_str)
                     .zip(ahead.settings.iter().copied())
                     .collect();
-                self.writer.write_unfinished_update(u, &settings)?;
+                self.writer
+                    .write_unfinished_update(u, &settings, self.stopped)?;
             }
         }
         // A restarted recorder stopped before its first distribution has no part (it is

@@ -877,7 +877,8 @@ mod tests {
         let mut w = crate::RunWriter::create(&path).unwrap();
         w.write_event(0, crate::Event::Start, "updater", 1, "ready")
             .unwrap();
-        w.write_unfinished_update(7, &[("viapoint", 0.1)]).unwrap();
+        w.write_unfinished_update(7, &[("viapoint", 0.1)], false)
+            .unwrap();
         w.finish().unwrap();
         let rec = read_recording(&path).unwrap();
         let u = rec

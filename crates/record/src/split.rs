@@ -649,9 +649,10 @@ impl RunFiles {
         &mut self,
         update: u64,
         task_settings: &[(&str, f64)],
+        not_begun: bool,
     ) -> Result<(), RecordError> {
         self.writer()?
-            .write_unfinished_update(update, task_settings)
+            .write_unfinished_update(update, task_settings, not_begun)
     }
 
     pub fn write_event(

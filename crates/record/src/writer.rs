@@ -568,17 +568,20 @@ impl<W: Write + Seek> RunWriter<W> {
     }
 
     /// `/unfinished_update`: the settings update `update` was to run with, its distribution
-    /// published but the update not complete when the run stopped.
+    /// published but the update not complete when the run stopped; `not_begun`: the run
+    /// stopped before it, on request.
     pub(crate) fn write_unfinished_update(
         &mut self,
         update: u64,
         task_settings: &[(&str, f64)],
+        not_begun: bool,
     ) -> Result<(), RecordError> {
         let now = now_ns();
         let msg = proto::UnfinishedUpdate {
             timestamp: Some(timestamp(now)),
             update,
             task_settings: settings(task_settings),
+            not_begun,
         };
         self.put(6, now, &msg)
     }

@@ -7003,6 +7003,8 @@ fn stop_after_update_finishes_the_update_under_way_and_resumes_to_the_uninterrup
     assert!(rec.indexed, "{out}");
     assert_eq!(update_indices(&rec), (0..=last).collect::<Vec<_>>());
     assert_recomputes(&rec);
+    let unfinished = rec.unfinished.as_ref().unwrap();
+    assert_eq!((unfinished.update, unfinished.not_begun), (last + 1, true));
     let executions = std::fs::read_to_string(&ran).unwrap().lines().count() as u64;
     assert_eq!(executions, 10 * (last + 1), "{out}");
     assert_eq!(RunResult::read(&result).unwrap().updates, last + 1);

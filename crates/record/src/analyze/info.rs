@@ -218,6 +218,26 @@ pub fn info_for(rec: &Recording, program: &str) -> String {
             ))
         );
     }
+    // How the run stopped, when it stopped with an update published but not recorded.
+    if let Some(u) = &rec.unfinished {
+        let _ = writeln!(
+            s,
+            "  {}",
+            if u.not_begun {
+                format!(
+                    "stopped on request before update {} began (`supervisor stop \
+                     --after-update`): no rollout lost; `--resume` goes on with it",
+                    u.update
+                )
+            } else {
+                format!(
+                    "stopped in update {}: the rollouts it had run are not recorded (`--resume` \
+                     runs them again)",
+                    u.update
+                )
+            }
+        );
+    }
     let restart = rec
         .metadata
         .get(crate::topics::METADATA)
@@ -559,6 +579,37 @@ mod tests {
         assert_eq!(gaps_within([3, 4, 5], Some(3), Some(6)), "");
         assert_eq!(gaps_within([3, 4, 5], Some(3), Some(4)), "");
         assert_eq!(gaps_within([], Some(7), Some(8)), "7");
+    }
+
+    /// A run that stopped with an update published but not recorded says how: before it began,
+    /// on request, or in it (its rollouts then run again when resumed).
+    #[test]
+    fn the_summary_says_how_a_run_stopped_in_an_update() {
+        let dir = std::env::temp_dir().join(format!("analyze-stopped-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (not_begun, expected) in [
+            (
+                true,
+                "  stopped on request before update 7 began (`supervisor stop --after-update`): \
+                 no rollout lost; `--resume` goes on with it",
+            ),
+            (
+                false,
+                "  stopped in update 7: the rollouts it had run are not recorded (`--resume` \
+                 runs them again)",
+            ),
+        ] {
+            let path = dir.join(format!("{not_begun}.mcap"));
+            let mut w = crate::RunWriter::create(&path).unwrap();
+            w.write_event(6, crate::Event::Start, "updater", 1, "ready")
+                .unwrap();
+            w.write_unfinished_update(7, &[("viapoint", 0.1)], not_begun)
+                .unwrap();
+            w.finish().unwrap();
+            let said = info(&crate::read_recording(&path).unwrap());
+            assert!(said.contains(expected), "no {expected:?} in\n{said}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// The summary gives the task settings the run started with, not only the changes after
