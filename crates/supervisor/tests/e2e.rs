@@ -7108,6 +7108,43 @@ fn stop_after_update_with_the_next_distribution_held_back_stops_before_it() {
     assert_nothing_left(&again);
 }
 
+/// Ctrl-C after `supervisor stop --after-update`, before the update under way is done, ends the
+/// run as Ctrl-C does: that update's finished rollouts are thrown away, and the run is
+/// interrupted (exit 130). The summary said `stopped on request after update N (`supervisor
+/// stop --after-update`): no rollout was thrown away`, with exit 0, and the recorder was waited
+/// for as if the updater had ended the run.
+#[test]
+fn a_signal_before_the_update_under_way_is_done_interrupts_a_stop_after_update() {
+    let scratch = Scratch::new("stop-after-update-sigint");
+    let text = config(&[
+        UNBOUNDED,
+        (
+            "viapoint_weight = 1000.0",
+            "viapoint_weight = 1000.0\nrollout_delay_ms = 300.0",
+        ),
+    ]);
+    let cfg = write_config(&scratch, "slow.toml", &text);
+    let (mcap, result) = (scratch.path("run.mcap"), scratch.path("result.toml"));
+    let mut run = start_recorded(&scratch, 28100, &cfg, &mcap, &result);
+    run.wait_status("1 update", |s| updates_in(s) >= 1);
+    // 15 rollouts of 0.3 s on 3 workers: the update just begun has 1.5 s to go.
+    let reply = run.ctl_ok(&["stop", "--after-update"]);
+    assert!(
+        reply.contains("stopping after the update under way"),
+        "{reply}"
+    );
+    signal(run.child.id(), "-INT");
+    run.wait_exit(Duration::from_secs(30), 130);
+    let out = run.text();
+    assert!(out.contains("[supervisor] interrupted"), "{out}");
+    assert!(!out.contains("no rollout was thrown away"), "{out}");
+    let r = RunResult::read(&result).unwrap();
+    assert!(!r.complete, "{out}");
+    let rec = record::read_recording(&mcap).unwrap();
+    assert_recorded(&rec, r.updates);
+    assert_nothing_left(&run);
+}
+
 /// With rollouts that take a robot seconds, an update takes minutes: `status` shows how many of
 /// its rollouts are done, and an update under way for longer than 10 s gets a line of its own
 /// when that number changes (before, nothing was said between two updates' lines, and a first

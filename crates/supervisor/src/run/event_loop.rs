@@ -615,6 +615,13 @@ impl Supervisor {
                     self.kill_all();
                 } else {
                     say("signal received: stopping (again to kill at once)");
+                    // Before the update under way is done, a signal ends `stop --after-update`
+                    // as it ends any run: that update's rollouts are thrown away, and the
+                    // summary must not say that none was (nor the recorder be waited for as if
+                    // the updater had ended the run).
+                    if std::mem::take(&mut self.stop_after_update) {
+                        self.outcome = Some(Outcome::Interrupted);
+                    }
                     if self.outcome.is_none() {
                         self.outcome = Some(Outcome::Interrupted);
                     }
