@@ -7174,7 +7174,21 @@ fn the_rollouts_done_of_a_long_update_are_shown() {
     let status = run.wait_status("2 rollouts done", |s| {
         s.contains("update 1/40 under way: 2 of 15 rollouts done, for ")
     });
-    assert!(status.contains("updates: 0 of 40"), "{status}");
+    // No update is done yet: no rate, no last update (it read `0 updates/s, the last 1.1 s
+    // ago`, the time since the first rollout's report).
+    assert!(
+        status.contains("updates: 0 of 40, none made yet\n"),
+        "{status}"
+    );
+    // The first update has been under way since the run started, for 2 rollouts of 1 s at
+    // least; the first rollout's report reset that time, which then read about 1 s.
+    let under_way: f64 = status
+        .split("rollouts done, for ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("{status}"));
+    assert!(under_way >= 2.0, "{status}");
     let end = Instant::now() + Duration::from_secs(30);
     run.wait_output("[supervisor] update 1/40 under way: ", end);
     let out = run.text();

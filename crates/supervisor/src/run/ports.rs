@@ -172,9 +172,11 @@ impl Supervisor {
             // A report's settings are those of its next update, `updates`.
             self.unreflected_sets
                 .retain(|(_, _, _, from)| from.is_none_or(|f| f > p.updates));
-            let rollout_done = self.progress.is_some_and(|prev| {
-                prev.updates == p.updates && p.rollouts_done > prev.rollouts_done
-            });
+            let before = self
+                .progress
+                .filter(|prev| prev.updates == p.updates)
+                .map_or(0, |prev| prev.rollouts_done);
+            let rollout_done = p.rollouts_done > before;
             if rollout_done && p.flags & Progress::FINAL == 0 {
                 if self.stall_reported {
                     say(&format!(
@@ -190,7 +192,13 @@ impl Supervisor {
                 }
                 self.last_rollout_at = Some(Instant::now());
             }
-            if self.progress.is_none_or(|prev| p.updates > prev.updates) {
+            // Reports also come while an update runs (its rollouts done): a first one is no
+            // update, and taken for one it reset the time the first update had been under way.
+            let first = self.start.as_ref().map_or(0, |s| s.update);
+            let new_update = self
+                .progress
+                .map_or(p.updates > first, |prev| p.updates > prev.updates);
+            if new_update {
                 // A stopping updater's last report is no news of updates going on.
                 if self.stall_reported && p.flags & Progress::FINAL == 0 {
                     say(&format!(
@@ -203,13 +211,8 @@ impl Supervisor {
                 self.last_update_at = Some(Instant::now());
                 self.stall_reported = false;
             }
-            // Reports also come while an update runs (its rollouts done): no new update, no
-            // update line.
-            let first = self.start.as_ref().map_or(0, |s| s.update);
-            let news = p.flags & Progress::FINAL != 0
-                || self
-                    .progress
-                    .map_or(p.updates > first, |prev| p.updates > prev.updates);
+            // No new update, no update line.
+            let news = p.flags & Progress::FINAL != 0 || new_update;
             if self.rates.is_empty() {
                 // A resumed run counts its updates from where it resumed.
                 self.rates

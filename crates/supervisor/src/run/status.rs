@@ -335,16 +335,27 @@ impl Supervisor {
                 // writes, so it can be ahead of the report, and "written through update 16" above
                 // "updates: 15" read as a contradiction.
                 let updates = p.updates.max(self.recorder_sync.written.unwrap_or(0));
+                // The updater reports the rollouts of the run's first update too: before it is
+                // done there is no rate and no last update (it read `0 updates/s, the last 2.1
+                // s ago`).
+                let first = self.start.as_ref().map_or(0, |s| s.update);
+                let pace = if updates > first {
+                    format!(
+                        "{}, the last {:.1} s ago",
+                        rate_text(self.rate),
+                        self.last_update_at
+                            .map_or(0.0, |t| t.elapsed().as_secs_f64())
+                    )
+                } else {
+                    "none made yet".to_string()
+                };
                 s += &format!(
-                    "updates: {} of {}, {}, the last {:.1} s ago\ncurrent cost: {}\nlambda: {}\ntask: {}\n{refused}",
+                    "updates: {} of {}, {pace}\ncurrent cost: {}\nlambda: {}\ntask: {}\n{refused}",
                     updates,
                     self.cfg
                         .run
                         .updates
                         .map_or("unbounded".to_string(), |n| n.to_string()),
-                    rate_text(self.rate),
-                    self.last_update_at
-                        .map_or(0.0, |t| t.elapsed().as_secs_f64()),
                     reading(p.eval_cost),
                     reading(p.lambda),
                     settings
