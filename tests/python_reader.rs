@@ -475,6 +475,42 @@ fn check_update_agrees_with_a_run_whose_costs_collapse() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A resumed run's recording begins with the distribution the run had got to, not with the
+/// minimum-jerk fit: `check_task_costs.py` checks its costs and says it does not check its
+/// initial mean. It compared that mean with the fit and called every resumed recording wrong
+/// (`initial mean=3.95e-01  >>> DISAGREES`).
+#[test]
+fn task_costs_of_a_resumed_recording_agree_and_its_initial_mean_is_not_the_fits() {
+    let dir = scratch("task-costs-resumed");
+    pi2cma_run(&dir, &["--quiet", "--updates", "5", "--out", "."]);
+    pi2cma_run(
+        &dir,
+        &[
+            "--resume",
+            "run.mcap",
+            "--updates",
+            "8",
+            "--quiet",
+            "--out",
+            "resumed",
+        ],
+    );
+    let (ok, text) = python_tool(
+        "check_task_costs.py",
+        &["run.mcap", "resumed/run.mcap"],
+        &dir,
+    );
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("run.mcap: via-point, 5 updates: max rel diff initial mean=")
+            && text.contains("resumed/run.mcap: via-point, 3 updates: max rel diff step costs=")
+            && text.contains("(initial mean not checked: the recording begins at update 5)")
+            && text.contains("2 recording(s): agree within 1e-09"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `tools/check_task_costs.py` rebuilds the DMP and the costs (Eq. 3, Eq. 4) from the paper and
 /// the README, which `check_update.py` takes from the recording and so cannot check: the
 /// via-point and T-ball costs of our runs agree with it, and a recording whose costs are not

@@ -13,7 +13,8 @@ For each recording it rebuilds the task from the `/run` config:
   spaced in time), widths 4·ln2/(spacing²) (neighbours cross at half height); semi-implicit
   Euler on t_i = i·dt, i = 0..N−1, N = duration/dt + 1; ÿ_i = ż_i/τ before the step.
 * initial mean: the least-squares weights whose DMP positions best match the minimum-jerk
-  movement y0 + (g − y0)(10s³ − 15s⁴ + 6s⁵), s = t/duration.
+  movement y0 + (g − y0)(10s³ − 15s⁴ + 6s⁵), s = t/duration. Only in a recording that begins
+  at update 0: a resumed run's (or a restarted recorder's part) begins where the run had got.
 * via-point (Eq. 3): q_i = ÿ_i²/N, plus viapoint_weight·|y_i − v| at the step of
   viapoint_time; terminal cost 0. v is the setting in force at each update.
 * T-ball (Eq. 4): q_i = acceleration_weight·Σ_d ÿ_{d,i}²/N. The terminal cost (Eq. 5, where
@@ -131,10 +132,15 @@ def check(path):
         raise Unreadable("not rebuildable", f"{path}: task `{name}` is not one this script "
                          f"rebuilds ({', '.join(TASKS)})")
     dmp_, costs = TASKS[name](spec)
-    initial = np.array(run.initial.mean, float)
-    worst = {"initial mean": float(np.abs(dmp_.min_jerk_fit - initial).max()
-                                   / max(np.abs(initial).max(), 1e-300)),
-             "step costs": 0.0}
+    worst = {}
+    # A recording that begins later (a resumed run, a restarted recorder's part) begins with the
+    # distribution the run had got to, not the initial one: comparing it with the minimum-jerk
+    # fit called every resumed recording wrong (rel diff 0.395 on the via-point).
+    if run.update == 0:
+        initial = np.array(run.initial.mean, float)
+        worst["initial mean"] = float(np.abs(dmp_.min_jerk_fit - initial).max()
+                                      / max(np.abs(initial).max(), 1e-300))
+    worst["step costs"] = 0.0
     for up in updates:
         k, p, n = up.rollouts, up.dim, up.steps
         samples = np.array(up.samples, float).reshape(k, p)
@@ -149,7 +155,7 @@ def check(path):
             if terminal is not None:
                 worst["terminal"] = max(worst.get("terminal", 0.0),
                                         abs(terminal - up.cost_terminal[r]))
-    return name, len(updates), worst
+    return name, len(updates), worst, run.update
 
 
 def main():
@@ -160,7 +166,7 @@ def main():
     failed = []
     for path in a.files:
         try:
-            name, count, worst = check(path)
+            name, count, worst, first = check(path)
         except Unreadable as e:
             print(f"check_task_costs: {e}", file=sys.stderr)
             failed.append(f"{path} ({e.what})")
@@ -168,6 +174,8 @@ def main():
         text = "  ".join(f"{k}={v:.2e}" for k, v in worst.items())
         if "terminal" not in worst:
             text += "  (terminal cost not recomputed)"
+        if "initial mean" not in worst:
+            text += f"  (initial mean not checked: the recording begins at update {first})"
         bad = not all(v <= a.tol for v in worst.values())
         print(f"{path}: {name}, {count} updates: max rel diff {text}"
               + (f"  >>> DISAGREES beyond {a.tol:g}" if bad else ""))
