@@ -528,10 +528,22 @@ impl Recording {
     /// Whether `next` goes on exactly where this recording ends, as a run resumed from it does
     /// (`--resume`): same seed, task shape and hyperparameters, its first update is the one
     /// after this recording's last, drawn from this recording's last new distribution, bit for
-    /// bit. Judged by content, not by file name, so renamed or moved files still join.
+    /// bit. Judged by content, not by file name, so renamed or moved files still join. A
+    /// recording without updates (a run stopped in its first update, or in the first of a
+    /// restarted recorder's part) ends where its `/run` begins, with the distribution it gives.
     pub(crate) fn is_continued_by(&self, next: &Recording) -> bool {
-        let (Some(last), Some(first)) = (self.updates.last(), next.updates.first()) else {
+        let Some(first) = next.updates.first() else {
             return false;
+        };
+        let Some(last) = self.updates.last() else {
+            return self.run.last().is_some_and(|began| {
+                first.update == began.update
+                    && first.seed == began.seed
+                    && (first.dim, first.steps) == (began.dim, began.steps)
+                    && first.hyperparameters == began.hyperparameters
+                    && first.before.is_some()
+                    && first.before == began.initial
+            });
         };
         first.update == last.update + 1
             && first.seed == last.seed
@@ -1218,5 +1230,36 @@ mod tests {
         });
         assert!(!part("a", 1, 0, 10).is_continued_by(&moved));
         assert_eq!(join_resumed(vec![part("a", 1, 0, 10), moved]).len(), 2);
+    }
+
+    /// A recording without updates (a run stopped in its first update; a restarted recorder's
+    /// part that the run stopped in, as `stop --after-update` in the update the recorder died
+    /// in leaves it) is joined by the run resumed from it: `analyze` made that run a session of
+    /// its own beside the parts (`2 sessions in 1 run(s)`, statistics NaN).
+    #[test]
+    fn a_recording_without_updates_joins_the_run_resumed_from_it() {
+        let began = |seed: u64, at: u64, mean: f64| {
+            let mut r = part("began", seed, at, at);
+            r.run[0].seed = seed;
+            r.run[0].initial = Some(proto::Distribution {
+                dim: 1,
+                mean: vec![mean],
+                covariance: vec![1.0],
+            });
+            r
+        };
+        // `part`'s update u is drawn from mean u.
+        assert!(began(1, 4, 4.0).is_continued_by(&part("resumed", 1, 4, 8)));
+        let runs = join_resumed(vec![part("resumed", 1, 4, 8), began(1, 4, 4.0)]);
+        assert_eq!(runs.len(), 1);
+        let files: Vec<String> = runs[0].1.iter().map(|p| p.display().to_string()).collect();
+        assert_eq!(files, ["began", "resumed"]);
+        let updates: Vec<u64> = runs[0].0.updates.iter().map(|u| u.update).collect();
+        assert_eq!(updates, (4..8).collect::<Vec<_>>());
+        // Not where it began, not from its distribution, another seed: other runs.
+        for other in [began(1, 3, 4.0), began(1, 4, 4.5), began(2, 4, 4.0)] {
+            assert!(!other.is_continued_by(&part("resumed", 1, 4, 8)));
+        }
+        assert!(!began(1, 4, 4.0).is_continued_by(&began(1, 4, 4.0)));
     }
 }
