@@ -7172,12 +7172,12 @@ fn the_rollouts_done_of_a_long_update_are_shown() {
         ],
     );
     let status = run.wait_status("2 rollouts done", |s| {
-        s.contains("update 1/40 under way: 2 of 15 rollouts done, for ")
+        s.contains("update 0 (the 1st of 40) under way: 2 of 15 rollouts done, for ")
     });
     // No update is done yet: no rate, no last update (it read `0 updates/s, the last 1.1 s
     // ago`, the time since the first rollout's report).
     assert!(
-        status.contains("updates: 0 of 40, none made yet\n"),
+        status.contains("updates: 0 of 40, none made yet\ncurrent cost: none yet\n"),
         "{status}"
     );
     // The first update has been under way since the run started, for 2 rollouts of 1 s at
@@ -7190,11 +7190,11 @@ fn the_rollouts_done_of_a_long_update_are_shown() {
         .unwrap_or_else(|| panic!("{status}"));
     assert!(under_way >= 2.0, "{status}");
     let end = Instant::now() + Duration::from_secs(30);
-    run.wait_output("[supervisor] update 1/40 under way: ", end);
+    run.wait_output("[supervisor] update 0 (the 1st of 40) under way: ", end);
     let out = run.text();
     let line = out
         .lines()
-        .find(|l| l.starts_with("[supervisor] update 1/40 under way: "))
+        .find(|l| l.starts_with("[supervisor] update 0 (the 1st of 40) under way: "))
         .unwrap();
     let done: u32 = line
         .split(": ")

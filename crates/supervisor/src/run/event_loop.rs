@@ -222,6 +222,9 @@ impl Supervisor {
     }
 
     pub(super) fn fail(&mut self, reason: String) {
+        // The run does not end as asked: the recorder is not waited for as after a stop at an
+        // update's end.
+        self.stop_after_update = false;
         // A failure also outranks a stop that was asked for: the process may have failed
         // before it saw the request, and then the run did not end as asked.
         if matches!(

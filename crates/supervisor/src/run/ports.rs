@@ -184,7 +184,7 @@ impl Supervisor {
                          without progress",
                         p.rollouts_done,
                         p.rollouts,
-                        p.updates + 1,
+                        p.updates,
                         self.quiet_since()
                             .map_or(0.0, |t| t.elapsed().as_secs_f64())
                     ));

@@ -132,7 +132,7 @@ impl Supervisor {
                 "no rollout done for {:.0} s (update {}: {} of {} rollouts done): {who}; \
                  `supervisor status` shows the processes",
                 r.elapsed().as_secs_f64(),
-                p.updates + 1,
+                p.updates,
                 p.rollouts_done,
                 p.rollouts
             ),
@@ -173,9 +173,11 @@ impl Supervisor {
         )
     }
 
-    /// `update 26/40 under way: 7 of 15 rollouts done, for 12.3 s`: how far the update under
-    /// way has got, which with rollouts of seconds is the only news for minutes. None while
-    /// the run is not running or its last update is done.
+    /// `update 25 (the 26th of 40) under way: 7 of 15 rollouts done, for 12.3 s`: how far the
+    /// update under way has got, which with rollouts of seconds is the only news for minutes.
+    /// The update by its index, as the updater, the stop and the recording name it (the
+    /// progress lines' `update 25/40` counts the updates done). None while the run is not
+    /// running or its last update is done.
     pub(super) fn under_way(&self) -> Option<String> {
         let p = self.progress?;
         if self.phase != Phase::Running || p.flags & Progress::FINAL != 0 || p.rollouts == 0 {
@@ -185,10 +187,11 @@ impl Supervisor {
             .cfg
             .run
             .updates
-            .map_or("∞".to_string(), |n| n.to_string());
+            .map_or(String::new(), |n| format!(" of {n}"));
         Some(format!(
-            "update {}/{of} under way: {} of {} rollouts done, for {:.1} s",
-            p.updates + 1,
+            "update {} (the {}{of}) under way: {} of {} rollouts done, for {:.1} s",
+            p.updates,
+            ordinal(p.updates + 1),
             p.rollouts_done,
             p.rollouts,
             self.last_update_at
@@ -356,7 +359,12 @@ impl Supervisor {
                         .run
                         .updates
                         .map_or("unbounded".to_string(), |n| n.to_string()),
-                    reading(p.eval_cost),
+                    // The evaluation cost comes with an update (NaN before the first).
+                    if updates > first {
+                        reading(p.eval_cost)
+                    } else {
+                        "none yet".to_string()
+                    },
                     reading(p.lambda),
                     settings
                 );
@@ -445,6 +453,18 @@ fn two_digits_below_ten(x: f64) -> String {
     }
 }
 
+/// `1st`, `2nd`, `3rd`, `4th`, …, `11th`, `21st`.
+fn ordinal(n: u64) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (_, 11..=13) => "th",
+        (1, _) => "st",
+        (2, _) => "nd",
+        (3, _) => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
+}
+
 /// A time between updates as the stall warning shows it: in seconds, in milliseconds below
 /// 10 ms (a run at thousands of updates per second came "every 0.000 s").
 pub(super) fn interval_text(secs: f64) -> String {
@@ -458,6 +478,21 @@ pub(super) fn interval_text(secs: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ordinals_read_as_english() {
+        let said: Vec<String> = [1, 2, 3, 4, 11, 12, 13, 21, 22, 101, 111, 112]
+            .into_iter()
+            .map(ordinal)
+            .collect();
+        assert_eq!(
+            said,
+            [
+                "1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "101st",
+                "111th", "112th"
+            ]
+        );
+    }
 
     #[test]
     fn the_update_rate_is_updates_over_the_time_they_took_in_the_last_seconds() {
