@@ -425,14 +425,42 @@ def serve(make_task, argv=None):
     except WorkerError as e:
         # The task's traceback first: the supervisor reports the last line, this summary.
         if e.__cause__ is not None:
-            traceback.print_exception(e.__cause__, file=sys.stderr)
+            _print_traceback(e.__cause__, args)
         print(f"error: {name} failed: {e}", file=sys.stderr, flush=True)
         sys.exit(1)
     except Exception as e:  # an iceoryx2 error or a failing task: report it, as the Rust side does
-        traceback.print_exc(file=sys.stderr)
+        _print_traceback(e, args)
         print(f"error: {name} failed: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
         sys.exit(1)
     sys.exit(0)
+
+
+def _print_traceback(e, args):
+    """Prints `e`'s traceback on stderr, unless this worker's previous incarnation printed the
+    same one: then a line that says so. A task that fails the same way at every restart printed
+    its whole traceback once per restart, burying the other lines of the run. The traceback is
+    kept in the run directory (`worker-<w>.traceback`) for the next incarnation."""
+    text = "".join(traceback.format_exception(type(e), e, e.__traceback__))
+    kept = os.path.join(args.run_dir, f"worker-{args.worker}.traceback")
+    before = None
+    try:
+        with open(kept) as f:
+            incarnation, _, before = f.read().partition("\n")
+    except OSError:
+        pass
+    if before == text:
+        print(
+            f"(the same traceback as incarnation {incarnation}'s, printed before)",
+            file=sys.stderr,
+            flush=True,
+        )
+    else:
+        print(text, end="", file=sys.stderr, flush=True)
+    try:
+        with open(kept, "w") as f:
+            f.write(f"{args.incarnation}\n{text}")
+    except OSError:  # a run directory gone or read-only: print in full next time
+        pass
 
 
 def _takes_an_argument(make_task):

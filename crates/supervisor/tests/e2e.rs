@@ -7212,3 +7212,54 @@ fn the_rollouts_done_of_a_long_update_are_shown() {
     run.wait_exit(Duration::from_secs(20), 0);
     assert_nothing_left(&run);
 }
+
+/// A Python task that fails the same way at every restart prints its traceback once: each
+/// later incarnation says it is the same (it printed the whole traceback at every restart,
+/// burying the run's other lines). Failures that differ are each printed in full.
+#[test]
+fn a_python_task_failing_alike_at_every_restart_prints_its_traceback_once() {
+    let scratch = Scratch::new("python-same-traceback");
+    for (id, message, full) in [
+        (28006, r#""simulator exploded""#, 1),
+        // Each incarnation's message is its own: every traceback differs, all are printed.
+        (
+            28007,
+            r#""simulator exploded in incarnation " + sys.argv[sys.argv.index("--incarnation") + 1]"#,
+            3,
+        ),
+    ] {
+        let text = python_task_config(
+            &scratch,
+            &format!("explodes{full}"),
+            &format!(
+                r#"class Task(reach_worker.Reach):
+    def rollout(self, theta):
+        self.n = getattr(self, "n", 0) + 1
+        if self.n > 3:
+            raise RuntimeError({message})
+        return super().rollout(theta)"#
+            ),
+            &[("workers = 2", "workers = 1\nrestart_limit = 2")],
+        );
+        let cfg = write_config(&scratch, &format!("explodes{full}.toml"), &text);
+        let mut run = Run::start(&scratch, id, &[cfg.to_str().unwrap(), "--no-record"]);
+        run.wait_exit(Duration::from_secs(60), 1);
+        let out = run.text();
+        let count = |what: &str| out.matches(what).count();
+        // Three incarnations (the first and two restarts), each failing.
+        assert_eq!(count("[worker-0] error: explodes"), 3, "{out}");
+        assert_eq!(count("Traceback (most recent call last)"), full, "{out}");
+        assert_eq!(
+            count("(the same traceback as incarnation "),
+            3 - full,
+            "{out}"
+        );
+        if full == 1 {
+            assert!(
+                out.contains("(the same traceback as incarnation 1's, printed before)"),
+                "{out}"
+            );
+        }
+        assert_nothing_left(&run);
+    }
+}
