@@ -626,9 +626,68 @@ pub fn scan_nodes(node: &Node<Service>) -> NodeScan {
     NodeScan { dead, alive }
 }
 
+/// The worker incarnations `(slot, incarnation)` whose nodes are alive and have a publisher on
+/// `service` now (e.g. `costs`): a worker creates its node before its ports, so a live worker
+/// node is no sign that its costs can reach a subscriber yet.
+pub fn workers_publishing_on<P: Debug + IceoryxSend + ?Sized, H: Debug + ZeroCopySend>(
+    node: &Node<Service>,
+    service: &PortFactory<Service, P, H>,
+) -> Vec<(u32, u32)> {
+    let mut publishing = std::collections::HashSet::new();
+    iceoryx2::service::port_factory::PortFactory::dynamic_config(service).list_publishers(|p| {
+        publishing.insert(p.node_id);
+        CallbackProgression::Continue
+    });
+    let mut found = Vec::new();
+    let _ = Node::<Service>::list(node.config(), |state| {
+        if let NodeState::Alive(view) = state {
+            let named = view
+                .details()
+                .as_ref()
+                .map(|d| d.name().as_str().to_string());
+            if let (true, Some(w)) = (
+                publishing.contains(view.id()),
+                named.as_deref().and_then(wire::parse_worker_node_name),
+            ) {
+                found.push(w);
+            }
+        }
+        CallbackProgression::Continue
+    });
+    found.sort_unstable();
+    found
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Only the live worker nodes with a publisher on the service are named: one whose node
+    /// exists but whose `costs` publisher does not yet is not.
+    #[test]
+    fn workers_are_named_publishing_only_once_their_publisher_exists() {
+        let run_id = 0x7101;
+        remove_run(run_id);
+        let limits = Limits {
+            max_workers: 2,
+            rollouts: 4,
+            dim: 2,
+            steps: 3,
+        };
+        let early = wire::node(run_id, &wire::worker_node_name(0, 1)).unwrap();
+        let late = wire::node(run_id, &wire::worker_node_name(1, 0)).unwrap();
+        let recorder = wire::node(run_id, wire::process::RECORDER).unwrap();
+        let costs = wire::costs(&recorder, run_id, &limits).unwrap();
+        let early_costs = wire::costs(&early, run_id, &limits).unwrap();
+        let _publisher = early_costs.publisher("costs").unwrap();
+        assert_eq!(workers_publishing_on(&recorder, &costs), [(0, 1)]);
+        let late_costs = wire::costs(&late, run_id, &limits).unwrap();
+        let _late_publisher = late_costs.publisher("costs").unwrap();
+        assert_eq!(workers_publishing_on(&recorder, &costs), [(0, 1), (1, 0)]);
+        drop((_publisher, _late_publisher, early_costs, late_costs, costs));
+        drop((early, late, recorder));
+        remove_run(run_id);
+    }
 
     thread_local! {
         /// The lines [`failed_connections`] printed on this thread.

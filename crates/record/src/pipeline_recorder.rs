@@ -20,7 +20,8 @@
 //! A worker's announcement on `lifecycle` makes it connect to every `costs` publisher there is
 //! and echo the announcement on `joined`: the sampler gives the worker work only then, so that
 //! iceoryx2 keeps what the worker sends for this process even if it crashes while this
-//! process is stalled (at its start it echoes every worker node alive; see [`wire::joined`]).
+//! process is stalled (at its start it echoes every live worker that has a `costs` publisher;
+//! see [`wire::joined`]).
 //!
 //! One thread: drain every subscriber (distributions first), recompute each complete update
 //! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k)),
@@ -106,7 +107,8 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
 
     let dist_sub =
         wire::distribution(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("distribution")?;
-    let costs_sub = wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("costs")?;
+    let costs_service = wire::costs(&ctx.node, ctx.run_id, &ctx.limits)?;
+    let costs_sub = costs_service.subscriber("costs")?;
     let control_sub = wire::control(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("control")?;
     let lifecycle_sub =
         wire::lifecycle(&ctx.node, ctx.run_id, &ctx.limits)?.subscriber("lifecycle")?;
@@ -147,15 +149,15 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
     }
     // Workers that announced themselves before this process's `lifecycle` subscriber existed
     // (a restarted recorder; one started after its workers) are never heard of here, and the
-    // sampler holds a new incarnation until it is echoed on `joined`: every worker node alive
-    // now is, once connected to. (A worker whose node exists but whose `costs` publisher does
-    // not yet is echoed too early, and again, truly, when its announcement comes.)
+    // sampler holds a new incarnation until it is echoed on `joined`: every live worker with a
+    // `costs` publisher now is, once connected to. Listed before connecting, so that each one
+    // echoed is one connected to; a worker whose node exists but whose publisher does not yet
+    // is echoed when its announcement (sent after its ports exist) comes.
+    let publishing = pipeline::workers_publishing_on(&ctx.node, &costs_service);
     iox(costs_sub.has_samples(), "costs subscriber")?;
     iox(lifecycle_sub.has_samples(), "lifecycle subscriber")?;
-    let alive = ctx.scan_nodes().alive.unwrap_or_default();
-    let workers: Vec<wire::Lifecycle> = alive
-        .iter()
-        .filter_map(|n| wire::parse_worker_node_name(n))
+    let workers: Vec<wire::Lifecycle> = publishing
+        .into_iter()
         .map(|(worker, incarnation)| wire::Lifecycle {
             run_id: ctx.run_id,
             pid: 0,

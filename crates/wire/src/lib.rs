@@ -98,10 +98,11 @@
 //! A worker that crashes cannot be held so; instead the recorder, whenever it takes in a
 //! worker's announcement on `lifecycle`, connects to every publisher there is and echoes the
 //! announcement on `joined` (ringing `wake/sampler`), and so it does at its start for every
-//! worker node alive then. The sampler hands a worker incarnation no work until `joined` has
-//! echoed it (or a later incarnation of its slot), unless `joined` has no publisher (no
-//! recorder, or a dead one cleaned up) or the supervisor reported [`Control::RECORDER_LOST`]:
-//! whatever the worker then sends is kept for the recorder even if the worker crashes.
+//! live worker that has a `costs` publisher then. The sampler hands a worker incarnation no
+//! work until `joined` has echoed it (or a later incarnation of its slot), unless `joined` has
+//! no publisher (no recorder, or a dead one cleaned up) or the supervisor reported
+//! [`Control::RECORDER_LOST`]: whatever the worker then sends is kept for the recorder even if
+//! the worker crashes.
 //!
 //! A worker that holds a chunk and sends no cost for longer than `pipeline.rollout_timeout_ms`
 //! (it reports the rollouts it finishes within a chunk with [`Ready::ROLLOUT_DONE`]) is
