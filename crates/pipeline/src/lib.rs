@@ -667,13 +667,7 @@ mod tests {
     #[test]
     fn workers_are_named_publishing_only_once_their_publisher_exists() {
         let run_id = 0x7101;
-        remove_run(run_id);
-        let limits = Limits {
-            max_workers: 2,
-            rollouts: 4,
-            dim: 2,
-            steps: 3,
-        };
+        let limits = fresh_run(run_id);
         let early = wire::node(run_id, &wire::worker_node_name(0, 1)).unwrap();
         let late = wire::node(run_id, &wire::worker_node_name(1, 0)).unwrap();
         let recorder = wire::node(run_id, wire::process::RECORDER).unwrap();
@@ -705,6 +699,17 @@ mod tests {
             .collect()
     }
 
+    /// Removes what an earlier test run of `run_id` left, and gives small limits for one.
+    fn fresh_run(run_id: u64) -> Limits {
+        remove_run(run_id);
+        Limits {
+            max_workers: 2,
+            rollouts: 4,
+            dim: 2,
+            steps: 3,
+        }
+    }
+
     fn remove_run(run_id: u64) {
         let _ = std::fs::remove_dir_all(wire::iceoryx_root(run_id));
         for f in shm_files(run_id) {
@@ -719,13 +724,7 @@ mod tests {
     #[test]
     fn a_subscriber_that_cannot_connect_to_a_publisher_says_so_once() {
         let run_id = 0x7100;
-        remove_run(run_id);
-        let limits = Limits {
-            max_workers: 2,
-            rollouts: 4,
-            dim: 2,
-            steps: 3,
-        };
+        let limits = fresh_run(run_id);
         let worker = wire::node(run_id, "worker-0.1").unwrap();
         let worker_costs = wire::costs(&worker, run_id, &limits).unwrap();
         let before = shm_files(run_id);
