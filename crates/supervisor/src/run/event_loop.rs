@@ -622,10 +622,7 @@ impl Supervisor {
                     // as it ends any run: that update's rollouts are thrown away, and the
                     // summary must not say that none was (nor the recorder be waited for as if
                     // the updater had ended the run).
-                    if std::mem::take(&mut self.stop_after_update) {
-                        self.outcome = Some(Outcome::Interrupted);
-                    }
-                    if self.outcome.is_none() {
+                    if std::mem::take(&mut self.stop_after_update) || self.outcome.is_none() {
                         self.outcome = Some(Outcome::Interrupted);
                     }
                     self.begin_stop();
@@ -679,10 +676,7 @@ impl Supervisor {
             );
         }
         if self.phase != Phase::Running {
-            if self.outcome.is_none() {
-                self.outcome = Some(Outcome::Stopped);
-            }
-            self.begin_stop();
+            self.command(Cmd::Stop)?;
             return Ok("stopping (the run had not started: no update under way)".into());
         }
         let msg = Control::plain(self.run_id, Control::STOP_AFTER_UPDATE);

@@ -194,7 +194,7 @@ impl Supervisor {
             }
             // Reports also come while an update runs (its rollouts done): a first one is no
             // update, and taken for one it reset the time the first update had been under way.
-            let first = self.start.as_ref().map_or(0, |s| s.update);
+            let first = self.first_update();
             let new_update = self
                 .progress
                 .map_or(p.updates > first, |prev| p.updates > prev.updates);
@@ -215,8 +215,7 @@ impl Supervisor {
             let news = p.flags & Progress::FINAL != 0 || new_update;
             if self.rates.is_empty() {
                 // A resumed run counts its updates from where it resumed.
-                self.rates
-                    .add(self.start.as_ref().map_or(0, |s| s.update), 0);
+                self.rates.add(self.first_update(), 0);
             }
             self.rates.add(p.updates, p.elapsed_ns);
             if let Some(rate) = self.rates.rate() {

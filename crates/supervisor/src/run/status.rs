@@ -48,6 +48,11 @@ impl UpdateRate {
 }
 
 impl Supervisor {
+    /// The update the run started at: 0, or where a resumed run went on.
+    pub(super) fn first_update(&self) -> u64 {
+        self.start.as_ref().map_or(0, |s| s.update)
+    }
+
     /// How long a running run may go without an update before the supervisor says so: 20
     /// times the usual time per update, at least 10 s.
     pub(super) fn stall_after(&self) -> Duration {
@@ -148,7 +153,7 @@ impl Supervisor {
     pub(super) fn progress_line(&self) -> String {
         // A resumed run counts from where it resumed; before its first update there is no
         // eval cost to show (the updater reports NaN).
-        let first = self.start.as_ref().map_or(0, |s| s.update);
+        let first = self.first_update();
         let Some(p) = self.progress.filter(|p| p.updates > first) else {
             return "no update finished yet".into();
         };
@@ -341,7 +346,7 @@ impl Supervisor {
                 // The updater reports the rollouts of the run's first update too: before it is
                 // done there is no rate and no last update (it read `0 updates/s, the last 2.1
                 // s ago`).
-                let first = self.start.as_ref().map_or(0, |s| s.update);
+                let first = self.first_update();
                 let pace = if updates > first {
                     format!(
                         "{}, the last {:.1} s ago",

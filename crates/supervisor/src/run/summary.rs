@@ -35,7 +35,7 @@ impl Supervisor {
                 .updates
                 .map_or("unbounded".to_string(), |n| n.to_string());
             // A resumed run ran updates first..r.updates; the others are in the file it resumed.
-            let first = self.start.as_ref().map_or(0, |s| s.update);
+            let first = self.first_update();
             let ran = r.updates.saturating_sub(first);
             let resumed = self.start.as_ref().map_or(String::new(), |s| {
                 format!(" (resumed at update {first} from {})", s.origin)
