@@ -83,7 +83,9 @@
 //! `wake/updater` once half the lag bound is free (or at the end of its round, after an
 //! acknowledgement of the cost messages it has taken). After publishing u, the updater rings `wake/recorder` if the
 //! recorder has written everything before u − 1 (it may be asleep) and its last ring is a
-//! millisecond ago; a busy recorder looks for new samples before it sleeps. The
+//! millisecond ago, and once per acknowledgement when the recorder is half the lag bound
+//! behind (so that it is not held at full speed); a busy recorder looks for new samples before
+//! it sleeps. The
 //! supervisor sends [`Control::RECORDER_LOST`] when the recorder exits and is not restarted, and
 //! an updater held for a second also looks for a dead `recorder` node, so a dead recorder never
 //! stalls the run. A recorder that dies mid-run is restarted (within `pipeline.restart_limit`):
