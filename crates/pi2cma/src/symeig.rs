@@ -34,6 +34,33 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     }
 }
 
+/// The largest eigenvalue of the symmetric n×n matrix in `v` (column-major, both triangles
+/// set; overwritten): [`symmetric_eigen`]'s, so the same bits, without the eigenvectors, which
+/// are most of its work. `scratch`: 3·n values.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+pub fn largest_eigenvalue(n: usize, v: &mut [f64], scratch: &mut [f64]) -> f64 {
+    assert!(v.len() == n * n && scratch.len() == 3 * n);
+    if n == 0 {
+        return 0.0;
+    }
+    let unscale = unscale_for(v.iter().fold(0.0f64, |m, x| m.max(x.abs())));
+    if let Some(unscale) = unscale {
+        let scale = 1.0 / unscale;
+        v.iter_mut().for_each(|x| *x *= scale);
+    }
+    let (d, rest) = scratch.split_at_mut(n);
+    let (e, h) = rest.split_at_mut(n);
+    reduce(n, v, h, e);
+    // As `accumulate` leaves them for QL: the diagonal, and the off-diagonal from e[1].
+    e[0] = 0.0;
+    for (i, di) in d.iter_mut().enumerate() {
+        *di = v[i * n + i];
+    }
+    ql::<false>(n, &mut [], d, e);
+    let largest = d.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    largest * unscale.unwrap_or(1.0)
+}
+
 /// For a symmetric matrix whose largest |entry| is `amax`: the power of 2 to divide it by
 /// before an eigen-decomposition (and to multiply the eigenvalues by after), or `None` if
 /// `amax` is within 2^±240, where the square of an entry and its product with f64::EPSILON stay
@@ -686,6 +713,39 @@ mod tests {
     /// The pieces of the partial path: Sturm counts and bisection agree with the eigenvalues of
     /// the full decomposition, and inverse iteration gives orthonormal eigenvectors with small
     /// residuals, also for an eigenvalue of multiplicity 3 (a matrix of rank n − 3).
+    /// λ (the largest eigenvalue alone) is the largest of the full decomposition's, bit for
+    /// bit, at every scale (scaled matrices go through the same power-of-2 path).
+    #[test]
+    fn largest_eigenvalue_is_the_full_decompositions() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for trial in 0..60 {
+            let n = 1 + trial % 30;
+            let b = DMatrix::from_fn(n, n, |_, _| rng.random_range(-2.0..2.0));
+            let a = &b * b.transpose();
+            let a = (&a + a.transpose()) * 0.5;
+            for scale in [1.0, 1e-300, 1e300] {
+                let a = &a * scale;
+                let mut full = a.as_slice().to_vec();
+                let (mut d, mut e) = (vec![0.0; n], vec![0.0; n]);
+                symmetric_eigen(n, &mut full, &mut d, &mut e);
+                let expected = d.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                let mut v = a.as_slice().to_vec();
+                let mut scratch = vec![0.0; 3 * n];
+                let got = largest_eigenvalue(n, &mut v, &mut scratch);
+                assert_eq!(
+                    got.to_bits(),
+                    expected.to_bits(),
+                    "n = {n}, scale {scale:e}"
+                );
+                assert!(
+                    got.is_finite() && got > 0.0,
+                    "n = {n}, scale {scale:e}: {got}"
+                );
+            }
+        }
+        assert_eq!(largest_eigenvalue(0, &mut [], &mut []), 0.0);
+    }
+
     #[test]
     fn partial_decomposition_matches_the_full_one() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
