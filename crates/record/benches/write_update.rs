@@ -1,6 +1,6 @@
 //! CPU per update of the MCAP writer alone (what the pipeline's recorder spends after it has
-//! assembled an update): A1's updates (P = 2, K = 15, N = 101, ~13.6 kB each), captured from an
-//! in-process run, written and flushed one by one to a file and to nowhere (the same without the
+//! assembled an update): A1's updates (P = 2, K = 15, N = 101, ~15 kB each) and T-ball's
+//! (P = 21, K = 10, N = 1001, ~91 kB), captured from in-process runs, written and flushed one by one to a file and to nowhere (the same without the
 //! `write` system call). Prints figures; asserts nothing. `cargo bench -p record --bench write_update`.
 
 #![allow(clippy::unwrap_used)] // a benchmark that cannot set up has nothing to report
@@ -98,8 +98,19 @@ impl std::io::Seek for Discard {
 }
 
 fn main() {
-    let text = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 5000");
-    let cfg = RunConfig::parse(&text, Path::new("a1")).unwrap();
+    let a1 = session::DEFAULT_CONFIG.replace("updates = 40", "updates = 5000");
+    bench("A1", &a1, 3);
+    // The paper's T-ball task: P = 21, K = 10, N = 1001 (80 kB of step costs per update).
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tball.toml");
+    let tball = std::fs::read_to_string(path)
+        .unwrap()
+        .replace("updates = 40", "updates = 400");
+    bench("T-ball", &tball, 2);
+}
+
+/// Captures the updates of an in-process run of `config` and writes them, best of 5.
+fn bench(name: &str, config: &str, workers: usize) {
+    let cfg = RunConfig::parse(config, Path::new(name)).unwrap();
     let mut cap = Capture::default();
     run_session(&cfg, 1, &mut cap).unwrap();
     let hp = cap.hp.unwrap();
@@ -107,7 +118,7 @@ fn main() {
     let now = record::now_ns();
     let timings: Vec<RolloutTiming> = (0..k)
         .map(|r| RolloutTiming {
-            worker: format!("worker-{}", r % 3),
+            worker: format!("worker-{}", r % workers),
             start_ns: now + 1000 * r as u64,
             end_ns: now + 1000 * r as u64 + 700,
         })
@@ -132,7 +143,7 @@ fn main() {
         mem_best = mem_best.min(t.elapsed().as_secs_f64());
     }
     println!(
-        "write_update, A1 ({} updates, {} bytes/update): to a file {:.1} µs/update, discarded (no system call) {:.1} µs/update (best of 5)",
+        "write_update, {name} ({} updates, {} bytes/update): to a file {:.1} µs/update, discarded (no system call) {:.1} µs/update (best of 5)",
         n,
         bytes / cap.updates.len() as u64,
         file_best * 1e6 / n,
