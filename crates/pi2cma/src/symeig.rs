@@ -710,9 +710,6 @@ mod tests {
         }
     }
 
-    /// The pieces of the partial path: Sturm counts and bisection agree with the eigenvalues of
-    /// the full decomposition, and inverse iteration gives orthonormal eigenvectors with small
-    /// residuals, also for an eigenvalue of multiplicity 3 (a matrix of rank n − 3).
     /// λ (the largest eigenvalue alone) is the largest of the full decomposition's, bit for
     /// bit, at every scale (scaled matrices go through the same power-of-2 path).
     #[test]
@@ -746,6 +743,9 @@ mod tests {
         assert_eq!(largest_eigenvalue(0, &mut [], &mut []), 0.0);
     }
 
+    /// The pieces of the partial path: Sturm counts and bisection agree with the eigenvalues of
+    /// the full decomposition, and inverse iteration gives orthonormal eigenvectors with small
+    /// residuals, also for an eigenvalue of multiplicity 3 (a matrix of rank n − 3).
     #[test]
     fn partial_decomposition_matches_the_full_one() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);

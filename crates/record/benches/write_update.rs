@@ -1,7 +1,8 @@
 //! CPU per update of the MCAP writer alone (what the pipeline's recorder spends after it has
 //! assembled an update): A1's updates (P = 2, K = 15, N = 101, ~15 kB each) and T-ball's
-//! (P = 21, K = 10, N = 1001, ~91 kB), captured from in-process runs, written and flushed one by one to a file and to nowhere (the same without the
-//! `write` system call). Prints figures; asserts nothing. `cargo bench -p record --bench write_update`.
+//! (P = 21, K = 10, N = 1001, ~91 kB), captured from in-process runs, written and flushed one
+//! by one to a file and to nowhere (the same without the `write` system call). Prints figures;
+//! asserts nothing. `cargo bench -p record --bench write_update`.
 
 #![allow(clippy::unwrap_used)] // a benchmark that cannot set up has nothing to report
 
