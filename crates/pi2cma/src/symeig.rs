@@ -887,6 +887,9 @@ mod tests {
             let mut v = vec![f64::NAN, 1.0, 1.0, 2.0];
             let (mut d, mut e) = (vec![0.0; 2], vec![0.0; 2]);
             symmetric_eigen(2, &mut v, &mut d, &mut e);
+            // λ alone (the QL without eigenvectors) must end too.
+            let mut v = vec![1.0, 0.5, 0.0, 0.5, f64::NAN, 0.5, 0.0, 0.5, 1.0];
+            let _ = largest_eigenvalue(3, &mut v, &mut [0.0; 9]);
             let _ = done.send(d);
         });
         let d = finished
