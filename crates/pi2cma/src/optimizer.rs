@@ -5,7 +5,7 @@
 use crate::cost::CostBatch;
 use crate::distribution::{Distribution, NoiseKey};
 use crate::error::{CostError, ParameterError};
-use crate::update::{Exploration, Hyperparameters, UpdateRule, Weighting};
+use crate::update::{Exploration, Hyperparameters, UpdateRule, UpdateWeights, Weighting};
 
 /// The K parameter vectors of one update, row-major K × P. Row 0 is the noise-free evaluation.
 #[derive(Debug, Clone, PartialEq)]
@@ -73,6 +73,41 @@ pub struct UpdateSummary {
     pub weights: Vec<f64>,
     /// The weighting the update used.
     pub weighting: Weighting,
+}
+
+impl UpdateSummary {
+    /// The summary of update `update` from what its rule returned: `lambda` is λ of the
+    /// distribution its batch was sampled from, `lambda_next` that of the new one (with
+    /// constant exploration, `lambda` again). For [`Optimizer::tell`], and for a process that
+    /// runs the [`UpdateRule`] itself and knows the λs (the pipeline's recorder: the updater
+    /// publishes them).
+    pub fn new(
+        update: u64,
+        weights: UpdateWeights,
+        lambda: f64,
+        lambda_next: f64,
+        weighting: Weighting,
+    ) -> Self {
+        let totals = &weights.totals;
+        let explore = totals.get(1..).unwrap_or(&[]);
+        let mean = explore.iter().sum::<f64>() / explore.len().max(1) as f64;
+        let sq: f64 = explore.iter().map(|c| (c - mean) * (c - mean)).sum();
+        let std = if explore.len() > 1 {
+            (sq / (explore.len() - 1) as f64).sqrt()
+        } else {
+            0.0
+        };
+        Self {
+            update,
+            eval_cost: totals.first().copied().unwrap_or(f64::NAN),
+            exploration_cost_mean: mean,
+            exploration_cost_std: std,
+            lambda,
+            lambda_next,
+            weights: weights.per_rollout,
+            weighting,
+        }
+    }
 }
 
 /// The sans-IO optimizer: distribution, update counter and seed, nothing else.
@@ -177,30 +212,17 @@ impl Optimizer {
         self.ask();
         let batch = self.batch.as_ref().expect("ask() fills the batch");
         let (new, weights) = self.rule.update(&self.distribution, &batch.values, costs)?;
-        let totals = &weights.totals;
-        let eval_cost = totals[0];
-        let explore = &totals[1..];
-        let mean = explore.iter().sum::<f64>() / explore.len().max(1) as f64;
-        let sq: f64 = explore.iter().map(|c| (c - mean) * (c - mean)).sum();
-        let std = if explore.len() > 1 {
-            (sq / (explore.len() - 1) as f64).sqrt()
-        } else {
-            0.0
-        };
         let lambda_next = match self.rule.hyperparameters().exploration {
             Exploration::Constant => self.lambda,
             _ => self.rule.lambda_of(&new),
         };
-        let summary = UpdateSummary {
-            update: self.update,
-            eval_cost,
-            exploration_cost_mean: mean,
-            exploration_cost_std: std,
-            lambda: self.lambda,
+        let summary = UpdateSummary::new(
+            self.update,
+            weights,
+            self.lambda,
             lambda_next,
-            weights: weights.per_rollout,
-            weighting: self.rule.hyperparameters().weighting,
-        };
+            self.rule.hyperparameters().weighting,
+        );
         self.distribution = new;
         self.lambda = lambda_next;
         self.update += 1;

@@ -24,7 +24,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector};
 use pi2cma::{
-    CostBatch, CostError, Distribution, Hyperparameters, Optimizer, ParameterBatch, UpdateRule,
+    CostBatch, CostError, Distribution, Exploration, Hyperparameters, ParameterBatch, UpdateRule,
     UpdateSummary,
 };
 
@@ -75,6 +75,9 @@ struct Published {
     distribution: Distribution,
     seed: u64,
     settings: Vec<f64>,
+    /// λ of the distribution as its publisher computed it (`wire::DistributionHeader::lambda`),
+    /// if known: an eigenvalue computation at P ≥ 3 (8 µs at P = 21) not done again.
+    lambda: Option<f64>,
 }
 
 #[derive(Debug)]
@@ -116,10 +119,9 @@ pub struct Assembler {
     dim: usize,
     steps: usize,
     basis: Option<Vec<f64>>,
-    /// The optimizer the last update was recomputed with, for the next one: it goes on if it
-    /// computed the distribution the next one samples from, else its rule is reused
-    /// ([`Optimizer::into_rule`]).
-    optimizer: Option<Optimizer>,
+    /// The rule the last update was recomputed with, for the next one (building one allocates
+    /// and fills all its buffers).
+    rule: Option<UpdateRule>,
     /// Cost batches of updates already written, for the next ones ([`Assembler::recycle`]).
     spare: Vec<CostBatch>,
     setting_names: Vec<String>,
@@ -186,7 +188,7 @@ impl Assembler {
             dim,
             steps,
             basis,
-            optimizer: None,
+            rule: None,
             spare: Vec::new(),
             setting_names,
             distributions: BTreeMap::new(),
@@ -215,7 +217,8 @@ impl Assembler {
         &self.hp
     }
 
-    /// A distribution as published: mean (P) and Σ (P×P) column-major, and the task settings.
+    /// [`Assembler::distribution_with_lambda`] without λ (computed when needed): the tests'.
+    #[cfg(test)]
     pub fn distribution(
         &mut self,
         update: u64,
@@ -223,6 +226,22 @@ impl Assembler {
         mean: &[f64],
         covariance_col_major: &[f64],
         settings: &[f64],
+    ) -> Result<(), AssembleError> {
+        self.distribution_with_lambda(update, seed, mean, covariance_col_major, settings, None)
+    }
+
+    /// A distribution as published: mean (P) and Σ (P×P) column-major, the task settings, and
+    /// λ of it as its publisher computed it if known (the updater's
+    /// `wire::DistributionHeader::lambda`), which the assembled updates then carry instead of
+    /// computing it again.
+    pub fn distribution_with_lambda(
+        &mut self,
+        update: u64,
+        seed: u64,
+        mean: &[f64],
+        covariance_col_major: &[f64],
+        settings: &[f64],
+        lambda: Option<f64>,
     ) -> Result<(), AssembleError> {
         let p = self.dim;
         if mean.len() != p || covariance_col_major.len() != p * p {
@@ -266,6 +285,7 @@ impl Assembler {
                 },
                 seed,
                 settings: settings.to_vec(),
+                lambda,
             },
         );
         Ok(())
@@ -366,8 +386,9 @@ impl Assembler {
         self.next = Some(u + 1);
         let before = self.distributions.remove(&u)?;
         let pending = self.pending.remove(&u)?;
-        let after = self.distributions.get(&(u + 1))?.distribution.clone();
-        Some(self.assemble(u, before, pending, after))
+        let next = self.distributions.get(&(u + 1))?;
+        let (after, after_lambda) = (next.distribution.clone(), next.lambda);
+        Some(self.assemble(u, before, pending, after, after_lambda))
     }
 
     /// Updates that can never complete because a later distribution exists but an input is
@@ -446,38 +467,37 @@ impl Assembler {
         before: Published,
         pending: Pending,
         after: Distribution,
+        after_lambda: Option<f64>,
     ) -> Result<Assembled, AssembleError> {
-        let same = |a: &Distribution, b: &Distribution| {
-            crate::recompute::same_bits(a.mean.as_slice(), b.mean.as_slice())
-                && crate::recompute::same_bits(a.covariance.as_slice(), b.covariance.as_slice())
+        let mut rule = match self.rule.take() {
+            Some(rule) => rule,
+            None => UpdateRule::new(self.hp.clone(), self.dim, self.steps, self.basis.as_deref())
+                .map_err(|error| AssembleError::Rule { update: u, error })?,
         };
-        let mut opt = match self.optimizer.take() {
-            // It recomputed the update before to the distribution published for this one: going
-            // on, it knows λ of it (as a resumed one would compute it, the same bits), and an
-            // eigenvalue computation at P ≥ 3 (8 µs at P = 21) is saved per update.
-            Some(opt)
-                if opt.update_index() == u
-                    && opt.seed() == before.seed
-                    && same(opt.distribution(), &before.distribution) =>
-            {
-                opt
-            }
-            Some(opt) => {
-                Optimizer::resume(opt.into_rule(), before.distribution.clone(), before.seed, u)
-            }
-            None => Optimizer::resume(
-                UpdateRule::new(self.hp.clone(), self.dim, self.steps, self.basis.as_deref())
-                    .map_err(|error| AssembleError::Rule { update: u, error })?,
-                before.distribution.clone(),
-                before.seed,
-                u,
-            ),
-        };
-        let samples = opt.ask().clone();
-        let told = opt.tell(&pending.costs);
-        let recomputed_matches = same(opt.distribution(), &after);
-        self.optimizer = Some(opt);
-        let summary = told.map_err(|error| AssembleError::Update { update: u, error })?;
+        // What `Optimizer::ask` and `tell` do, with the λs the updater published when known.
+        let samples =
+            ParameterBatch::sample(&before.distribution, before.seed, u, self.hp.rollouts);
+        let updated = rule.update(&before.distribution, &samples.values, &pending.costs);
+        let result = updated.map(|(recomputed, weights)| {
+            let lambda = before
+                .lambda
+                .unwrap_or_else(|| rule.lambda_of(&before.distribution));
+            let lambda_next = match self.hp.exploration {
+                Exploration::Constant => lambda,
+                _ => after_lambda.unwrap_or_else(|| rule.lambda_of(&recomputed)),
+            };
+            let summary = UpdateSummary::new(u, weights, lambda, lambda_next, self.hp.weighting);
+            (recomputed, summary)
+        });
+        self.rule = Some(rule);
+        let (recomputed, summary) =
+            result.map_err(|error| AssembleError::Update { update: u, error })?;
+        let same = crate::recompute::same_bits;
+        let recomputed_matches = same(recomputed.mean.as_slice(), after.mean.as_slice())
+            && same(
+                recomputed.covariance.as_slice(),
+                after.covariance.as_slice(),
+            );
         // The updater fails the run when rollouts disagree, so the first one speaks for all.
         let ran = pending
             .ran_with
@@ -563,8 +583,8 @@ mod tests {
     #[test]
     fn out_of_order_and_duplicate_costs_assemble_to_the_in_process_updates() {
         assemble_like_in_process(RunConfig::default_config());
-        // P = 5: λ by the general eigensolver, which the assembler's optimizer, going on from
-        // the update before, does not recompute (the summaries must still be the same).
+        // P = 5: λ by the general eigensolver (published or computed, the summaries must be
+        // the in-process run's).
         let text = session::DEFAULT_CONFIG.replace("basis_functions = 2", "basis_functions = 5");
         assemble_like_in_process(RunConfig::parse(&text, std::path::Path::new("p5")).unwrap());
     }
@@ -585,7 +605,7 @@ mod tests {
         );
         let k = cfg.optimizer.rollouts;
         let mut out = Vec::new();
-        for (u, (before, _, _, costs, _)) in cap.0.iter().enumerate() {
+        for (u, (before, _, _, costs, summary)) in cap.0.iter().enumerate() {
             let u = u as u64;
             let viapoint = if u >= 20 { 0.1 } else { 0.3 };
             // Costs first, in reverse order, rollout 3 twice (a re-execution).
@@ -612,12 +632,14 @@ mod tests {
                 matches!(late, Err(CostError::NonFinite { rollout: 5, .. })),
                 "{late:?}"
             );
-            a.distribution(
+            // λ as the updater publishes it on every other update; computed on the others.
+            a.distribution_with_lambda(
                 u,
                 4,
                 before.mean.as_slice(),
                 before.covariance.as_slice(),
                 &[viapoint],
+                u.is_multiple_of(2).then_some(summary.lambda),
             )
             .unwrap();
             while let Some(x) = a.next_complete() {

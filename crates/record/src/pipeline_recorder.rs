@@ -811,8 +811,16 @@ impl WriterState {
                     )?;
                 }
                 self.current_update = self.current_update.max(h.update);
-                self.assembler
-                    .distribution(h.update, h.seed, mean, cov, settings)?;
+                // The updater's λ of it: the recorded λs are the ones it published (the
+                // recomputation checks the distributions, which λ follows from).
+                self.assembler.distribution_with_lambda(
+                    h.update,
+                    h.seed,
+                    mean,
+                    cov,
+                    settings,
+                    Some(h.lambda),
+                )?;
                 self.report_dropped()?;
                 if h.flags & DistributionHeader::FINAL != 0 {
                     self.final_update = Some(h.update);
