@@ -217,24 +217,11 @@ impl Assembler {
         &self.hp
     }
 
-    /// [`Assembler::distribution_with_lambda`] without λ (computed when needed): the tests'.
-    #[cfg(test)]
-    pub fn distribution(
-        &mut self,
-        update: u64,
-        seed: u64,
-        mean: &[f64],
-        covariance_col_major: &[f64],
-        settings: &[f64],
-    ) -> Result<(), AssembleError> {
-        self.distribution_with_lambda(update, seed, mean, covariance_col_major, settings, None)
-    }
-
     /// A distribution as published: mean (P) and Σ (P×P) column-major, the task settings, and
     /// λ of it as its publisher computed it if known (the updater's
     /// `wire::DistributionHeader::lambda`), which the assembled updates then carry instead of
     /// computing it again.
-    pub fn distribution_with_lambda(
+    pub fn distribution(
         &mut self,
         update: u64,
         seed: u64,
@@ -633,7 +620,7 @@ mod tests {
                 "{late:?}"
             );
             // λ as the updater publishes it on every other update; computed on the others.
-            a.distribution_with_lambda(
+            a.distribution(
                 u,
                 4,
                 before.mean.as_slice(),
@@ -653,6 +640,7 @@ mod tests {
             last.mean.as_slice(),
             last.covariance.as_slice(),
             &[0.1],
+            None,
         )
         .unwrap();
         while let Some(x) = a.next_complete() {
@@ -692,7 +680,7 @@ mod tests {
         let (mean, cov) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
         let mut a = Assembler::new(hp.clone(), 2, 101, None, names.clone(), 16);
         assert_eq!(a.changes_ahead(), None);
-        a.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
+        a.distribution(7, 1, &mean, &cov, &[0.3], None).unwrap();
         let costs = vec![1.0; 101];
         let timing = || RolloutTiming {
             worker: "w".into(),
@@ -702,7 +690,7 @@ mod tests {
         for k in 0..hp.rollouts {
             a.cost(7, k, &costs, 0.0, timing(), None).unwrap();
         }
-        a.distribution(8, 1, &mean, &cov, &[0.9]).unwrap();
+        a.distribution(8, 1, &mean, &cov, &[0.9], None).unwrap();
         assert!(a.next_complete().unwrap().unwrap().changed.is_empty());
         assert_eq!(
             a.changes_ahead(),
@@ -727,11 +715,15 @@ mod tests {
 
         let mut resumed = Assembler::new(hp.clone(), 2, 101, None, names, 16);
         resumed.continue_from(vec![0.1]);
-        resumed.distribution(7, 1, &mean, &cov, &[0.3]).unwrap();
+        resumed
+            .distribution(7, 1, &mean, &cov, &[0.3], None)
+            .unwrap();
         for k in 0..hp.rollouts {
             resumed.cost(7, k, &costs, 0.0, timing(), None).unwrap();
         }
-        resumed.distribution(8, 1, &mean, &cov, &[0.3]).unwrap();
+        resumed
+            .distribution(8, 1, &mean, &cov, &[0.3], None)
+            .unwrap();
         let first = resumed.next_complete().unwrap().unwrap();
         assert_eq!(first.changed, [("viapoint".to_string(), 0.3)]);
     }
@@ -750,14 +742,15 @@ mod tests {
             end_ns: 0,
         };
         for (u, published, ran) in [(7, 0.3, None), (8, 0.9, Some(0.3)), (9, 0.3, None)] {
-            a.distribution(u, 1, &mean, &cov, &[published]).unwrap();
+            a.distribution(u, 1, &mean, &cov, &[published], None)
+                .unwrap();
             for k in 0..hp.rollouts {
                 let ran = ran.map(|r| [r]);
                 a.cost(u, k, &[1.0; 3], 0.0, timing(), ran.as_ref().map(|r| &r[..]))
                     .unwrap();
             }
         }
-        a.distribution(10, 1, &mean, &cov, &[0.3]).unwrap();
+        a.distribution(10, 1, &mean, &cov, &[0.3], None).unwrap();
         let updates: Vec<Assembled> = std::iter::from_fn(|| a.next_complete())
             .map(Result::unwrap)
             .collect();
@@ -788,7 +781,7 @@ mod tests {
         let hp = RunConfig::default_config().hyperparameters();
         let (d, c) = ([0.0, 0.0], [1.0, 0.0, 0.0, 1.0]);
         let mut a = Assembler::new(hp.clone(), 2, 3, None, vec![], 2);
-        a.distribution(7, 1, &d, &c, &[]).unwrap();
+        a.distribution(7, 1, &d, &c, &[], None).unwrap();
         let cost = |a: &mut Assembler, u: u64| a.cost(u, 0, &[1.0; 3], 0.0, timing("w"), None);
         assert_eq!(cost(&mut a, 8).unwrap(), CostOutcome::Stored);
         assert_eq!(cost(&mut a, 9).unwrap(), CostOutcome::Stored);
@@ -807,7 +800,7 @@ mod tests {
         for k in 0..hp.rollouts {
             a.cost(7, k, &[1.0; 3], 0.0, timing("w"), None).unwrap();
         }
-        a.distribution(8, 1, &d, &c, &[]).unwrap();
+        a.distribution(8, 1, &d, &c, &[], None).unwrap();
         assert_eq!(a.next_complete().unwrap().unwrap().update, 7);
         assert_eq!(cost(&mut a, 10).unwrap(), CostOutcome::Stored);
 
@@ -825,7 +818,7 @@ mod tests {
             CostOutcome::OutOfReach { limit: None }
         );
         assert_eq!(from(&mut b, 500, "worker-301"), CostOutcome::Duplicate);
-        b.distribution(5, 1, &d, &c, &[]).unwrap();
+        b.distribution(5, 1, &d, &c, &[], None).unwrap();
         assert_eq!(
             b.take_dropped(),
             [Dropped {
@@ -852,7 +845,7 @@ mod tests {
         let mut a = Assembler::new(hp.clone(), 2, 3, None, vec![], 2);
         // One round: the distributions first, then the costs, as the recorder drains them.
         for u in 20..=30 {
-            a.distribution(u, 1, &d, &c, &[]).unwrap();
+            a.distribution(u, 1, &d, &c, &[], None).unwrap();
         }
         for u in 20..30 {
             for k in 0..hp.rollouts {
@@ -871,7 +864,9 @@ mod tests {
     fn a_distribution_of_another_length_is_an_error_naming_both() {
         let hp = RunConfig::default_config().hyperparameters();
         let mut a = Assembler::new(hp, 2, 3, None, vec![], 2);
-        let e = a.distribution(3, 1, &[0.0; 3], &[1.0; 4], &[]).unwrap_err();
+        let e = a
+            .distribution(3, 1, &[0.0; 3], &[1.0; 4], &[], None)
+            .unwrap_err();
         assert_eq!(
             e,
             AssembleError::DistributionLength {
@@ -895,7 +890,7 @@ mod tests {
         let d = [0.0, 0.0];
         let c = [1.0, 0.0, 0.0, 1.0];
         for u in 0..3 {
-            a.distribution(u, 1, &d, &c, &[]).unwrap();
+            a.distribution(u, 1, &d, &c, &[], None).unwrap();
         }
         a.cost(
             0,
@@ -919,7 +914,7 @@ mod tests {
         );
         // Update 1 lacks its costs too, but may still get them: distribution 3 is not in yet.
         assert!(a.skip_incomplete().is_none());
-        a.distribution(3, 1, &d, &c, &[]).unwrap();
+        a.distribution(3, 1, &d, &c, &[], None).unwrap();
         let (u, what) = a.skip_incomplete().unwrap();
         assert_eq!(u, 1);
         assert!(what.contains("rollouts [0, 1, 2,"), "{what}");

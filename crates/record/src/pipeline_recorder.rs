@@ -813,7 +813,7 @@ impl WriterState {
                 self.current_update = self.current_update.max(h.update);
                 // The updater's λ of it: the recorded λs are the ones it published (the
                 // recomputation checks the distributions, which λ follows from).
-                self.assembler.distribution_with_lambda(
+                self.assembler.distribution(
                     h.update,
                     h.seed,
                     mean,
