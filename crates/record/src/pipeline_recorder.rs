@@ -24,7 +24,8 @@
 //! see [`wire::joined`]).
 //!
 //! One thread: drain every subscriber (distributions first), recompute each complete update
-//! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k)),
+//! with the core from the recorded inputs (the samples are re-drawn from (seed, update, k); λ,
+//! which follows from the distributions, is the one the updater published with each),
 //! log a mismatch with the distribution the updater published as an `error` event on `/log`,
 //! write the updates complete at once and hand them to the OS together (one `write`),
 //! acknowledge, and look for new samples before sleeping. At thousands of
