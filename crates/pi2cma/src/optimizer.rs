@@ -5,7 +5,7 @@
 use crate::cost::CostBatch;
 use crate::distribution::{Distribution, NoiseKey};
 use crate::error::{CostError, ParameterError};
-use crate::update::{Exploration, Hyperparameters, UpdateRule, UpdateWeights, Weighting};
+use crate::update::{Hyperparameters, UpdateRule, UpdateWeights, Weighting};
 
 /// The K parameter vectors of one update, row-major K × P. Row 0 is the noise-free evaluation.
 #[derive(Debug, Clone, PartialEq)]
@@ -212,10 +212,7 @@ impl Optimizer {
         self.ask();
         let batch = self.batch.as_ref().expect("ask() fills the batch");
         let (new, weights) = self.rule.update(&self.distribution, &batch.values, costs)?;
-        let lambda_next = match self.rule.hyperparameters().exploration {
-            Exploration::Constant => self.lambda,
-            _ => self.rule.lambda_of(&new),
-        };
+        let lambda_next = self.rule.lambda_next(self.lambda, &new);
         let summary = UpdateSummary::new(
             self.update,
             weights,

@@ -16,16 +16,7 @@ pub fn symmetric_eigen(n: usize, v: &mut [f64], d: &mut [f64], e: &mut [f64]) {
     if n == 0 {
         return;
     }
-    // Products of two entries (QL's e_l·e_(l+1), the squares in its rotations) leave f64's
-    // range for a matrix far from 1 in size, and the eigenvalues came out 0 or NaN. Such a
-    // matrix is scaled by a power of 2 towards 1 first, as LAPACK's dsteqr does; a power of 2
-    // scales every step of the algorithm exactly, so the eigenvectors are those of the matrix
-    // and the eigenvalues scale back exactly. Other matrices are decomposed as they are.
-    let unscale = unscale_for(v.iter().fold(0.0f64, |m, x| m.max(x.abs())));
-    if let Some(unscale) = unscale {
-        let scale = 1.0 / unscale;
-        v.iter_mut().for_each(|x| *x *= scale);
-    }
+    let unscale = scale_towards_one(v);
     reduce(n, v, d, e);
     accumulate(n, v, d, e);
     ql::<true>(n, v, d, e);
@@ -43,11 +34,7 @@ pub fn largest_eigenvalue(n: usize, v: &mut [f64], scratch: &mut [f64]) -> f64 {
     if n == 0 {
         return 0.0;
     }
-    let unscale = unscale_for(v.iter().fold(0.0f64, |m, x| m.max(x.abs())));
-    if let Some(unscale) = unscale {
-        let scale = 1.0 / unscale;
-        v.iter_mut().for_each(|x| *x *= scale);
-    }
+    let unscale = scale_towards_one(v);
     let (d, rest) = scratch.split_at_mut(n);
     let (e, h) = rest.split_at_mut(n);
     reduce(n, v, h, e);
@@ -59,6 +46,22 @@ pub fn largest_eigenvalue(n: usize, v: &mut [f64], scratch: &mut [f64]) -> f64 {
     ql::<false>(n, &mut [], d, e);
     let largest = d.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     largest * unscale.unwrap_or(1.0)
+}
+
+/// Products of two entries (QL's e_l·e_(l+1), the squares in its rotations) leave f64's range
+/// for a matrix far from 1 in size, and the eigenvalues came out 0 or NaN. Such a matrix is
+/// scaled by a power of 2 towards 1 first, as LAPACK's dsteqr does; a power of 2 scales every
+/// step of the algorithm exactly, so the eigenvectors are those of the matrix and the
+/// eigenvalues scale back exactly. Other matrices are left as they are. Returns what to
+/// multiply the eigenvalues by, if `v` was scaled.
+#[inline(always)]
+fn scale_towards_one(v: &mut [f64]) -> Option<f64> {
+    let unscale = unscale_for(v.iter().fold(0.0f64, |m, x| m.max(x.abs())));
+    if let Some(unscale) = unscale {
+        let scale = 1.0 / unscale;
+        v.iter_mut().for_each(|x| *x *= scale);
+    }
+    unscale
 }
 
 /// For a symmetric matrix whose largest |entry| is `amax`: the power of 2 to divide it by

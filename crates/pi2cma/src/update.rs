@@ -375,6 +375,15 @@ impl UpdateRule {
         }
     }
 
+    /// λ of `new`, the distribution an update made from one of λ `lambda`: with constant
+    /// exploration Σ does not change, and λ stays the one the run began with.
+    pub fn lambda_next(&self, lambda: f64, new: &Distribution) -> f64 {
+        match self.hp.exploration {
+            Exploration::Constant => lambda,
+            _ => self.lambda_of(new),
+        }
+    }
+
     /// P: the number of parameters.
     pub fn dim(&self) -> usize {
         self.dim

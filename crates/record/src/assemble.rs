@@ -24,8 +24,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector};
 use pi2cma::{
-    CostBatch, CostError, Distribution, Exploration, Hyperparameters, ParameterBatch, UpdateRule,
-    UpdateSummary,
+    CostBatch, CostError, Distribution, Hyperparameters, ParameterBatch, UpdateRule, UpdateSummary,
 };
 
 use crate::RolloutTiming;
@@ -469,10 +468,7 @@ impl Assembler {
             let lambda = before
                 .lambda
                 .unwrap_or_else(|| rule.lambda_of(&before.distribution));
-            let lambda_next = match self.hp.exploration {
-                Exploration::Constant => lambda,
-                _ => after_lambda.unwrap_or_else(|| rule.lambda_of(&recomputed)),
-            };
+            let lambda_next = after_lambda.unwrap_or_else(|| rule.lambda_next(lambda, &recomputed));
             let summary = UpdateSummary::new(u, weights, lambda, lambda_next, self.hp.weighting);
             (recomputed, summary)
         });
