@@ -5,12 +5,17 @@
 //! while an update takes longer to compute than to write). `on_update(u)` first waits until
 //! update u − 1 is flushed, so at any time at most one update — the one in flight — is not yet
 //! in the file.
+//!
+//! Both threads wait for each other once per update. While updates come quickly, each first
+//! polls for a while ([`Patience`]): on these machines a sleep and a wake-up cost more than a
+//! µs-rollout update takes to compute or write.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::mpsc::{channel, Receiver, RecvError, Sender, TryRecvError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use pi2cma::{CostBatch, Distribution, Hyperparameters, Optimizer, ParameterBatch, UpdateSummary};
 use session::{Observer, Rerun, RunConfig, UpdateRecord};
@@ -86,6 +91,7 @@ pub struct McapRecorder {
     first_update: Option<u64>,
     /// Set by the writer at its first error, as it happens ([`McapRecorder::failure_flag`]).
     failed: Arc<AtomicBool>,
+    patience: Patience,
 }
 
 /// What the writer reports: every update job is answered by exactly one `Flushed` or
@@ -161,6 +167,37 @@ fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordErr
     }
 }
 
+/// How long a thread polls for what it waits for before it sleeps: longer than the writer takes
+/// for an update of most runs (16 µs for A1's, 43 µs for T-ball's, to a file).
+const POLL: Duration = Duration::from_micros(100);
+
+/// Receives by polling for up to [`POLL`] while the last waits were that short, by sleeping
+/// otherwise: a run of slow rollouts, whose waits are long, does not burn a core polling
+/// (one missed poll, and it sleeps until a wait is short again).
+#[derive(Debug, Default)]
+struct Patience {
+    poll: bool,
+}
+
+impl Patience {
+    fn recv<T>(&mut self, rx: &Receiver<T>) -> Result<T, RecvError> {
+        let start = Instant::now();
+        if self.poll {
+            loop {
+                match rx.try_recv() {
+                    Ok(v) => return Ok(v),
+                    Err(TryRecvError::Disconnected) => return Err(RecvError),
+                    Err(TryRecvError::Empty) if start.elapsed() >= POLL => break,
+                    Err(TryRecvError::Empty) => std::hint::spin_loop(),
+                }
+            }
+        }
+        let got = rx.recv();
+        self.poll = start.elapsed() < POLL;
+        got
+    }
+}
+
 /// Writes jobs until the recorder drops its sender, then finishes the file. After the first
 /// error nothing more is written (update jobs are answered `Skipped`) and the error is returned.
 fn writer_thread(
@@ -171,7 +208,8 @@ fn writer_thread(
     failed_flag: Arc<AtomicBool>,
 ) -> Result<(), RecordError> {
     let mut failed = false;
-    for job in jobs {
+    let mut patience = Patience::default();
+    while let Ok(job) = patience.recv(&jobs) {
         let is_update = matches!(job, Job::Update(_));
         if failed {
             if is_update {
@@ -234,6 +272,7 @@ impl McapRecorder {
             update_index: 0,
             first_update: None,
             failed,
+            patience: Patience::default(),
         })
     }
 
@@ -301,7 +340,7 @@ impl McapRecorder {
     /// Waits for the writer's answer to the update in flight, and collects its errors so far.
     fn wait_flushed(&mut self) {
         while self.in_flight {
-            match self.acks.recv() {
+            match self.patience.recv(&self.acks) {
                 Ok(ack) => self.take(ack),
                 // The writer has stopped; close() reports why.
                 Err(_) => self.in_flight = false,
@@ -480,5 +519,42 @@ impl Observer for McapRecorder {
             format!("run finished after {n} recorded updates"),
         ));
         let _ = self.close();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patience_polls_only_while_waits_are_short_and_sees_a_closed_channel() {
+        let (tx, rx) = channel();
+        let mut patience = Patience::default();
+        tx.send(1).unwrap();
+        assert_eq!(patience.recv(&rx), Ok(1));
+        assert!(patience.poll, "a wait that ended at once polls next time");
+        let late = std::thread::spawn({
+            let tx = tx.clone();
+            move || {
+                std::thread::sleep(POLL * 50);
+                tx.send(2).unwrap();
+            }
+        });
+        assert_eq!(patience.recv(&rx), Ok(2));
+        assert!(!patience.poll, "a wait longer than POLL sleeps next time");
+        late.join().unwrap();
+        // A wait that ends at once polls again (a few tries: a loaded machine may preempt the
+        // thread between the two clock readings for longer than POLL).
+        let polls_again = (3..8).any(|i| {
+            tx.send(i).unwrap();
+            patience.recv(&rx) == Ok(i) && patience.poll
+        });
+        assert!(polls_again);
+        drop(tx);
+        assert_eq!(
+            patience.recv(&rx),
+            Err(RecvError),
+            "polling ends at a closed channel"
+        );
     }
 }
