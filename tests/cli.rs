@@ -828,9 +828,10 @@ fn a_run_with_slow_rollouts_summarises_without_waiting_for_them_again() {
 
 /// The first SIGINT stops after the current update; a second one stops at once, as the
 /// supervisor's does. Before, it was ignored: with rollouts of 1 s (K = 15) the user waited for
-/// the rest of the 15 s update whatever they pressed.
+/// the rest of the 15 s update whatever they pressed. A SIGHUP the run was started with ignored
+/// (`nohup`) stays ignored, and the messages name the signal.
 #[test]
-fn a_second_sigint_stops_a_run_at_once() {
+fn a_second_sigint_stops_a_run_at_once_and_a_nohup_run_ignores_sighup() {
     let d = scratch("second-sigint");
     let text = config_edit::edited(
         session::DEFAULT_CONFIG,
@@ -840,7 +841,10 @@ fn a_second_sigint_stops_a_run_at_once() {
         )],
     );
     std::fs::write(d.join("slow.toml"), text).expect("write config");
-    let child = Command::new(env!("CARGO_BIN_EXE_pi2cma"))
+    // Started as `nohup` starts it: SIGHUP ignored (kept across `exec`).
+    let mut child = Command::new("sh")
+        .args(["-c", "trap '' HUP; exec \"$0\" \"$@\""])
+        .arg(env!("CARGO_BIN_EXE_pi2cma"))
         .args(["run", "slow.toml", "--out", "slow"])
         .current_dir(&d)
         .stdout(std::process::Stdio::piped())
@@ -849,13 +853,23 @@ fn a_second_sigint_stops_a_run_at_once() {
         .expect("pi2cma starts");
     // Within the first update, which takes 15 s.
     std::thread::sleep(std::time::Duration::from_millis(1500));
-    let sigint = || {
+    let pid = child.id().to_string();
+    let signal = |name: &str| {
         let sent = Command::new("kill")
-            .args(["-INT", &child.id().to_string()])
+            .args([name, &pid])
             .status()
             .expect("kill");
         assert!(sent.success());
     };
+    // The terminal's hangup does not reach a nohup'd run (the `ctrlc` crate, used before,
+    // installed a handler over the ignored SIGHUP).
+    signal("-HUP");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(
+        child.try_wait().expect("wait").is_none(),
+        "SIGHUP stopped it"
+    );
+    let sigint = || signal("-INT");
     sigint();
     std::thread::sleep(std::time::Duration::from_millis(300));
     let second = std::time::Instant::now();
@@ -865,8 +879,9 @@ fn a_second_sigint_stops_a_run_at_once() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{stderr}");
     assert!(
-        stderr.contains("signal received: stopping after the current update")
-            && stderr.contains("second signal: stopping at once"),
+        stderr.contains("SIGINT received: stopping after the current update")
+            && stderr.contains("SIGINT (a second signal): stopping at once")
+            && !stderr.contains("SIGHUP"),
         "{stderr}"
     );
     // The update had more than 12 s to go.

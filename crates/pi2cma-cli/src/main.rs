@@ -247,30 +247,33 @@ fn run_resumed(
     Ok(())
 }
 
-/// Stops `run` after the current update on SIGINT/SIGTERM, as `mcap-tool record` and the
-/// supervisor do: the recording is finished and the results so far are written. A second
-/// signal stops at once, as the supervisor's does: an update of slow rollouts (a robot) can
-/// take minutes, and a user pressing Ctrl-C again means it.
+/// Stops `run` after the current update on SIGINT/SIGTERM/SIGHUP (one not ignored when the
+/// process started: `nohup pi2cma experiment …` survives the terminal), as `mcap-tool record`
+/// and the supervisor do: the recording is finished and the results so far are written. A
+/// second signal stops at once, as the supervisor's does: an update of slow rollouts (a robot)
+/// can take minutes, and a user pressing Ctrl-C again means it.
 fn stop_on_signal() -> Result<()> {
-    ctrlc::set_handler(|| {
+    signals::deliver(&signals::Signal::STOP, |signal| {
         use std::io::Write as _;
-        // The handler runs on its own thread; stderr may be closed.
+        // stderr may be closed.
         let mut err = std::io::stderr();
         if INTERRUPTED.swap(true, Ordering::SeqCst) {
             let _ = writeln!(
                 err,
-                "second signal: stopping at once, within an update (exit code 130); results not \
-                 yet written stay unwritten or partly written, and a recording being written \
-                 keeps the updates flushed before it (`pi2cma recover FILE` completes it)"
+                "{signal} (a second signal): stopping at once, within an update (exit code \
+                 130); results not yet written stay unwritten or partly written, and a \
+                 recording being written keeps the updates flushed before it (`pi2cma recover \
+                 FILE` completes it)"
             );
             std::process::exit(130);
         }
         let _ = writeln!(
             err,
-            "signal received: stopping after the current update (again to stop at once)"
+            "{signal} received: stopping after the current update (again to stop at once)"
         );
     })
-    .context("cannot install the SIGINT/SIGTERM handler")
+    .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
+    Ok(())
 }
 
 fn interrupted() -> bool {

@@ -205,14 +205,27 @@ impl Run {
     }
 
     fn start_with_env(scratch: &Scratch, id: u64, args: &[&str], env: &[(&str, &str)]) -> Self {
+        let mut cmd = Command::new(SUPERVISOR);
+        cmd.envs(env.iter().copied());
+        Self::spawn(scratch, id, cmd, args)
+    }
+
+    /// As `nohup` starts it: SIGHUP ignored (the shell's `trap '' HUP` is kept across `exec`).
+    fn start_ignoring_sighup(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
+        let mut cmd = Command::new("sh");
+        cmd.args(["-c", "trap '' HUP; exec \"$0\" \"$@\"", SUPERVISOR]);
+        Self::spawn(scratch, id, cmd, args)
+    }
+
+    /// `cmd run ARGS --run-id ID` (cmd: the supervisor, or what execs it).
+    fn spawn(scratch: &Scratch, id: u64, mut cmd: Command, args: &[&str]) -> Self {
         let run_id = run_id(id);
-        let mut child = Command::new(SUPERVISOR)
+        let mut child = cmd
             .arg("run")
             .args(args)
             .args(["--run-id", &run_id])
             .current_dir(&scratch.0)
             .env("PI2CMA_RUN_DIR", scratch.runs())
-            .envs(env.iter().copied())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -1745,6 +1758,48 @@ fn sigint_stops_every_process_within_the_bound_and_leaves_nothing() {
     }
     assert!(run.text().contains("interrupted"), "{}", run.text());
     assert_nothing_left(&run);
+}
+
+/// `nohup supervisor run … &` went on only until the user logged out: the supervisor's SIGINT
+/// handler (the `ctrlc` crate's) was installed over the SIGHUP that nohup had ignored, and the
+/// terminal's hangup stopped the run. A SIGHUP the supervisor was started with ignored stays
+/// ignored; otherwise it stops the run like SIGTERM, and every stop names its signal.
+#[test]
+fn sighup_stops_a_run_unless_started_ignored_as_nohup_does_and_the_signal_is_named() {
+    let scratch = Scratch::new("sighup");
+    let cfg = write_config(&scratch, "sighup.toml", &config(&[UNBOUNDED, DELAYED]));
+    let args = [cfg.to_str().unwrap(), "--quiet", "--no-record"];
+    let mut nohup = Run::start_ignoring_sighup(&scratch, 28200, &args);
+    let mut plain = Run::start(&scratch, 28201, &args);
+    for run in [&nohup, &plain] {
+        run.wait_status("3 updates", |s| updates_in(s) >= 3);
+        signal(run.child.id(), "-HUP");
+    }
+    plain.wait_exit(Duration::from_secs(10), 130);
+    let text = plain.text();
+    assert!(
+        text.contains("SIGHUP received: stopping") && text.contains("interrupted (SIGHUP)"),
+        "{text}"
+    );
+    // Alive and learning after the hangup, and said why at the start.
+    let before = updates_in(&nohup.ctl_ok(&["status"]));
+    nohup.wait_status("more updates after SIGHUP", |s| updates_in(s) > before + 3);
+    assert!(
+        nohup
+            .text()
+            .contains("SIGHUP is ignored (nohup): the run goes on when the terminal closes"),
+        "{}",
+        nohup.text()
+    );
+    signal(nohup.child.id(), "-TERM");
+    nohup.wait_exit(Duration::from_secs(10), 130);
+    let text = nohup.text();
+    assert!(
+        text.contains("SIGTERM received: stopping") && text.contains("interrupted (SIGTERM)"),
+        "{text}"
+    );
+    assert_nothing_left(&plain);
+    assert_nothing_left(&nohup);
 }
 
 /// SIGKILLs a run's supervisor after its third update (no clean-up of its own) and waits until

@@ -228,8 +228,10 @@ fn record_run(
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
-            .context("installing the SIGINT/SIGTERM handler")?;
+        signals::deliver(&signals::Signal::STOP, move |_| {
+            stop.store(true, Ordering::SeqCst)
+        })
+        .context("installing the SIGINT/SIGTERM/SIGHUP handlers")?;
     }
     // A failed recording stops the run too: it would go on unrecorded to its end.
     let failed = recorder.failure_flag();

@@ -31,7 +31,8 @@ const STOP_WAIT_SAID: Duration = Duration::from_secs(1);
 pub(super) enum Outcome {
     Complete,
     Stopped,
-    Interrupted,
+    /// By this signal.
+    Interrupted(signals::Signal),
     Failed(String),
 }
 
@@ -116,11 +117,20 @@ impl Supervisor {
             _node: node,
         });
         let tx = self.tx.clone();
-        ctrlc::set_handler(move || {
-            let _ = tx.send(Event::Signal);
+        // Ctrl-Z suspends the run ([`super::suspend`]); the others stop it.
+        let mut watched = signals::Signal::STOP.to_vec();
+        watched.push(signals::Signal::TSTP);
+        let ignored = signals::deliver(&watched, move |s| {
+            let _ = tx.send(if s == signals::Signal::TSTP {
+                Event::Suspend
+            } else {
+                Event::Signal(s)
+            });
         })
-        .context("cannot install the SIGINT/SIGTERM handler")?;
-        super::suspend::forward_sigtstp(self.tx.clone())?;
+        .context("cannot install the SIGINT/SIGTERM/SIGHUP/SIGTSTP handlers")?;
+        if ignored.contains(&signals::Signal::HUP) {
+            say("SIGHUP is ignored (nohup): the run goes on when the terminal closes");
+        }
         control::serve(&self.run_dir, self.tx.clone())?;
         say(&format!(
             "run {} ({}): starting {}updater, sampler and {} worker{}",
@@ -154,7 +164,7 @@ impl Supervisor {
                 EXIT_RECORDING_UNFINISHED
             }
             Some(Outcome::Complete) | Some(Outcome::Stopped) => 0,
-            Some(Outcome::Interrupted) => EXIT_INTERRUPTED,
+            Some(Outcome::Interrupted(_)) => EXIT_INTERRUPTED,
             Some(Outcome::Failed(_)) | None => 1,
         })
     }
@@ -431,7 +441,7 @@ impl Supervisor {
         // Any signal during the stop kills: "a second Ctrl-C" only to a user who has pressed
         // one. After `supervisor stop` (or a failure, or the run's end) a user pressed Ctrl-C
         // as a first one, to stop in order, and lost the recording's finish.
-        let ctrl_c = if self.outcome == Some(Outcome::Interrupted) {
+        let ctrl_c = if matches!(self.outcome, Some(Outcome::Interrupted(_))) {
             "a second Ctrl-C kills"
         } else {
             "Ctrl-C now kills"
@@ -612,18 +622,22 @@ impl Supervisor {
     fn handle(&mut self, ev: Event) -> anyhow::Result<()> {
         match ev {
             Event::Bell => Ok(()),
-            Event::Signal => {
+            Event::Signal(signal) => {
                 if self.phase == Phase::Stopping {
-                    say("second signal: killing the group now");
+                    say(&format!(
+                        "{signal} (a second signal): killing the group now"
+                    ));
                     self.kill_all();
                 } else {
-                    say("signal received: stopping (again to kill at once)");
+                    say(&format!(
+                        "{signal} received: stopping (again to kill at once)"
+                    ));
                     // Before the update under way is done, a signal ends `stop --after-update`
                     // as it ends any run: that update's rollouts are thrown away, and the
                     // summary must not say that none was (nor the recorder be waited for as if
                     // the updater had ended the run).
                     if std::mem::take(&mut self.stop_after_update) || self.outcome.is_none() {
-                        self.outcome = Some(Outcome::Interrupted);
+                        self.outcome = Some(Outcome::Interrupted(signal));
                     }
                     self.begin_stop();
                 }

@@ -118,7 +118,8 @@ pub enum Event {
         status: ExitStatus,
     },
     Command(Request),
-    Signal,
+    /// SIGINT, SIGTERM or SIGHUP (one the supervisor was not started with ignored).
+    Signal(signals::Signal),
     /// Ctrl-Z (SIGTSTP): suspend the run ([`suspend`]).
     Suspend,
     Bell,

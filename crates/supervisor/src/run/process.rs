@@ -337,7 +337,8 @@ pub(super) fn file_size_limit() -> Option<u64> {
     (ok && r.rlim_cur != libc::RLIM_INFINITY).then_some(r.rlim_cur)
 }
 
-/// The child gets SIGKILL when the supervisor dies, however it dies, and SIGXFSZ's default.
+/// The child gets SIGKILL when the supervisor dies, however it dies, and the default handling
+/// of SIGXFSZ, SIGINT, SIGTERM and SIGHUP.
 pub(super) fn die_with_parent(cmd: &mut Command) {
     let parent = std::process::id() as libc::pid_t;
     // SAFETY: the closure runs in the forked child before exec and only calls the
@@ -349,6 +350,12 @@ pub(super) fn die_with_parent(cmd: &mut Command) {
             // worker is the user's program, which gets the default (the recorder ignores it
             // again itself).
             libc::signal(libc::SIGXFSZ, libc::SIG_DFL);
+            // A supervisor started with these ignored (nohup, a script's background job) keeps
+            // them so (the `signals` crate); its children, in process groups of their own that
+            // no terminal signals, start as a fresh program would, as they did before.
+            for s in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+                libc::signal(s, libc::SIG_DFL);
+            }
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong) != 0 {
                 return Err(std::io::Error::last_os_error());
             }

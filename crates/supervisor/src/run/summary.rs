@@ -140,7 +140,7 @@ impl Supervisor {
                 ));
             }
             Some(Outcome::Stopped) => say("stopped on request"),
-            Some(Outcome::Interrupted) => say("interrupted"),
+            Some(Outcome::Interrupted(signal)) => say(&format!("interrupted ({signal})")),
             Some(Outcome::Failed(reason)) => say(&format!("failed: {reason}")),
             None => {}
         }
