@@ -43,6 +43,9 @@ pub enum ProcessError {
         /// iceoryx2's error, as its `Debug` text.
         reason: String,
     },
+    /// A signal's handling could not be set up.
+    #[error(transparent)]
+    Signals(#[from] signals::SignalError),
     /// A worker started for a slot the run has no room for.
     #[error("worker slot {worker} is beyond pipeline.max_workers = {max_workers}")]
     SlotBeyondLimit {

@@ -85,6 +85,10 @@ impl Context {
         // Installs iceoryx2's SIGINT/SIGTERM handling now, so a signal before the first wait
         // still ends in an orderly exit that removes this process's resources.
         let _ = node.wait(Duration::ZERO);
+        // It also catches SIGABRT and SIGQUIT, only to note them: `kill -ABRT` of a hung
+        // process, for its core dump, did nothing. They end the process again (the supervisor
+        // reports the death and restarts a worker).
+        signals::restore_default(&[signals::Signal::ABRT, signals::Signal::QUIT])?;
         Ok(Self {
             config,
             run_id: args.run_id,

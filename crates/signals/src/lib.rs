@@ -1,11 +1,13 @@
 //! The signals the binaries stop (or suspend) on — SIGINT, SIGTERM, SIGHUP, SIGTSTP — delivered
 //! by name to a closure on a thread of its own, where it may lock, allocate and print.
 //!
-//! A signal the process was started with ignored stays ignored: `nohup` ignores SIGHUP so that
-//! a run outlives the terminal it was started from, and a shell without job control ignores
-//! SIGINT in its background jobs so that Ctrl-C stops the script but not them. (The `ctrlc`
-//! crate, used before, installed its handler over both: a `nohup supervisor run &` stopped its
-//! run when the user logged out.)
+//! A SIGHUP or SIGTSTP the process was started with ignored stays ignored: `nohup` ignores
+//! SIGHUP so that a run outlives the terminal it was started from (the `ctrlc` crate, used
+//! before, installed its handler over it: a `nohup supervisor run &` stopped its run when the
+//! user logged out), and a process started without job control keeps Ctrl-Z ignored. SIGINT and
+//! SIGTERM are always taken: a shell without job control ignores SIGINT in every background
+//! job it starts, by the way, not as a wish of the user, and a script's or test harness's
+//! `kill -INT` must still stop a run (keeping that ignore made them hang).
 //!
 //! Not a general signal library: one delivery per process, a handful of signals, no masks.
 
@@ -21,6 +23,8 @@ impl Signal {
     pub const TERM: Signal = Signal(libc::SIGTERM);
     pub const HUP: Signal = Signal(libc::SIGHUP);
     pub const TSTP: Signal = Signal(libc::SIGTSTP);
+    pub const ABRT: Signal = Signal(libc::SIGABRT);
+    pub const QUIT: Signal = Signal(libc::SIGQUIT);
     /// What the binaries stop on.
     pub const STOP: [Signal; 3] = [Signal::INT, Signal::TERM, Signal::HUP];
 
@@ -32,6 +36,7 @@ impl Signal {
             libc::SIGHUP => "SIGHUP",
             libc::SIGTSTP => "SIGTSTP",
             libc::SIGQUIT => "SIGQUIT",
+            libc::SIGABRT => "SIGABRT",
             libc::SIGUSR1 => "SIGUSR1",
             libc::SIGUSR2 => "SIGUSR2",
             n => return format!("signal {n}"),
@@ -87,7 +92,7 @@ extern "C" fn on_signal(signal: libc::c_int) {
 
 /// Calls `on` with each of `signals` the process receives, in order, on a thread named
 /// `signals`. Returns the signals left alone because the process was started with them
-/// ignored. Once per process.
+/// ignored (any but SIGINT and SIGTERM; see the crate's doc). Once per process.
 pub fn deliver(
     signals: &[Signal],
     mut on: impl FnMut(Signal) + Send + 'static,
@@ -150,7 +155,8 @@ pub fn deliver(
             if libc::sigaction(signal.0, std::ptr::null(), &mut old) != 0 {
                 return Err(os(format!("cannot read how {signal} is handled")));
             }
-            if old.sa_sigaction == libc::SIG_IGN {
+            let always = [libc::SIGINT, libc::SIGTERM].contains(&signal.0);
+            if old.sa_sigaction == libc::SIG_IGN && !always {
                 ignored.push(signal);
                 continue;
             }
@@ -166,6 +172,19 @@ pub fn deliver(
     Ok(ignored)
 }
 
+/// Gives `signals` their default action again (for one a library caught without need).
+pub fn restore_default(signals: &[Signal]) -> Result<(), SignalError> {
+    for &signal in signals {
+        // SAFETY: signal(2) with SIG_DFL installs no code of ours.
+        #[allow(unsafe_code)]
+        let old = unsafe { libc::signal(signal.0, libc::SIG_DFL) };
+        if old == libc::SIG_ERR {
+            return Err(os(format!("cannot restore the default action of {signal}")));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -174,35 +193,35 @@ mod tests {
 
     // One test: delivery is once per process, and dispositions are process-wide.
     #[test]
-    fn delivers_by_name_and_keeps_an_inherited_ignore() {
-        // SAFETY: setting SIGUSR2 to ignored, as nohup does for SIGHUP.
+    fn delivers_by_name_and_keeps_an_inherited_ignore_except_of_sigint_and_sigterm() {
+        // SAFETY: setting dispositions to ignored, as nohup does for SIGHUP and a shell
+        // without job control for SIGINT in a background job.
         #[allow(unsafe_code)]
         unsafe {
             libc::signal(libc::SIGUSR2, libc::SIG_IGN);
+            libc::signal(libc::SIGINT, libc::SIG_IGN);
         }
         let (tx, rx) = channel();
-        let ignored = deliver(&[Signal(libc::SIGUSR1), Signal(libc::SIGUSR2)], move |s| {
+        let watched = [Signal(libc::SIGUSR1), Signal(libc::SIGUSR2), Signal::INT];
+        let ignored = deliver(&watched, move |s| {
             let _ = tx.send(s);
         })
         .expect("delivery starts");
         assert_eq!(ignored, vec![Signal(libc::SIGUSR2)]);
-        // SAFETY: raise(2) has no memory-safety preconditions; both signals are handled or
-        // ignored (above), so neither ends the test process.
+        // SAFETY: raise(2) has no memory-safety preconditions; every signal raised is handled
+        // or ignored (above), so none ends the test process.
         #[allow(unsafe_code)]
         unsafe {
             libc::raise(libc::SIGUSR2);
             libc::raise(libc::SIGUSR1);
             libc::raise(libc::SIGUSR1);
+            libc::raise(libc::SIGINT);
         }
-        let got = rx
-            .recv_timeout(Duration::from_secs(5))
-            .expect("SIGUSR1 delivered");
-        assert_eq!(got.name(), "SIGUSR1");
-        assert_eq!(
-            rx.recv_timeout(Duration::from_secs(5)).ok(),
-            Some(got),
-            "each one delivered"
-        );
+        let next = || rx.recv_timeout(Duration::from_secs(5)).ok();
+        let usr1 = Signal(libc::SIGUSR1);
+        assert_eq!(next().map(Signal::name).as_deref(), Some("SIGUSR1"));
+        assert_eq!(next(), Some(usr1), "each one delivered");
+        assert_eq!(next(), Some(Signal::INT), "SIGINT taken although ignored");
         assert!(
             rx.recv_timeout(Duration::from_millis(100)).is_err(),
             "SIGUSR2 stayed ignored"
@@ -212,6 +231,15 @@ mod tests {
             Err(SignalError::AlreadyDelivering)
         ));
         assert_eq!(Signal(64).name(), "signal 64");
+        restore_default(&[Signal(libc::SIGUSR2)]).expect("restored");
+        // SAFETY: reads the disposition into a local struct.
+        #[allow(unsafe_code)]
+        let now = unsafe {
+            let mut now: libc::sigaction = std::mem::zeroed();
+            libc::sigaction(libc::SIGUSR2, std::ptr::null(), &mut now);
+            now.sa_sigaction
+        };
+        assert_eq!(now, libc::SIG_DFL);
         assert_eq!(Signal::TERM.to_string(), "SIGTERM");
     }
 }

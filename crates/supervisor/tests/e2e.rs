@@ -217,6 +217,14 @@ impl Run {
         Self::spawn(scratch, id, cmd, args)
     }
 
+    /// With SIGHUP's default action whatever the tests were started with (they may run under
+    /// nohup themselves). `env --default-signal` is GNU coreutils ≥ 8.31.
+    fn start_with_default_sighup(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
+        let mut cmd = Command::new("env");
+        cmd.args(["--default-signal=HUP", SUPERVISOR]);
+        Self::spawn(scratch, id, cmd, args)
+    }
+
     /// `cmd run ARGS --run-id ID` (cmd: the supervisor, or what execs it).
     fn spawn(scratch: &Scratch, id: u64, mut cmd: Command, args: &[&str]) -> Self {
         let run_id = run_id(id);
@@ -1770,7 +1778,7 @@ fn sighup_stops_a_run_unless_started_ignored_as_nohup_does_and_the_signal_is_nam
     let cfg = write_config(&scratch, "sighup.toml", &config(&[UNBOUNDED, DELAYED]));
     let args = [cfg.to_str().unwrap(), "--quiet", "--no-record"];
     let mut nohup = Run::start_ignoring_sighup(&scratch, 28200, &args);
-    let mut plain = Run::start(&scratch, 28201, &args);
+    let mut plain = Run::start_with_default_sighup(&scratch, 28201, &args);
     for run in [&nohup, &plain] {
         run.wait_status("3 updates", |s| updates_in(s) >= 3);
         signal(run.child.id(), "-HUP");
@@ -1800,6 +1808,47 @@ fn sighup_stops_a_run_unless_started_ignored_as_nohup_does_and_the_signal_is_nam
     );
     assert_nothing_left(&plain);
     assert_nothing_left(&nohup);
+}
+
+/// iceoryx2 catches SIGABRT and SIGQUIT along with SIGINT and SIGTERM, only to note them:
+/// `kill -ABRT` of a hung worker, for its core dump, did nothing. The pipeline's processes give
+/// both their default action back: the worker dies of it, is said to, and is restarted.
+#[test]
+fn sigabrt_and_sigquit_end_a_worker_which_is_restarted() {
+    let scratch = Scratch::new("abrt");
+    let cfg = write_config(&scratch, "abrt.toml", &config(&[UNBOUNDED, DELAYED]));
+    let run = Run::start(
+        &scratch,
+        28202,
+        &[cfg.to_str().unwrap(), "--quiet", "--no-record"],
+    );
+    for (restarts, (sig, name)) in [("-ABRT", "SIGABRT"), ("-QUIT", "SIGQUIT")]
+        .into_iter()
+        .enumerate()
+    {
+        let status = run.wait_status("worker-1 learning", |s| {
+            updates_in(s) >= 3
+                && s.contains(&format!("restarts {restarts}"))
+                && s.contains("worker-1 pid")
+        });
+        let victim = pid_of(&status, "worker-1");
+        signal(victim, sig);
+        run.wait_output(
+            &format!("worker-1 (pid {victim}) died"),
+            Instant::now() + Duration::from_secs(10),
+        );
+        let died = run
+            .text()
+            .lines()
+            .find(|l| l.contains(&format!("worker-1 (pid {victim}) died")))
+            .unwrap_or_default()
+            .to_owned();
+        assert!(died.contains(name), "{died}");
+        run.wait_status("worker-1 restarted", |s| {
+            s.contains(&format!("restarts {}", restarts + 1))
+                && !s.contains(&format!("pid {victim} "))
+        });
+    }
 }
 
 /// SIGKILLs a run's supervisor after its third update (no clean-up of its own) and waits until

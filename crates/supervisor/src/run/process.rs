@@ -350,9 +350,9 @@ pub(super) fn die_with_parent(cmd: &mut Command) {
             // worker is the user's program, which gets the default (the recorder ignores it
             // again itself).
             libc::signal(libc::SIGXFSZ, libc::SIG_DFL);
-            // A supervisor started with these ignored (nohup, a script's background job) keeps
-            // them so (the `signals` crate); its children, in process groups of their own that
-            // no terminal signals, start as a fresh program would, as they did before.
+            // A supervisor started under nohup keeps SIGHUP ignored (the `signals` crate); its
+            // children, in process groups of their own that no terminal signals, start as a
+            // fresh program would, as they did before.
             for s in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
                 libc::signal(s, libc::SIG_DFL);
             }
