@@ -247,8 +247,8 @@ fn run_resumed(
     Ok(())
 }
 
-/// Stops `run` after the current update on SIGINT/SIGTERM/SIGHUP (one not ignored when the
-/// process started: `nohup pi2cma experiment …` survives the terminal), as `mcap-tool record`
+/// Stops `run` after the current update on SIGINT, SIGTERM or SIGHUP (unless started with it
+/// ignored: `nohup pi2cma experiment …` survives the terminal), as `mcap-tool record`
 /// and the supervisor do: the recording is finished and the results so far are written. A
 /// second signal stops at once, as the supervisor's does: an update of slow rollouts (a robot)
 /// can take minutes, and a user pressing Ctrl-C again means it.

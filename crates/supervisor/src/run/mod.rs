@@ -118,7 +118,7 @@ pub enum Event {
         status: ExitStatus,
     },
     Command(Request),
-    /// SIGINT, SIGTERM or SIGHUP (one the supervisor was not started with ignored).
+    /// SIGINT, SIGTERM, or SIGHUP unless the supervisor was started with it ignored (nohup).
     Signal(signals::Signal),
     /// Ctrl-Z (SIGTSTP): suspend the run ([`suspend`]).
     Suspend,
