@@ -205,16 +205,14 @@ impl Run {
     }
 
     fn start_with_env(scratch: &Scratch, id: u64, args: &[&str], env: &[(&str, &str)]) -> Self {
-        let mut cmd = Command::new(SUPERVISOR);
-        cmd.envs(env.iter().copied());
-        Self::spawn(scratch, id, cmd, args)
+        Self::spawn(scratch, id, Command::new(SUPERVISOR), args, env)
     }
 
     /// As `nohup` starts it: SIGHUP ignored (the shell's `trap '' HUP` is kept across `exec`).
     fn start_ignoring_sighup(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
         let mut cmd = Command::new("sh");
         cmd.args(["-c", "trap '' HUP; exec \"$0\" \"$@\"", SUPERVISOR]);
-        Self::spawn(scratch, id, cmd, args)
+        Self::spawn(scratch, id, cmd, args, &[])
     }
 
     /// With SIGHUP's default action whatever the tests were started with (they may run under
@@ -222,11 +220,18 @@ impl Run {
     fn start_with_default_sighup(scratch: &Scratch, id: u64, args: &[&str]) -> Self {
         let mut cmd = Command::new("env");
         cmd.args(["--default-signal=HUP", SUPERVISOR]);
-        Self::spawn(scratch, id, cmd, args)
+        Self::spawn(scratch, id, cmd, args, &[])
     }
 
-    /// `cmd run ARGS --run-id ID` (cmd: the supervisor, or what execs it).
-    fn spawn(scratch: &Scratch, id: u64, mut cmd: Command, args: &[&str]) -> Self {
+    /// `cmd run ARGS --run-id ID` (cmd: the supervisor, or what execs it), in the scratch
+    /// directory's run directory unless `env` names another.
+    fn spawn(
+        scratch: &Scratch,
+        id: u64,
+        mut cmd: Command,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
         let run_id = run_id(id);
         let mut child = cmd
             .arg("run")
@@ -234,6 +239,7 @@ impl Run {
             .args(["--run-id", &run_id])
             .current_dir(&scratch.0)
             .env("PI2CMA_RUN_DIR", scratch.runs())
+            .envs(env.iter().copied())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -1795,7 +1801,7 @@ fn sighup_stops_a_run_unless_started_ignored_as_nohup_does_and_the_signal_is_nam
     assert!(
         nohup
             .text()
-            .contains("SIGHUP is ignored (nohup): the run goes on when the terminal closes"),
+            .contains("SIGHUP is ignored (nohup): closing the terminal does not stop this run"),
         "{}",
         nohup.text()
     );

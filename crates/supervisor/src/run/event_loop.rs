@@ -129,7 +129,7 @@ impl Supervisor {
         })
         .context("cannot install the SIGINT/SIGTERM/SIGHUP/SIGTSTP handlers")?;
         if ignored.contains(&signals::Signal::HUP) {
-            say("SIGHUP is ignored (nohup): the run goes on when the terminal closes");
+            say("SIGHUP is ignored (nohup): closing the terminal does not stop this run");
         }
         control::serve(&self.run_dir, self.tx.clone())?;
         say(&format!(
