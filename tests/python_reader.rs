@@ -94,6 +94,39 @@ fn python_reader_decodes_every_topic_of_a_run() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A recording without step costs (`recording.step_costs = false`) reads and checks in Python
+/// too: `plot_learning_curve.py --check` takes `cost_total` for the trajectories (and checks
+/// `eval_cost` against it), and the independent `check_update.py` recomputes every update from
+/// the totals.
+#[test]
+fn python_tools_read_and_recompute_a_recording_without_step_costs() {
+    let dir = scratch("python-no-step-costs");
+    let text = format!(
+        "{}\n[recording]\nstep_costs = false\n",
+        session::DEFAULT_CONFIG
+    );
+    std::fs::write(dir.join("light.toml"), text).expect("write config");
+    pi2cma_run(&dir, &["light.toml", "--quiet", "--out", "."]);
+    let steps = record::read_recording(&dir.join("run.mcap"))
+        .expect("read")
+        .updates[5]
+        .cost_per_step
+        .len();
+    assert_eq!(steps, 0);
+    let (ok, out) = python_tool(
+        "plot_learning_curve.py",
+        &["run.mcap", "--check", "-o", "curve.svg"],
+        &dir,
+    );
+    assert!(
+        ok && out.contains("/update 40") && out.contains("1 passed"),
+        "{out}"
+    );
+    let (ok, out) = python_tool("check_update.py", &["run.mcap"], &dir);
+    assert!(ok && out.contains("40 updates: agrees"), "{out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// The parts of a split recording (`recording.split_mb`), read by the Python tool as one run
 /// (`--join`): every part checks by itself, each goes on where the one before ends, and one
 /// curve is drawn; given out of order, the seams fail.

@@ -152,11 +152,18 @@ def read_recording(path):
                        settings={s.name: s.value for s in d.task_settings})
         elif ch.topic == "/update":
             K, P, N = d.rollouts, d.dim, d.steps
+            if not len(d.cost_per_step) and len(d.cost_total) == K:
+                # `recording.step_costs = false` (episodic runs only): each rollout's total
+                # stands for its trajectory, as zero step costs and the total as terminal cost.
+                q, phi = np.zeros((K, N)), np.array(d.cost_total, float)
+            else:
+                q = np.array(d.cost_per_step, float).reshape(K, N)
+                phi = np.array(d.cost_terminal, float)
             updates.append(dict(
                 u=d.update, hp=hp_dict(d.hyperparameters), before=dist(d.before), after=dist(d.after),
                 samples=np.array(d.samples, float).reshape(K, P),
-                q=np.array(d.cost_per_step, float).reshape(K, N),
-                phi=np.array(d.cost_terminal, float),
+                q=q,
+                phi=phi,
                 weights=np.array(d.weights, float),
                 eval_cost=d.eval_cost, expl_mean=d.exploration_cost_mean,
                 expl_std=d.exploration_cost_std,

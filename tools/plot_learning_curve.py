@@ -176,14 +176,21 @@ def check(path, by_topic):
     per_update = collections.Counter(r.update for r in rollouts)
     for u in updates:
         k, p, n = u.rollouts, u.dim, u.steps
-        if len(u.samples) != k * p or len(u.cost_per_step) != k * n or len(u.cost_terminal) != k:
+        # `recording.step_costs = false`: no step costs, each rollout's total in `cost_total`.
+        # (`cost_total` is empty in recordings made before it existed.)
+        steps = len(u.cost_per_step) == k * n or (not u.cost_per_step and len(u.cost_total) == k)
+        if len(u.samples) != k * p or not steps or len(u.cost_terminal) != k:
             fail(f"update {u.update}: shapes K={k} P={p} N={n} do not match the arrays")
+        if u.cost_total and len(u.cost_total) != k:
+            fail(f"update {u.update}: {len(u.cost_total)} total costs for {k} rollouts")
         if len(u.weights) != k:
             fail(f"update {u.update}: {len(u.weights)} weights for {k} rollouts")
         if per_update.get(u.update, 0) != k:
             fail(f"update {u.update}: {per_update.get(u.update, 0)} /rollout messages, expected {k}")
         total0 = u.cost_terminal[0] + sum(u.cost_per_step[0:n])
-        if not math.isclose(total0, u.eval_cost, rel_tol=1e-12, abs_tol=1e-12):
+        if u.cost_total and u.cost_total[0] != u.eval_cost:
+            fail(f"update {u.update}: eval_cost {u.eval_cost} != cost_total[0] {u.cost_total[0]}")
+        if u.cost_per_step and not math.isclose(total0, u.eval_cost, rel_tol=1e-12, abs_tol=1e-12):
             fail(f"update {u.update}: eval_cost {u.eval_cost} != total cost of rollout 0 {total0}")
         if list(u.samples[0:p]) != list(u.before.mean):
             fail(f"update {u.update}: rollout 0 is not the mean of the distribution before")

@@ -33,6 +33,16 @@ fn main() {
             config("a", 2, "episodic", 0.0, 2000),
         ),
         (
+            "A1, no step costs",
+            RunConfig {
+                recording: Some(session::RecordingSection {
+                    step_costs: false,
+                    ..Default::default()
+                }),
+                ..config("a", 2, "episodic", 0.0, 2000)
+            },
+        ),
+        (
             "P=10, N=101, K=15, per-time-step",
             config("b", 10, "per-time-step", 0.0, 1000),
         ),
@@ -78,6 +88,10 @@ fn main() {
     }
     pipeline_cases(&dir, &filter);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn without_step_costs(config: String) -> String {
+    format!("{config}\n[recording]\nstep_costs = false\n")
 }
 
 /// The multiprocess pipeline (`supervisor run`, 3 workers) with and without the recorder
@@ -132,6 +146,17 @@ fn pipeline_cases(dir: &Path, filter: &[String]) {
         // One core left for the recorder: what recording costs when it does not compete with
         // the rollouts for the CPU.
         ("pipeline T-ball, 1 worker", 1000, tball(1000, 1)),
+        // `recording.step_costs = false`: totals only (both are episodic runs).
+        (
+            "pipeline A1, 3 workers, no step costs",
+            2000,
+            without_step_costs(via_point(2000, 0.0)),
+        ),
+        (
+            "pipeline T-ball, 2 workers, no step costs",
+            1000,
+            without_step_costs(tball(1000, 2)),
+        ),
     ];
     let mut id = 0u32;
     for (name, updates, text) in cases {

@@ -279,6 +279,9 @@ pub fn config_to_toml(cfg: &RunConfig) -> String {
         if let Some(mb) = r.split_mb {
             t.insert("split_mb".into(), int(mb));
         }
+        if !r.step_costs {
+            t.insert("step_costs".into(), Value::Boolean(false));
+        }
         root.insert("recording".into(), Value::Table(t));
     }
     if let Some(p) = &cfg.pipeline {

@@ -126,6 +126,7 @@ pub fn run_recorder(cli: &RecorderArgs) -> anyhow::Result<()> {
         None => RunFiles::create(&out)?,
     };
     writer.split_at_mb(ctx.config.recording_split_mb());
+    writer.record_step_costs(ctx.config.recording_step_costs());
     // A round's updates go to the OS in one `write` (see `State::write_complete`).
     writer.hold_output();
     // Where a resumed run starts: the supervisor's start file, read at once, not the origin

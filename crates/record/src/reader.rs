@@ -684,7 +684,7 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
 }
 
 /// Reads and decodes a recording slim ([`Recording::slim`]): of `/update` only the first and the
-/// last are kept, without their bulk (`samples`, `cost_per_step`, `cost_terminal` and `weights`
+/// last are kept, without their bulk (`samples`, `cost_per_step`, `cost_terminal`, `cost_total` and `weights`
 /// left empty), and `/summary`, `/rollout` and `/log` are not kept; every update's scalars are
 /// in the crate's digest (the learning curve, what `analyze` needs). [`read_recording`] reads
 /// every message whole.
@@ -746,6 +746,7 @@ fn read(
                     u.samples = Vec::new();
                     u.cost_per_step = Vec::new();
                     u.cost_terminal = Vec::new();
+                    u.cost_total = Vec::new();
                     u.weights = Vec::new();
                     // The first and the last: what joining compares.
                     rec.updates.truncate(1);
@@ -977,10 +978,12 @@ mod tests {
             for (s, w) in slim.updates.iter().zip(ends) {
                 assert!(s.samples.is_empty() && s.cost_per_step.is_empty());
                 assert!(s.cost_terminal.is_empty() && s.weights.is_empty());
+                assert!(s.cost_total.is_empty());
                 let bulk = proto::Update {
                     samples: w.samples.clone(),
                     cost_per_step: w.cost_per_step.clone(),
                     cost_terminal: w.cost_terminal.clone(),
+                    cost_total: w.cost_total.clone(),
                     weights: w.weights.clone(),
                     ..s.clone()
                 };

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use pi2cma::{CostBatch, Distribution, UpdateRule};
+use pi2cma::{CostBatch, Distribution, UpdateRule, Weighting};
 
 use crate::{
     distribution_from_proto, hyperparameters_from_proto, proto, read_recording_slim_with,
@@ -55,8 +55,11 @@ fn recompute(
     let before = distribution_from_proto(u.before.as_ref().ok_or_else(|| e("no `before`".into()))?)
         .map_err(|w| e(format!("before: {w}")))?;
     let (k, p, n) = (u.rollouts as usize, u.dim as usize, u.steps as usize);
+    // Recorded with `recording.step_costs = false`: the totals stand for the trajectories.
+    let totals_only = u.cost_per_step.is_empty() && k * n > 0 && u.cost_total.len() == k;
     // A `before` of another P is the core's error (CostError::WrongDistribution), below.
-    if u.samples.len() != k * p || u.cost_per_step.len() != k * n || u.cost_terminal.len() != k {
+    let steps_ok = totals_only || u.cost_per_step.len() == k * n;
+    if u.samples.len() != k * p || !steps_ok || u.cost_terminal.len() != k {
         return Err(e(format!(
             "K = {k}, P = {p}, N = {n} but {} samples, {} step costs, {} terminal costs",
             u.samples.len(),
@@ -64,14 +67,29 @@ fn recompute(
             u.cost_terminal.len()
         )));
     }
+    if totals_only && matches!(hp.weighting, Weighting::PerTimeStep { .. }) {
+        return Err(e(
+            "no step costs recorded (recording.step_costs = false), which a per-time-step \
+             update needs"
+                .into(),
+        ));
+    }
     let basis = run
         .map(|r| r.basis_activations.as_slice())
         .filter(|b| !b.is_empty());
     let mut rule = UpdateRule::new(hp, p, n, basis).map_err(|x| e(x.to_string()))?;
     let mut costs = CostBatch::new(k, n);
+    let zeros = vec![0.0; if totals_only { n } else { 0 }];
     for r in 0..k {
+        // Episodic weighting weighs rollout r by its total alone; zero steps and the total as
+        // terminal cost give that total back bit for bit (total_cost adds zeros to 0.0).
+        let (steps, terminal) = if totals_only {
+            (zeros.as_slice(), u.cost_total[r])
+        } else {
+            (&u.cost_per_step[r * n..(r + 1) * n], u.cost_terminal[r])
+        };
         costs
-            .insert(r, &u.cost_per_step[r * n..(r + 1) * n], u.cost_terminal[r])
+            .insert(r, steps, terminal)
             .map_err(|x| e(x.to_string()))?;
     }
     let (after, weights) = rule

@@ -43,6 +43,8 @@ struct StartJob {
     resumed_from: Option<String>,
     /// `recording.split_mb`.
     split_mb: Option<u64>,
+    /// `recording.step_costs`.
+    step_costs: bool,
 }
 
 struct UpdateJob {
@@ -107,6 +109,7 @@ fn write_job(w: &mut RunFiles, job: Job, progress: bool) -> Result<(), RecordErr
     match job {
         Job::Start(s) => {
             w.split_at_mb(s.split_mb);
+            w.record_step_costs(s.step_costs);
             fn named(list: &[(String, f64)]) -> Vec<(&str, f64)> {
                 list.iter().map(|(n, v)| (n.as_str(), *v)).collect()
             }
@@ -457,6 +460,7 @@ impl Observer for McapRecorder {
             previous_settings: self.previous_settings.clone(),
             resumed_from: self.resumed_from.clone(),
             split_mb: config.recording_split_mb(),
+            step_costs: config.recording_step_costs(),
         })));
         self.hp = Some(hp);
         self.last_ns = now_ns();

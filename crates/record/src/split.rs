@@ -417,6 +417,8 @@ pub struct RunFiles {
     last_settings: Vec<(String, f64)>,
     /// [`RunFiles::hold_output`]: for every part's writer.
     held: bool,
+    /// [`RunFiles::record_step_costs`]: for every part's writer.
+    step_costs: bool,
 }
 
 impl RunFiles {
@@ -446,6 +448,7 @@ impl RunFiles {
             create_at_start: false,
             last_settings: Vec::new(),
             held: false,
+            step_costs: true,
         })
     }
 
@@ -480,6 +483,7 @@ impl RunFiles {
             create_at_start: true,
             last_settings: Vec::new(),
             held: false,
+            step_costs: true,
         })
     }
 
@@ -498,12 +502,21 @@ impl RunFiles {
         }
     }
 
+    /// As [`RunWriter::record_step_costs`], for this part and the ones after it.
+    pub fn record_step_costs(&mut self, on: bool) {
+        self.step_costs = on;
+        if let Some(w) = &mut self.writer {
+            w.record_step_costs(on);
+        }
+    }
+
     /// A part's writer, holding its output if [`RunFiles::hold_output`] said so.
     fn create_part(&self, path: &Path) -> Result<RunWriter<FileSink>, RecordError> {
         let mut w = RunWriter::create(path)?;
         if self.held {
             w.hold_output();
         }
+        w.record_step_costs(self.step_costs);
         Ok(w)
     }
 
@@ -836,7 +849,10 @@ mod tests {
     fn record(path: &Path, updates: u64, split_mb: Option<u64>) -> pi2cma::Distribution {
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(updates);
-        cfg.recording = Some(session::RecordingSection { split_mb });
+        cfg.recording = Some(session::RecordingSection {
+            split_mb,
+            ..Default::default()
+        });
         crate::testing::record_session(&cfg, 1, path)
     }
 
@@ -1006,7 +1022,10 @@ mod tests {
 
         let mut cfg = session::RunConfig::default_config();
         cfg.run.updates = Some(100);
-        cfg.recording = Some(session::RecordingSection { split_mb: Some(1) });
+        cfg.recording = Some(session::RecordingSection {
+            split_mb: Some(1),
+            ..Default::default()
+        });
         cfg.schedule[0].from_update = boundary;
         crate::testing::record_session(&cfg, 1, &path);
         let parts: Vec<Recording> = recording_parts(&path)

@@ -224,6 +224,8 @@ pub struct RunWriter<W: Write + Seek> {
     buf: Vec<u8>,
     /// Bytes of messages written, before compression.
     bytes: u64,
+    /// Whether `/update` carries the K × N step costs ([`RunWriter::record_step_costs`]).
+    step_costs: bool,
 }
 
 /// What [`RunWriter::create`] writes to: the file (reserving its blocks ahead) behind a buffer
@@ -312,6 +314,7 @@ impl<W: Write + Seek> RunWriter<W> {
             sequence: 0,
             buf: Vec::new(),
             bytes: 0,
+            step_costs: true,
         })
     }
 
@@ -472,6 +475,14 @@ impl<W: Write + Seek> RunWriter<W> {
         self.passes.store(false, Ordering::Relaxed);
     }
 
+    /// With `false` (`recording.step_costs = false`), `/update` leaves `cost_per_step` empty:
+    /// a T-ball update's 91.5 kB become ~11 kB, an A1 update's 15 kB ~3 kB. Each rollout's
+    /// terminal and total cost are still recorded, and with episodic weighting, which weighs
+    /// rollouts by their totals alone, every update is still recomputed exactly from them.
+    pub fn record_step_costs(&mut self, on: bool) {
+        self.step_costs = on;
+    }
+
     /// `/update`, `/summary` and one `/rollout` per rollout, then a flush: after this returns,
     /// the update survives a SIGKILL of this process (after the next [`RunWriter::flush`] if
     /// the output is held).
@@ -491,6 +502,7 @@ impl<W: Write + Seek> RunWriter<W> {
             });
         }
         let terminal: Vec<f64> = (0..k).map(|r| u.costs.terminal(r)).collect();
+        let totals: Vec<f64> = (0..k).map(|r| u.costs.total(r)).collect();
         let after = distribution_to_proto(u.after);
         let msg = proto::Update {
             timestamp: Some(timestamp(now)),
@@ -515,8 +527,13 @@ impl<W: Write + Seek> RunWriter<W> {
             task_settings: settings(u.task_settings),
             batch_start_ns: u.batch_start_ns,
             batch_end_ns: u.batch_end_ns,
+            cost_total: totals,
         };
-        self.put_with_step_costs(now, &msg, u.costs)?;
+        if self.step_costs {
+            self.put_with_step_costs(now, &msg, u.costs)?;
+        } else {
+            self.put(CHANNEL_UPDATE, now, &msg)?;
+        }
         let summary = proto::UpdateSummary {
             timestamp: Some(timestamp(now)),
             update: s.update,

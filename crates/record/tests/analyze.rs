@@ -228,7 +228,10 @@ fn experiment_joins_the_parts_of_a_split_recording_into_one_session() {
     let dir = scratch::scratch("experiment-split");
     let mut cfg = RunConfig::default_config();
     cfg.run.updates = Some(150);
-    cfg.recording = Some(session::RecordingSection { split_mb: Some(1) });
+    cfg.recording = Some(session::RecordingSection {
+        split_mb: Some(1),
+        ..Default::default()
+    });
     let first = dir.join("split.mcap");
     let mut rec = McapRecorder::create(&first).unwrap();
     run_session(&cfg, 1, &mut rec).unwrap();

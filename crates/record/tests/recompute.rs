@@ -159,3 +159,44 @@ fn a_changed_recording_no_longer_matches() {
     let report = verify(&rec).unwrap();
     assert_eq!(report.mismatches, vec![1]);
 }
+
+/// `recording.step_costs = false`: no K × N step costs in the file, each rollout's total
+/// (`cost_total`) instead, from which every update of an episodic run still recomputes bit
+/// for bit, at a fraction of the bytes. With step costs, `cost_total` is their sum as the core
+/// adds it.
+#[test]
+fn without_step_costs_every_update_still_recomputes_from_the_totals() {
+    let full = RunConfig::default_config();
+    let text = format!(
+        "{}\n[recording]\nstep_costs = false\n",
+        session::DEFAULT_CONFIG
+    );
+    let light = RunConfig::parse(&text, std::path::Path::new("light.toml")).unwrap();
+    let with = read_recording(&record(&full, 3, "with-steps.mcap")).unwrap();
+    let without = read_recording(&record(&light, 3, "without-steps.mcap")).unwrap();
+    assert_eq!(without.updates.len(), 40);
+    for (w, o) in with.updates.iter().zip(&without.updates) {
+        let (k, n) = (w.rollouts as usize, w.steps as usize);
+        assert_eq!(w.cost_per_step.len(), k * n);
+        assert!(o.cost_per_step.is_empty());
+        assert_eq!(o.cost_terminal, w.cost_terminal);
+        assert_eq!(o.cost_total, w.cost_total);
+        for r in 0..k {
+            let total =
+                pi2cma::total_cost(&w.cost_per_step[r * n..(r + 1) * n], w.cost_terminal[r]);
+            assert_eq!(w.cost_total[r].to_bits(), total.to_bits());
+        }
+        assert_eq!(o.after, w.after, "update {}", w.update);
+    }
+    let report = verify(&without).unwrap();
+    assert_eq!(report.updates, 40);
+    assert!(report.mismatches.is_empty(), "{report:?}");
+    // A step cost changed in a full recording is caught; a total changed here is too.
+    let mut tampered = without.clone();
+    tampered.updates[7].cost_total[4] += 1.0;
+    let report = verify(&tampered).unwrap();
+    assert_eq!(report.mismatches.len(), 1, "{report:?}");
+    let size = |p: &str| std::fs::metadata(tmp(p)).unwrap().len();
+    let (big, small) = (size("with-steps.mcap"), size("without-steps.mcap"));
+    assert!(small * 2 < big, "{small} of {big} bytes");
+}

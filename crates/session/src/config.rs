@@ -398,7 +398,7 @@ pub struct ScheduleEntry {
 pub const CONTINUAL_SPLIT_MB: u64 = 1024;
 
 /// Settings of the run's MCAP recording (crate `record`).
-#[derive(Debug, Clone, PartialEq, Default, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RecordingSection {
     /// Split the recording into parts of about this many MB (messages before compression): a
@@ -406,6 +406,20 @@ pub struct RecordingSection {
     /// that grows without end. Unset: one file, except for a continual run
     /// ([`RunConfig::recording_split_mb`]).
     pub split_mb: Option<u64>,
+    /// Record the K × N step costs of every update (default). `false` keeps each rollout's
+    /// terminal and total cost only: files 5–8× smaller and less for the recorder to write,
+    /// and with episodic weighting every update is still recomputed exactly from the totals;
+    /// refused with per-time-step weighting, whose updates need the step costs.
+    pub step_costs: bool,
+}
+
+impl Default for RecordingSection {
+    fn default() -> Self {
+        Self {
+            split_mb: None,
+            step_costs: true,
+        }
+    }
 }
 
 /// Settings of the multiprocess pipeline (crates `wire`, `pipeline`, `supervisor`).
@@ -994,6 +1008,15 @@ impl RunConfig {
                 "recording.split_mb",
                 0,
                 "must be > 0 (leave it out for one file)",
+            ));
+        }
+        if !self.recording_step_costs() && matches!(self.weighting(), Weighting::PerTimeStep { .. })
+        {
+            return Err(self.invalid(
+                "recording.step_costs",
+                false,
+                "needs optimizer.weighting = \"episodic\": a per-time-step update is recomputed \
+                 from the step costs, which the recording would not have",
             ));
         }
         if let Some(p) = &self.pipeline {
@@ -1724,6 +1747,11 @@ impl RunConfig {
             .or_else(|| self.run.updates.is_none().then_some(CONTINUAL_SPLIT_MB))
     }
 
+    /// Whether the recording carries the step costs (`recording.step_costs`, default true).
+    pub fn recording_step_costs(&self) -> bool {
+        self.recording.as_ref().is_none_or(|r| r.step_costs)
+    }
+
     /// The pipeline settings, or their defaults when the config has no `[pipeline]` section.
     pub fn pipeline(&self) -> PipelineSection {
         self.pipeline.clone().unwrap_or_default()
@@ -2038,6 +2066,30 @@ mod tests {
             let split = format!("{text}\n[recording]\nsplit_mb = 5\n");
             assert_eq!(parse(&split).unwrap().recording_split_mb(), Some(5));
         }
+    }
+
+    /// `recording.step_costs` is on unless set off, and off only with episodic weighting; the
+    /// error names the field, the value and what it needs.
+    #[test]
+    fn recording_without_step_costs_needs_episodic_weighting() {
+        assert!(parse(DEFAULT_CONFIG).unwrap().recording_step_costs());
+        let off = format!("{DEFAULT_CONFIG}\n[recording]\nstep_costs = false\n");
+        assert!(!parse(&off).unwrap().recording_step_costs());
+        let on = format!("{DEFAULT_CONFIG}\n[recording]\nsplit_mb = 5\n");
+        assert!(parse(&on).unwrap().recording_step_costs());
+        let per_step = off.replace("weighting = \"episodic\"", "weighting = \"per-time-step\"");
+        assert_ne!(per_step, off);
+        let e = parse(&per_step).unwrap_err().to_string();
+        assert!(
+            e.contains("test.toml")
+                && e.contains("recording.step_costs")
+                && e.contains("false")
+                && e.contains("needs optimizer.weighting = \"episodic\""),
+            "{e}"
+        );
+        let typo = format!("{DEFAULT_CONFIG}\n[recording]\nstep_cost = false\n");
+        let e = parse(&typo).unwrap_err().to_string();
+        assert!(e.contains("step_cost"), "{e}");
     }
 
     /// A scheduled change past a bounded run's end is valid (a resumed run may reach it) but

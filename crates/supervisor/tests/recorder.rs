@@ -66,6 +66,7 @@ fn setup_with(name: &str, updates: u64, delay_ms: f64, run_lines: &str) -> Run {
         "gone" => 6,
         "supervisor-killed" => 7,
         "sweeper" => 8,
+        "light" => 9,
         _ => 2,
     };
     Run {
@@ -129,17 +130,22 @@ fn wait_bounded(child: &mut Child, secs: u64) -> std::process::ExitStatus {
     }
 }
 
+/// `run` recorded by a recorder started by hand, both ending as they should; the recording.
+fn record_whole_run(bin: &Path, run: &Run) -> record::Recording {
+    let out = run.dir.join("run.mcap");
+    let mut rec = KillOnDrop(start_recorder(bin, run, &out));
+    let mut sup = KillOnDrop(start_supervisor(bin, run));
+    assert!(wait_bounded(&mut sup.0, 120).success());
+    assert!(wait_bounded(&mut rec.0, 30).success());
+    read_recording(&out).unwrap()
+}
+
 #[test]
 fn a_pipeline_run_is_recorded_and_every_update_recomputes() {
     let bin = bin_dir();
     // 1 ms rollouts keep the run slow enough for an unoptimised recorder to keep up.
     let run = setup("full", 40, 1.0);
-    let out = run.dir.join("run.mcap");
-    let mut rec = KillOnDrop(start_recorder(&bin, &run, &out));
-    let mut sup = KillOnDrop(start_supervisor(&bin, &run));
-    assert!(wait_bounded(&mut sup.0, 120).success());
-    assert!(wait_bounded(&mut rec.0, 30).success());
-    let r = read_recording(&out).unwrap();
+    let r = record_whole_run(&bin, &run);
     assert_recorded(&r, 40);
     // Per rollout: a real worker and its timing.
     assert_eq!(r.rollouts.len(), 40 * 15);
@@ -158,6 +164,30 @@ fn a_pipeline_run_is_recorded_and_every_update_recomputes() {
         .logs
         .iter()
         .any(|l| l.event == "exit" && l.name == "recorder"));
+}
+
+/// `recording.step_costs = false` in the pipeline: the recorder writes no K × N step costs,
+/// and every update recomputes from the recorded totals (`assert_recorded`).
+#[test]
+fn a_pipeline_run_recorded_without_step_costs_recomputes_from_the_totals() {
+    let bin = bin_dir();
+    let run = setup("light", 30, 0.0);
+    let mut text = std::fs::read_to_string(&run.config).unwrap();
+    text.push_str("\n[recording]\nstep_costs = false\n");
+    std::fs::write(&run.config, text).unwrap();
+    let r = record_whole_run(&bin, &run);
+    assert_recorded(&r, 30);
+    for u in &r.updates {
+        assert!(u.cost_per_step.is_empty(), "update {}", u.update);
+        assert_eq!(u.cost_total.len(), 15);
+    }
+    for x in &r.rollouts {
+        let u = &r.updates[x.update as usize];
+        assert_eq!(
+            u.cost_total[x.rollout as usize].to_bits(),
+            x.total_cost.to_bits()
+        );
+    }
 }
 
 #[test]

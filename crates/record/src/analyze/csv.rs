@@ -256,11 +256,17 @@ fn update_rows(u: &proto::Update, upd: &mut Csv, rol: &mut Csv) {
     for r in 0..k {
         let step = u.cost_per_step.get(r * n..(r + 1) * n).unwrap_or(&[]);
         let terminal = u.cost_terminal.get(r).copied().unwrap_or(f64::NAN);
+        // Recorded without step costs (`recording.step_costs = false`), the total is what is
+        // left of them; older recordings have no `cost_total`.
+        let total = match u.cost_total.get(r) {
+            Some(t) if step.is_empty() => *t,
+            _ => pi2cma::total_cost(step, terminal),
+        };
         let mut row = vec![
             u.update.to_string(),
             r.to_string(),
             f(u.weights.get(r).copied().unwrap_or(f64::NAN)),
-            f(pi2cma::total_cost(step, terminal)),
+            f(total),
             f(terminal),
         ];
         row.extend(
@@ -271,6 +277,8 @@ fn update_rows(u: &proto::Update, upd: &mut Csv, rol: &mut Csv) {
                 .map(|x| f(*x)),
         );
         row.extend(step.iter().map(|x| f(*x)));
+        // No step costs: empty cells, so that every row has the header's columns.
+        row.resize(row.len() + n - step.len(), String::new());
         rol.row(row);
     }
 }
@@ -312,10 +320,23 @@ mod tests {
             Csv::new(&dir, "update_rollouts.csv", &[]).unwrap(),
         );
         update_rows(&u, &mut upd, &mut rol);
+        // Recorded without step costs: the recorded total, and empty step cells.
+        let light = proto::Update {
+            cost_per_step: Vec::new(),
+            cost_total: vec![batch.total(0)],
+            ..u.clone()
+        };
+        update_rows(&light, &mut upd, &mut rol);
         let path = rol.write().unwrap();
         let text = std::fs::read_to_string(path).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
-        let total = text.lines().nth(1).unwrap().split(',').nth(3).unwrap();
-        assert_eq!(total, f(batch.total(0)), "{text}");
+        let cells = |line: usize| -> Vec<String> {
+            let row = text.lines().nth(line).unwrap();
+            row.split(',').map(str::to_owned).collect()
+        };
+        assert_eq!(cells(1)[3], f(batch.total(0)), "{text}");
+        assert_eq!(cells(2)[3], f(batch.total(0)), "{text}");
+        assert_eq!(cells(2).len(), cells(1).len(), "{text}");
+        assert!(cells(2)[6..].iter().all(String::is_empty), "{text}");
     }
 }
