@@ -684,8 +684,8 @@ pub fn read_recording(path: &Path) -> Result<Recording, RecordError> {
 }
 
 /// Reads and decodes a recording slim ([`Recording::slim`]): of `/update` only the first and the
-/// last are kept, without their bulk (`samples`, `cost_per_step`, `cost_terminal`, `cost_total` and `weights`
-/// left empty), and `/summary`, `/rollout` and `/log` are not kept; every update's scalars are
+/// last are kept, without their bulk (`samples`, `cost_per_step`, `cost_terminal`, `cost_total`
+/// and `weights` left empty), and `/summary`, `/rollout` and `/log` are not kept; every update's scalars are
 /// in the crate's digest (the learning curve, what `analyze` needs). [`read_recording`] reads
 /// every message whole.
 pub fn read_recording_slim(path: &Path) -> Result<Recording, RecordError> {

@@ -534,6 +534,7 @@ impl<W: Write + Seek> RunWriter<W> {
         } else {
             self.put(CHANNEL_UPDATE, now, &msg)?;
         }
+        let totals = msg.cost_total;
         let summary = proto::UpdateSummary {
             timestamp: Some(timestamp(now)),
             update: s.update,
@@ -561,7 +562,7 @@ impl<W: Write + Seek> RunWriter<W> {
             msg.worker.push_str(worker);
             msg.start_ns = start_ns;
             msg.end_ns = end_ns;
-            msg.total_cost = u.costs.total(r);
+            msg.total_cost = totals[r];
             self.put(3, now, &msg)?;
         }
         self.end_chunk()
