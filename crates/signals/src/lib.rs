@@ -6,8 +6,8 @@
 //! before, installed its handler over it: a `nohup supervisor run &` stopped its run when the
 //! user logged out), and a process started without job control keeps Ctrl-Z ignored. SIGINT and
 //! SIGTERM are always taken: a shell without job control ignores SIGINT in every background
-//! job it starts, by the way, not as a wish of the user, and a script's or test harness's
-//! `kill -INT` must still stop a run (keeping that ignore made them hang).
+//! job it starts, as a side effect rather than the user's wish, and a script's or test
+//! harness's `kill -INT` must still stop a run (keeping that ignore made them hang).
 //!
 //! Not a general signal library: one delivery per process, a handful of signals, no masks.
 
