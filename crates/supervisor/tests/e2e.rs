@@ -1789,12 +1789,7 @@ fn sighup_stops_a_run_unless_started_ignored_as_nohup_does_and_the_signal_is_nam
         run.wait_status("3 updates", |s| updates_in(s) >= 3);
         signal(run.child.id(), "-HUP");
     }
-    plain.wait_exit(Duration::from_secs(10), 130);
-    let text = plain.text();
-    assert!(
-        text.contains("SIGHUP received: stopping") && text.contains("interrupted (SIGHUP)"),
-        "{text}"
-    );
+    assert_interrupted_by(&mut plain, "SIGHUP");
     // Alive and learning after the hangup, and said why at the start.
     let before = updates_in(&nohup.ctl_ok(&["status"]));
     nohup.wait_status("more updates after SIGHUP", |s| updates_in(s) > before + 3);
@@ -1806,14 +1801,20 @@ fn sighup_stops_a_run_unless_started_ignored_as_nohup_does_and_the_signal_is_nam
         nohup.text()
     );
     signal(nohup.child.id(), "-TERM");
-    nohup.wait_exit(Duration::from_secs(10), 130);
-    let text = nohup.text();
-    assert!(
-        text.contains("SIGTERM received: stopping") && text.contains("interrupted (SIGTERM)"),
-        "{text}"
-    );
+    assert_interrupted_by(&mut nohup, "SIGTERM");
     assert_nothing_left(&plain);
     assert_nothing_left(&nohup);
+}
+
+/// `run` ends interrupted (exit 130) and names `signal` as it stops and in its summary.
+fn assert_interrupted_by(run: &mut Run, signal: &str) {
+    run.wait_exit(Duration::from_secs(10), 130);
+    let text = run.text();
+    assert!(
+        text.contains(&format!("{signal} received: stopping"))
+            && text.contains(&format!("interrupted ({signal})")),
+        "{text}"
+    );
 }
 
 /// iceoryx2 catches SIGABRT and SIGQUIT along with SIGINT and SIGTERM, only to note them:
